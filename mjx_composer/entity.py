@@ -1,0 +1,403 @@
+"""`Entity`: a reusable piece of a scene that owns its own `mujoco.MjSpec`.
+
+Entities are composed into a tree with `attach`. Composition is *lazy*: each
+entity keeps its own, untouched spec (what `_build` made), and the tree is only
+merged into one spec, on a copy, when the environment compiles. That keeps
+three composer guarantees that MjSpec's attach-by-reference cannot:
+
+* the same entity class can be instantiated and attached many times;
+* `detach()` restores the tree exactly (a child spec attached by reference
+  can never be compiled or attached again);
+* element handles taken from an entity's own spec (`self._hand_site`) stay the
+  handles users bind to; the compiler resolves them to compiled indices.
+
+Names of attached elements are prefixed with `"<entity name>/"`, so a site
+`hand` of an arm attached as `arm` compiles to `arm/hand`, and the attachment
+frame body (which may carry a freejoint) is named `arm/`, as in dm_control.
+
+Hooks. The build-time hooks `initialize_episode_mjcf(random_state)` and
+`after_compile(physics, random_state)` run once on the host when the
+environment is built (with a `numpy.random.RandomState`). The per-episode and
+per-step hooks are pure functions on the device: they take a `Physics` and a
+JAX PRNG key and must return the new `Physics`. Unlike composer, they cannot
+mutate anything in place, and must not keep per-world state on `self` (declare
+it in `Task.initial_task_state` instead).
+"""
+
+from __future__ import annotations
+
+import abc
+import weakref
+from typing import Iterator
+
+import jax.numpy as jnp
+import mujoco
+
+from mjx_composer import physics as physics_lib
+from mjx_composer.utils import transformations as tr
+
+_DEFAULT_SPEC_NAME = 'MuJoCo Model'
+
+
+class Entity(abc.ABC):
+  """The base class for robots, props and arenas.
+
+  Subclasses implement `_build` (create the spec and remember element handles)
+  and the `mjcf_model` property, and may override `_build_observables` and the
+  hooks. The constructor is not meant to be overridden.
+  """
+
+  def __init__(self, *args, **kwargs):
+    self._parent = None            # weakref to the parent entity
+    self._attached: list[Entity] = []
+    self._attachment_frame = None  # MjsBody in the parent's own spec
+    observable_options = kwargs.pop('observable_options', None)
+    self._build(*args, **kwargs)
+    spec = self.mjcf_model
+    if not isinstance(spec, mujoco.MjSpec):
+      raise TypeError(f'{type(self).__name__}.mjcf_model must return a '
+                      f'mujoco.MjSpec, got {type(spec).__name__}.')
+    if not spec.modelname or spec.modelname == _DEFAULT_SPEC_NAME:
+      spec.modelname = type(self).__name__.lower()
+    if '/' in spec.modelname:
+      raise ValueError(f'Entity name {spec.modelname!r} must not contain "/".')
+    self._observables = self._build_observables()
+    self._observables.set_options(observable_options)
+
+  @abc.abstractmethod
+  def _build(self, *args, **kwargs):
+    """Creates the entity's `MjSpec` and any element handles it keeps."""
+
+  def _build_observables(self):
+    """Returns this entity's `Observables`; override to declare your own."""
+    from mjx_composer.observation import observable  # pylint: disable=g-import-not-at-top
+    return observable.Observables(self)
+
+  @property
+  @abc.abstractmethod
+  def mjcf_model(self) -> mujoco.MjSpec:
+    """The entity's own `mujoco.MjSpec` (never the composed one)."""
+
+  @property
+  def name(self) -> str:
+    """The entity name, used as the prefix `"<name>/"` when attached."""
+    return self.mjcf_model.modelname
+
+  @property
+  def full_identifier(self) -> str:
+    """Prefix of this entity's compiled names: '' at the root, 'a/b/' below."""
+    parent = self.parent
+    if parent is None:
+      return ''
+    return parent.full_identifier + self.name + '/'
+
+  @property
+  def observables(self):
+    return self._observables
+
+  # -- hooks ---------------------------------------------------------------
+  # Build time (host). `random_state` is a numpy RandomState.
+
+  def initialize_episode_mjcf(self, random_state):
+    """Edits the spec before compilation. Runs once, at environment build."""
+
+  def after_compile(self, physics, random_state):
+    """Runs once after compilation; may return a Physics whose model is kept."""
+
+  # Device (pure). Each returns the new Physics.
+
+  def initialize_episode(self, physics, key):
+    """Sets up the episode (e.g. randomizes poses); returns the Physics."""
+    return physics
+
+  def before_step(self, physics, key):
+    """Runs before the control step's sub-steps; returns the Physics."""
+    return physics
+
+  def before_substep(self, physics, key):
+    """Runs before each physics sub-step; returns the Physics."""
+    return physics
+
+  def after_substep(self, physics, key):
+    """Runs after each physics sub-step; returns the Physics."""
+    return physics
+
+  def after_step(self, physics, key):
+    """Runs after the control step's sub-steps; returns the Physics."""
+    return physics
+
+  # -- tree ----------------------------------------------------------------
+
+  @property
+  def parent(self) -> Entity | None:
+    return self._parent() if self._parent is not None else None
+
+  @property
+  def attachment_site(self):
+    """Where children attach by default: this entity's worldbody."""
+    return self.mjcf_model.worldbody
+
+  def iter_entities(self, exclude_self=False) -> Iterator[Entity]:
+    """Depth-first pre-order over the tree, children in attachment order."""
+    if not exclude_self:
+      yield self
+    for child in self._attached:
+      yield from child.iter_entities()
+
+  def attach(self, entity: Entity, attach_site=None) -> mujoco.MjsBody:
+    """Attaches `entity` below this one and returns its attachment frame.
+
+    Args:
+      entity: an entity with no parent.
+      attach_site: an `MjsSite` or `MjsBody` of this entity's own spec; the
+        frame takes the site's pose. Defaults to `self.attachment_site`.
+
+    Returns:
+      The attachment frame: an `MjsBody` named `"<entity name>/"` in this
+      entity's spec that holds the child. Add a freejoint to it
+      (`frame.add_freejoint()`) to make the child free, or edit its
+      `pos`/`quat` to move it.
+    """
+    if not isinstance(entity, Entity):
+      raise TypeError(f'Can only attach an Entity, got {type(entity).__name__}.')
+    if entity is self or any(e is self for e in entity.iter_entities()):
+      raise ValueError('Cannot attach an entity to itself or its descendant.')
+    if entity.parent is not None:
+      raise ValueError(
+          f'Entity {entity.name!r} is already attached to '
+          f'{entity.parent.name!r}; detach() it first, or build another '
+          'instance to attach it twice.')
+    for sibling in self._attached:
+      if sibling.name == entity.name:
+        raise ValueError(
+            f'{self.name!r} already has an attached entity named '
+            f'{entity.name!r}: compiled names would clash. Give each instance '
+            'a distinct name (its mjcf_model.modelname).')
+    spec = self.mjcf_model
+    site = self.attachment_site if attach_site is None else attach_site
+    if isinstance(site, mujoco.MjsSite):
+      if not any(s is site for s in spec.sites):
+        raise ValueError(f'attach_site {site.name!r} is not a site of '
+                         f'{self.name!r}\'s own spec.')
+      frame = site.parent.add_body(name=entity.name + '/')
+      frame.pos = site.pos
+      frame.quat = site.quat
+      frame.alt = site.alt
+    elif isinstance(site, mujoco.MjsBody):
+      if not any(b is site for b in spec.bodies):
+        raise ValueError(f'attach_site {site.name!r} is not a body of '
+                         f'{self.name!r}\'s own spec.')
+      frame = site.add_body(name=entity.name + '/')
+    else:
+      raise TypeError('attach_site must be an MjsSite or MjsBody, got '
+                      f'{type(site).__name__}.')
+    entity._parent = weakref.ref(self)  # pylint: disable=protected-access
+    entity._attachment_frame = frame  # pylint: disable=protected-access
+    self._attached.append(entity)
+    return frame
+
+  def detach(self):
+    """Detaches this entity from its parent, restoring the parent's spec."""
+    parent = self.parent
+    if parent is None:
+      raise RuntimeError('Cannot detach an entity that is not attached.')
+    parent.mjcf_model.delete(self._attachment_frame)
+    parent._attached.remove(self)  # pylint: disable=protected-access
+    self._parent = None
+    self._attachment_frame = None
+
+  @property
+  def attachment_frame(self) -> mujoco.MjsBody | None:
+    """The body in the parent's spec that holds this entity, if attached."""
+    return self._attachment_frame
+
+  @property
+  def root_body(self) -> mujoco.MjsBody:
+    """The attachment frame if attached, else this entity's worldbody."""
+    if self._attachment_frame is not None:
+      return self._attachment_frame
+    return self.mjcf_model.worldbody
+
+  # -- composition (host, at compile time) ----------------------------------
+
+  def compose(self) -> tuple[mujoco.MjSpec, dict[int, tuple]]:
+    """Merges this entity's tree into a fresh spec.
+
+    Returns:
+      The composed spec (a copy: no entity's own spec is modified), and a map
+      `id(handle) -> (handle, kind name, composed handle)` for every element
+      of every entity in the tree, where `composed handle` is the element in
+      the composed spec (its `.name` is the fully qualified name).
+    """
+    spec = self.mjcf_model.copy()
+    handles = {}
+    for (kind, original), (_, copied) in zip(
+        physics_lib.iter_elements(self.mjcf_model),
+        physics_lib.iter_elements(spec)):
+      if kind == 'body' and copied is spec.worldbody:
+        pass
+      elif not copied.name:
+        # Unnamed elements get a stable name so they can be resolved.
+        copied.name = f'unnamed_{kind}_{len(handles)}'
+      handles[id(original)] = (original, kind, copied)
+    for child in self._attached:
+      child_spec, child_handles = child.compose()
+      frame = handles[id(child._attachment_frame)][2]  # pylint: disable=protected-access
+      spec.attach(child_spec, prefix=child.name + '/', frame=frame.add_frame())
+      # The child's own worldbody stands for its attachment frame.
+      child_world = child.mjcf_model.worldbody
+      child_handles[id(child_world)] = (child_world, 'body', frame)
+      handles.update(child_handles)
+    return spec, handles
+
+  # -- frames and poses (device, pure) --------------------------------------
+
+  def global_vector_to_local_frame(self, physics, vec):
+    """Rotates a global vector (last axis 3 or 2) into this entity's frame."""
+    vec = jnp.asarray(vec)
+    xmat = physics.bind(self.root_body).xmat.reshape(3, 3)
+    if vec.shape[-1] == 3:
+      return vec @ xmat
+    if vec.shape[-1] == 2:
+      return vec @ xmat[:2, :2]
+    raise ValueError('`vec` should have its last dimension of size 2 or 3, '
+                     f'got shape {vec.shape}.')
+
+  def global_xmat_to_local_frame(self, physics, xmat):
+    """Expresses a global rotation matrix ((3,3) or (9,)) in this frame."""
+    xmat = jnp.asarray(xmat)
+    if xmat.shape not in ((3, 3), (9,)):
+      raise ValueError(f'`xmat` must have shape (3, 3) or (9,), got {xmat.shape}.')
+    self_xmat = physics.bind(self.root_body).xmat.reshape(3, 3)
+    return (self_xmat.T @ xmat.reshape(3, 3)).reshape(xmat.shape)
+
+  def _freejoint(self):
+    frame = self._attachment_frame
+    if frame is None:
+      return None
+    for joint in frame.joints:
+      if joint.type == mujoco.mjtJoint.mjJNT_FREE:
+        return joint
+    return None
+
+  def _require_frame(self):
+    if self._attachment_frame is None:
+      raise RuntimeError('No attachment frame found.')
+    return self._attachment_frame
+
+  def get_pose(self, physics):
+    """Returns `(position (3,), quaternion (4,))`.
+
+    Global coordinates (the freejoint's qpos) for a free entity; otherwise the
+    attachment frame's model pose relative to its parent body.
+    """
+    frame = self._require_frame()
+    joint = self._freejoint()
+    if joint is not None:
+      qpos = physics.bind(joint).qpos
+      return qpos[:3], qpos[3:]
+    binding = physics.bind(frame)
+    return binding.pos, binding.quat
+
+  def set_pose(self, physics, position=None, quaternion=None):
+    """Returns a Physics with the entity moved (quaternion normalised).
+
+    A free entity gets its freejoint's qpos written. A fixed entity gets its
+    attachment frame's *model* `body_pos`/`body_quat` written, which makes
+    those model fields per-world. Call `physics.forward()` before reading
+    derived quantities.
+    """
+    frame = self._require_frame()
+    joint = self._freejoint()
+    if joint is not None:
+      qpos = physics.bind(joint).qpos
+      if position is not None:
+        qpos = qpos.at[:3].set(jnp.asarray(position, qpos.dtype))
+      if quaternion is not None:
+        qpos = qpos.at[3:].set(tr.normalize(jnp.asarray(quaternion, qpos.dtype)))
+      return physics.bind(joint).set(qpos=qpos)
+    values = {}
+    if position is not None:
+      values['pos'] = position
+    if quaternion is not None:
+      values['quat'] = tr.normalize(jnp.asarray(quaternion, jnp.float32))
+    return physics.bind(frame).set(**values) if values else physics
+
+  def shift_pose(self, physics, position=None, quaternion=None,
+                 rotate_velocity=False):
+    """Translates by `position` and pre-multiplies the orientation.
+
+    New position = current + `position`; new quaternion = `quaternion ⊗
+    current`. With `rotate_velocity`, a free entity's linear velocity is
+    rotated by `quaternion` too (angular velocity is local and unchanged).
+    """
+    current_pos, current_quat = self.get_pose(physics)
+    new_pos = None if position is None else current_pos + jnp.asarray(position)
+    new_quat = None
+    if quaternion is not None:
+      quaternion = jnp.asarray(quaternion, current_quat.dtype)
+      new_quat = tr.quat_mul(quaternion, current_quat)
+      if rotate_velocity and self._freejoint() is not None:
+        linear, _ = self.get_velocity(physics)
+        physics = self.set_velocity(
+            physics, velocity=tr.rotate_vec(tr.normalize(quaternion), linear))
+    return self.set_pose(physics, new_pos, new_quat)
+
+  def get_velocity(self, physics):
+    """Returns `(linear (3,), angular (3,))` of a free entity's freejoint."""
+    joint = self._freejoint()
+    if joint is None:
+      raise ValueError('get_velocity needs a free entity (a freejoint on its '
+                       'attachment frame).')
+    qvel = physics.bind(joint).qvel
+    return qvel[:3], qvel[3:]
+
+  def set_velocity(self, physics, velocity=None, angular_velocity=None):
+    """Writes a free entity's freejoint qvel; a no-op (with a warning) else."""
+    joint = self._freejoint()
+    if joint is None:
+      import logging  # pylint: disable=g-import-not-at-top
+      logging.warning('set_velocity on a non-free entity %r does nothing.',
+                      self.name)
+      return physics
+    qvel = physics.bind(joint).qvel
+    if velocity is not None:
+      qvel = qvel.at[:3].set(jnp.asarray(velocity, qvel.dtype))
+    if angular_velocity is not None:
+      qvel = qvel.at[3:].set(jnp.asarray(angular_velocity, qvel.dtype))
+    return physics.bind(joint).set(qvel=qvel)
+
+  def configure_joints(self, physics, position):
+    """Writes qpos of this entity's own joints (not its children's)."""
+    joints = list(self.mjcf_model.joints)
+    return physics.bind(joints).set(qpos=position)
+
+
+class ModelWrapperEntity(Entity):
+  """An entity around an existing model: an MjSpec, an XML file or string.
+
+  Args:
+    mjcf_model: a `mujoco.MjSpec`, a path to an MJCF file (meshes and other
+      files are resolved relative to it), or an MJCF XML string.
+    assets: optional `{filename: bytes}` for an XML string's assets.
+    name: optional entity name (overrides the model's name).
+  """
+
+  def _build(self, mjcf_model, assets=None, name=None):
+    if isinstance(mjcf_model, mujoco.MjSpec):
+      spec = mjcf_model
+    elif isinstance(mjcf_model, str) and mjcf_model.lstrip().startswith('<'):
+      spec = mujoco.MjSpec.from_string(mjcf_model, assets=assets or {})
+    elif isinstance(mjcf_model, str) or hasattr(mjcf_model, '__fspath__'):
+      spec = mujoco.MjSpec.from_file(str(mjcf_model), assets=assets or {})
+    else:
+      raise TypeError('mjcf_model must be an MjSpec, an MJCF path or an XML '
+                      f'string, got {type(mjcf_model).__name__}.')
+    if name is not None:
+      spec.modelname = name
+    self._spec = spec
+
+  @property
+  def mjcf_model(self):
+    return self._spec
+
