@@ -232,7 +232,7 @@ class Environment:
         strip_singleton_buffer_dim=strip_singleton_obs_buffer_dim,
         pad_with_initial_value=(
             delayed_observation_padding == ObservationPadding.INITIAL_VALUE),
-        **({'groups': observation_groups} if observation_groups else {}))
+        groups=observation_groups, physics=self._host_physics())
 
   # -- properties ----------------------------------------------------------
 
@@ -470,10 +470,7 @@ class Environment:
     physics = self._run_hooks('before_step', physics, before_key, action)
     n = self._n_sub_steps
 
-    def substep(carry, i):
-      data, task_state, model_fields, obs_state = carry
-      model = base_model.replace(**model_fields) if model_fields else base_model
-      physics = self._make_physics(model, data, task_state)
+    def substep(physics, i):
       sub_key = jax.random.fold_in(substep_key, i)
       physics = self._run_hooks('before_substep', physics,
                                 jax.random.fold_in(sub_key, 0), action)
@@ -482,23 +479,34 @@ class Environment:
                                 jax.random.fold_in(sub_key, 1))
       self._per_world_fields(base_model, physics.model, allowed,
                              'before_substep/after_substep')
-      update_key = jax.random.fold_in(sub_key, 2)
-      obs_state = jax.lax.cond(
-          i < n - 1,
-          lambda o: self._updater.update(o, physics, update_key, i + 1),
-          lambda o: o, obs_state)
+      return physics, jax.random.fold_in(sub_key, 2)
+
+    def scanned_substep(carry, i):
+      data, task_state, model_fields, obs_state = carry
+      model = base_model.replace(**model_fields) if model_fields else base_model
+      physics, update_key = substep(
+          self._make_physics(model, data, task_state), i)
+      # Sub-steps 1..n-1 update the observations inside the scan; the updater
+      # skips, at trace time, every observable that cannot be sampled there.
+      obs_state = self._updater.update(obs_state, physics, update_key, i + 1,
+                                       substep_bounds=(1, n - 1))
       model_fields = {f: getattr(physics.model, f) for f in model_fields}
       return (physics.data, physics.task_state, model_fields, obs_state), None
 
     self._per_world_fields(base_model, physics.model, allowed, 'before_step')
-    carry = (physics.data, physics.task_state,
-             {f: getattr(physics.model, f) for f in allowed}, state.obs_state)
-    (data, task_state, model_fields, obs_state), _ = jax.lax.scan(
-        substep, carry, jnp.arange(n, dtype=jnp.int32))
-    model = base_model.replace(**model_fields) if model_fields else base_model
-    physics = self._make_physics(model, data, task_state)
+    obs_state = state.obs_state
+    if n > 1:
+      carry = (physics.data, physics.task_state,
+               {f: getattr(physics.model, f) for f in allowed}, obs_state)
+      (data, task_state, model_fields, obs_state), _ = jax.lax.scan(
+          scanned_substep, carry, jnp.arange(n - 1, dtype=jnp.int32))
+      model = base_model.replace(**model_fields) if model_fields else base_model
+      physics = self._make_physics(model, data, task_state)
+    # The last sub-step runs outside the scan: its observation update comes
+    # after the after_step hooks (composer's order) and needs no branch.
+    physics, _ = substep(physics, n - 1)
     physics = self._run_hooks('after_step', physics, after_key)
-    self._per_world_fields(model, physics.model, allowed, 'after_step')
+    self._per_world_fields(base_model, physics.model, allowed, 'after_step')
     obs_state = self._updater.update(obs_state, physics, obs_key, n)
     observation = self._updater.get_observation(obs_state)
 
@@ -518,7 +526,9 @@ class Environment:
     metrics = {'diverged': diverged.astype(jnp.float32),
                'episode_return': episode_return,
                'episode_length': steps}
-    metrics.update(self._task_metrics(physics))
+    # A diverged world's task metrics are NaN-laden: report zeros instead.
+    metrics.update({k: jnp.where(diverged, 0., v)
+                    for k, v in self._task_metrics(physics).items()})
     return State(
         data=physics.data, task_state=physics.task_state,
         model_fields={f: getattr(physics.model, f) for f in allowed},
@@ -549,8 +559,9 @@ def _diverged(data) -> jax.Array:
 def _as_key(key):
   key = jnp.asarray(key) if not isinstance(key, jax.Array) else key
   if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-    return key
-  if key.shape == (2,) and key.dtype == jnp.uint32:
+    if key.shape == ():
+      return key
+  elif key.shape == (2,) and key.dtype == jnp.uint32:
     return jax.random.wrap_key_data(key)
   raise ValueError('reset expects one PRNG key (jax.random.key(seed)); got an '
                    f'array of shape {key.shape} and dtype {key.dtype}. For a '

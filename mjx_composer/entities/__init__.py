@@ -1,0 +1,1 @@
+"""Bundled entities: arenas, robots and props built in code with MjSpec."""

@@ -1,0 +1,126 @@
+"""Shared fixtures: small composed scenes compiled once per test session."""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import pytest
+
+import mjx_composer as composer
+
+
+class Pendulum(composer.Robot):
+  """A hinged rod with a torque motor and a tip site."""
+
+  def _build(self, name='pendulum'):
+    spec = mujoco.MjSpec()
+    spec.modelname = name
+    body = spec.worldbody.add_body(name='rod', pos=[0, 0, 1])
+    self.joint = body.add_joint(name='hinge', type=mujoco.mjtJoint.mjJNT_HINGE,
+                                axis=[0, 1, 0], damping=0.1)
+    body.add_geom(name='rod', type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+                  size=[0.02, 0, 0], fromto=[0, 0, 0, 0, 0, -0.5],
+                  contype=0, conaffinity=0)
+    self.tip = body.add_site(name='tip', pos=[0, 0, -0.5])
+    self.motor = spec.add_actuator(
+        name='motor', target='hinge', trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        ctrlrange=[-1, 1], ctrllimited=True)
+    self._spec = spec
+
+  @property
+  def mjcf_model(self):
+    return self._spec
+
+  @property
+  def actuators(self):
+    return (self.motor,)
+
+
+class Ball(composer.Entity):
+
+  def _build(self, name='ball'):
+    spec = mujoco.MjSpec()
+    spec.modelname = name
+    self.geom = spec.worldbody.add_body(name='body').add_geom(
+        name='geom', type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0],
+        mass=0.1)
+    self._spec = spec
+
+  @property
+  def mjcf_model(self):
+    return self._spec
+
+
+class SwingTask(composer.Task):
+  """Swing the pendulum tip high; a free ball drops on the floor.
+
+  Terminates when the tip passes `terminate_above` (if set); the target
+  height is per-world task state, sampled per episode.
+  """
+
+  def __init__(self, terminate_above=None):
+    self.arena = composer.Arena()
+    self.arena.mjcf_model.worldbody.add_geom(
+        name='floor', type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1])
+    self.pendulum = Pendulum()
+    self.arena.attach(self.pendulum)
+    self.ball = Ball()
+    self.arena.add_free_entity(self.ball)
+    self.terminate_above = terminate_above
+    self.set_timesteps(control_timestep=0.01, physics_timestep=0.005)
+
+  @property
+  def root_entity(self):
+    return self.arena
+
+  @property
+  def task_observables(self):
+    tip = composer.observation.observable.Generic(
+        lambda physics: physics.bind(self.pendulum.tip).xpos)
+    tip.enabled = True
+    return {'tip': tip}
+
+  def initial_task_state(self):
+    return {'target': jnp.zeros(())}
+
+  def initialize_episode(self, physics, key):
+    angle_key, target_key, ball_key = jax.random.split(key, 3)
+    physics = physics.bind(self.pendulum.joint).set(
+        qpos=jax.random.uniform(angle_key, (1,), minval=-1, maxval=1))
+    physics = self.ball.set_pose(physics, position=jnp.concatenate([
+        jax.random.uniform(ball_key, (2,), minval=-1, maxval=1),
+        jnp.array([0.3])]))
+    return physics.update_task_state(
+        target=jax.random.uniform(target_key, (), minval=0.6, maxval=0.9))
+
+  def get_reward(self, physics):
+    return physics.bind(self.pendulum.tip).xpos[2] - physics.task_state['target']
+
+  def should_terminate_episode(self, physics):
+    if self.terminate_above is None:
+      return False
+    return physics.bind(self.pendulum.tip).xpos[2] > self.terminate_above
+
+  def get_discount(self, physics):
+    return jnp.where(self.should_terminate_episode(physics), 0., 1.)
+
+
+def make_swing_env(**kwargs):
+  task_kwargs = {k: kwargs.pop(k) for k in ('terminate_above',) if k in kwargs}
+  task = SwingTask(**task_kwargs)
+  return composer.Environment(task, **kwargs)
+
+
+@pytest.fixture(scope='session')
+def swing_env():
+  return make_swing_env(time_limit=0.05)
+
+
+@pytest.fixture(scope='session')
+def swing_fns(swing_env):
+  """Jitted single-world and batched reset/step of `swing_env`."""
+  return {
+      'reset': jax.jit(swing_env.reset),
+      'step': jax.jit(swing_env.step),
+      'vreset': jax.jit(jax.vmap(swing_env.reset)),
+      'vstep': jax.jit(jax.vmap(swing_env.step)),
+  }

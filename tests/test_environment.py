@@ -1,0 +1,432 @@
+"""Environment: hook order, stepping, episode ends, auto-reset, keys, errors."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+import mjx_composer as composer
+from mjx_composer import environment as environment_lib
+from tests import conftest
+
+# -- hook scheduling (inventory 8.1) ------------------------------------------
+
+_DEVICE_HOOKS = ('initialize_episode', 'before_step', 'before_substep',
+                 'after_substep', 'after_step')
+_H = {name: i for i, name in enumerate(_DEVICE_HOOKS)}
+_PHYSICS_TIMESTEP = 0.002
+_CONTROL_TIMESTEP = 0.01   # 5 sub-steps
+_N = 5
+
+
+def _check_and_count(physics, row, hook):
+  """Checks composer's invariants for one hook call, then counts it.
+
+  The task state holds `counts[row, hook]` and a `violations` counter; every
+  failed check adds one violation, so the test asserts on it afterwards.
+  """
+  counts = physics.task_state['counts']
+  mine = counts[row]
+  checks = []
+  bs, bss, ass, as_ = (mine[_H['before_step']], mine[_H['before_substep']],
+                       mine[_H['after_substep']], mine[_H['after_step']])
+  if hook == 'before_step':
+    checks += [as_ == bs, ass == bss]
+  elif hook in ('before_substep', 'after_substep'):
+    checks += [as_ == bs - 1]
+    if hook == 'after_substep':
+      checks += [ass == bss - 1]
+  elif hook == 'after_step':
+    checks += [bss == bs * _N]
+  if hook != 'initialize_episode':
+    checks.append(mine[_H['initialize_episode']] == 1)
+  # Physics time counts exactly the sub-steps taken this episode.
+  substeps = jnp.round(physics.time() / _PHYSICS_TIMESTEP).astype(jnp.int32)
+  checks.append(substeps == bss)
+  # Dispatch order: the previous participant has already run this hook.
+  if row > 0:
+    checks.append(counts[row - 1, _H[hook]] == mine[_H[hook]] + 1)
+  violations = physics.task_state['violations'] + sum(
+      jnp.logical_not(c).astype(jnp.int32) for c in checks)
+  counts = counts.at[row, _H[hook]].add(1)
+  return physics.update_task_state(counts=counts, violations=violations)
+
+
+class HookEntity(composer.Entity):
+  """An entity that counts its hooks; the root one has 4 motors."""
+
+  def _build(self, name, row, host_log, n_motors=0):
+    spec = mujoco.MjSpec()
+    spec.modelname = name
+    body = spec.worldbody.add_body(name='body')
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0],
+                  contype=0, conaffinity=0)
+    for i in range(n_motors):
+      joint = body.add_joint(name=f'j{i}', type=mujoco.mjtJoint.mjJNT_SLIDE,
+                             axis=[1, 0, 0])
+      spec.add_actuator(name=f'm{i}', target=joint.name,
+                        trntype=mujoco.mjtTrn.mjTRN_JOINT)
+    self._spec = spec
+    self.row = row
+    self.host_log = host_log
+
+  @property
+  def mjcf_model(self):
+    return self._spec
+
+  def initialize_episode_mjcf(self, random_state):
+    self.host_log.append((self.row, 'initialize_episode_mjcf'))
+
+  def after_compile(self, physics, random_state):
+    self.host_log.append((self.row, 'after_compile'))
+
+  def initialize_episode(self, physics, key):
+    return _check_and_count(physics, self.row, 'initialize_episode')
+
+  def before_step(self, physics, key):
+    return _check_and_count(physics, self.row, 'before_step')
+
+  def before_substep(self, physics, key):
+    return _check_and_count(physics, self.row, 'before_substep')
+
+  def after_substep(self, physics, key):
+    return _check_and_count(physics, self.row, 'after_substep')
+
+  def after_step(self, physics, key):
+    return _check_and_count(physics, self.row, 'after_step')
+
+
+class HookTask(composer.Task):
+  """Row 0 is the task, rows 1..9 the entities, row 10 the extra hooks."""
+
+  def __init__(self, host_log):
+    self.host_log = host_log
+    # The 9-entity tree 0->{1->{4->{8}, 5}, 2->{6, 7}, 3} of composer's test.
+    entities = [HookEntity(f'e{i}', 0, host_log, n_motors=4 if i == 0 else 0)
+                for i in range(9)]
+    for parent, children in ((0, (1, 2, 3)), (1, (4, 5)), (4, (8,)),
+                             (2, (6, 7))):
+      for child in children:
+        entities[parent].attach(entities[child])
+    self.entities = entities
+    for row, entity in enumerate(entities[0].iter_entities(), start=1):
+      entity.row = row
+    self.set_timesteps(_CONTROL_TIMESTEP, _PHYSICS_TIMESTEP)
+
+  @property
+  def root_entity(self):
+    return self.entities[0]
+
+  def initial_task_state(self):
+    return {'counts': jnp.zeros((11, len(_DEVICE_HOOKS)), jnp.int32),
+            'violations': jnp.zeros((), jnp.int32)}
+
+  def initialize_episode_mjcf(self, random_state):
+    self.host_log.append((0, 'initialize_episode_mjcf'))
+
+  def after_compile(self, physics, random_state):
+    self.host_log.append((0, 'after_compile'))
+
+  def initialize_episode(self, physics, key):
+    return _check_and_count(physics, 0, 'initialize_episode')
+
+  def before_step(self, physics, action, key):
+    physics = super().before_step(physics, action, key)
+    return _check_and_count(physics, 0, 'before_step')
+
+  def before_substep(self, physics, action, key):
+    return _check_and_count(physics, 0, 'before_substep')
+
+  def after_substep(self, physics, key):
+    return _check_and_count(physics, 0, 'after_substep')
+
+  def after_step(self, physics, key):
+    return _check_and_count(physics, 0, 'after_step')
+
+  def get_reward(self, physics):
+    return 0.
+
+
+def test_hook_scheduling_counts_order_and_time():
+  host_log = []
+  task = HookTask(host_log)
+  env = composer.Environment(task, time_limit=math.inf)
+  for name in ('initialize_episode', 'before_step', 'before_substep',
+               'after_substep', 'after_step'):
+    takes_action = name in ('before_step', 'before_substep')
+    def extra(physics, *args, _name=name):
+      return _check_and_count(physics, 10, _name)
+    env.add_extra_hook(name, extra)
+  # Build-time hooks ran once each, task first, then entities in
+  # depth-first attachment order.
+  order = [row for row, hook in host_log if hook == 'initialize_episode_mjcf']
+  assert order == list(range(10))
+  assert [h for _, h in host_log] == (['initialize_episode_mjcf'] * 10 +
+                                      ['after_compile'] * 10)
+  assert [e.name for e in task.root_entity.iter_entities()] == [
+      'e0', 'e1', 'e4', 'e8', 'e5', 'e2', 'e6', 'e7', 'e3']
+
+  reset, step = jax.jit(env.reset), jax.jit(env.step)
+  num_steps = 7
+  action = jnp.array([0.1, 0.2, 0.3, 0.4])
+  for episode in range(2):
+    state = reset(jax.random.key(episode))
+    for _ in range(num_steps):
+      state = step(state, action)
+    counts = np.asarray(state.task_state['counts'])
+    expected = np.array([1, num_steps, num_steps * _N, num_steps * _N,
+                         num_steps])
+    np.testing.assert_array_equal(counts, np.tile(expected, (11, 1)))
+    assert int(state.task_state['violations']) == 0
+    assert float(state.data.time) == pytest.approx(
+        num_steps * _CONTROL_TIMESTEP, rel=1e-5)
+    # The default Task.before_step copies the action into ctrl.
+    np.testing.assert_allclose(np.asarray(state.data.ctrl), action)
+
+
+def test_hook_checks_can_fail():
+  """The invariant checks above detect a wrongly ordered call."""
+  host_log = []
+  env = composer.Environment(HookTask(host_log))
+  state = jax.jit(env.reset)(jax.random.key(0))
+  physics = env.physics(state)
+  # Calling entity row 3's hook before row 2's breaks the order invariant.
+  physics = _check_and_count(physics, 3, 'before_step')
+  assert int(physics.task_state['violations']) > 0
+
+
+def test_build_hooks_see_untouched_time():
+  env = conftest.make_swing_env()
+  assert env.n_sub_steps == 2
+  assert env.control_timestep() == pytest.approx(0.01)
+
+
+# -- stepping and episode ends -------------------------------------------------
+
+
+def _leaf_values(x):
+  if jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
+    return np.asarray(jax.random.key_data(x))
+  return np.asarray(x)
+
+
+def assert_trees_equal(a, b, select=lambda x: x, select_b=None):
+  """Bitwise equality of two pytrees (PRNG keys compared by their data)."""
+  select_b = select_b or select
+  jax.tree.map(lambda x, y: np.testing.assert_array_equal(
+      select(_leaf_values(x)), select_b(_leaf_values(y))), a, b)
+
+
+def _rollout(step, state, actions):
+  states = []
+  for action in actions:
+    state = step(state, action)
+    states.append(state)
+  return states
+
+
+def test_observation_is_taken_at_end_of_control_step(swing_env, swing_fns):
+  state = swing_fns['reset'](jax.random.key(3))
+  physics = swing_env.physics(state)
+  np.testing.assert_allclose(state.observation['tip'][0],
+                             physics.bind(swing_env.task.pendulum.tip).xpos)
+  for _ in range(3):
+    state = swing_fns['step'](state, jnp.array([0.5]))
+    physics = swing_env.physics(state)
+    np.testing.assert_array_equal(
+        state.observation['tip'][0],
+        physics.bind(swing_env.task.pendulum.tip).xpos)
+
+
+def test_time_limit_truncates_with_task_discount(swing_env, swing_fns):
+  # time_limit 0.05 s at 0.01 s per control step: LAST after 5 steps.
+  state = swing_fns['reset'](jax.random.key(0))
+  assert state.first()
+  states = _rollout(swing_fns['step'], state, [jnp.zeros(1)] * 6)
+  step_types = [int(s.step_type) for s in states]
+  assert step_types == [1, 1, 1, 1, 2, 0]
+  last = states[4]
+  assert bool(last.truncated) and not bool(last.terminated)
+  assert float(last.discount) == 1.0
+  assert int(last.metrics['episode_length']) == 5
+  # The step after LAST starts a new episode (the action is ignored).
+  assert float(states[5].data.time) == 0.0
+  assert int(states[5].steps) == 0
+
+
+def test_termination_is_not_truncation():
+  env = conftest.make_swing_env(terminate_above=-10., time_limit=0.05)
+  state = jax.jit(env.reset)(jax.random.key(0))
+  state = jax.jit(env.step)(state, jnp.zeros(1))
+  assert state.last()
+  assert bool(state.terminated) and not bool(state.truncated)
+  assert float(state.discount) == 0.0
+
+
+def test_same_step_auto_reset():
+  env = conftest.make_swing_env(time_limit=0.02, auto_reset='same_step')
+  reset, step = jax.jit(env.reset), jax.jit(env.step)
+  state = reset(jax.random.key(1))
+  state = step(state, jnp.array([1.0]))
+  assert state.mid()
+  last = step(state, jnp.array([1.0]))
+  assert last.last() and bool(last.truncated)
+  assert int(last.metrics['episode_length']) == 2
+  # The state already holds the new episode: time 0, fresh observation.
+  assert float(last.data.time) == 0.0 and int(last.steps) == 0
+  physics = env.physics(last)
+  np.testing.assert_array_equal(last.observation['tip'][0],
+                                physics.bind(env.task.pendulum.tip).xpos)
+  assert not np.allclose(last.final_observation['tip'],
+                         last.observation['tip'])
+  following = step(last, jnp.array([1.0]))
+  assert following.mid() and int(following.steps) == 1
+
+
+# -- keys, batches, divergence --------------------------------------------------
+
+
+def test_same_key_same_episode(swing_fns):
+  actions = [jnp.array([a]) for a in (0.3, -0.7, 1.0, 0.2, -0.1, 0.5, 0.5)]
+  runs = []
+  for _ in range(2):
+    state = swing_fns['reset'](jax.random.key(42))
+    runs.append(_rollout(swing_fns['step'], state, actions))
+  for a, b in zip(*runs):
+    assert_trees_equal(a, b)
+  other = swing_fns['reset'](jax.random.key(43))
+  assert float(other.task_state['target']) != float(
+      swing_fns['reset'](jax.random.key(42)).task_state['target'])
+
+
+def test_world_does_not_depend_on_batch_size(swing_fns):
+  keys = jax.random.split(jax.random.key(7), 5)
+  actions = jax.random.uniform(jax.random.key(8), (6, 5, 1), minval=-1,
+                               maxval=1)
+  big = swing_fns['vreset'](keys)
+  small = swing_fns['vreset'](keys[2:3])
+  for t in range(6):
+    big = swing_fns['vstep'](big, actions[t])
+    small = swing_fns['vstep'](small, actions[t, 2:3])
+  assert_trees_equal(big, small, select=lambda x: x[2:3],
+                     select_b=lambda x: x)
+  # And a single un-batched world agrees too.
+  single = swing_fns['reset'](keys[2])
+  for t in range(6):
+    single = swing_fns['step'](single, actions[t, 2])
+  assert_trees_equal(small, single, select=lambda x: x[0],
+                     select_b=lambda x: x)
+
+
+def test_divergence_is_isolated_and_reset(swing_fns):
+  keys = jax.random.split(jax.random.key(0), 4)
+  states = swing_fns['vreset'](keys)
+  reference = swing_fns['vstep'](states, jnp.zeros((4, 1)))
+  poisoned = swing_fns['vstep'](
+      states, jnp.array([[0.], [jnp.nan], [0.], [0.]]))
+  diverged = np.asarray(poisoned.metrics['diverged'])
+  np.testing.assert_array_equal(diverged, [0., 1., 0., 0.])
+  assert not np.isfinite(np.asarray(poisoned.data.qacc[1])).all()
+  np.testing.assert_array_equal(np.asarray(poisoned.step_type), [1, 2, 1, 1])
+  assert float(poisoned.reward[1]) == 0.0
+  assert float(poisoned.discount[1]) == 0.0
+  assert bool(poisoned.terminated[1])
+  for i in (0, 2, 3):
+    assert_trees_equal(poisoned, reference, select=lambda x, i=i: x[i])
+  # The next step resets the diverged world; the others keep going.
+  after = swing_fns['vstep'](poisoned, jnp.zeros((4, 1)))
+  np.testing.assert_array_equal(np.asarray(after.step_type), [1, 0, 1, 1])
+  assert np.isfinite(np.asarray(after.data.qpos)).all()
+  assert np.isfinite(np.asarray(after.data.qacc)).all()
+
+
+# -- specs and errors -----------------------------------------------------------
+
+
+def test_specs(swing_env):
+  spec = swing_env.action_spec()
+  assert spec.shape == (1,)
+  assert spec.name == 'pendulum/motor'
+  np.testing.assert_array_equal(spec.minimum, [-1.])
+  np.testing.assert_array_equal(spec.maximum, [1.])
+  assert swing_env.reward_spec().shape == ()
+  assert swing_env.discount_spec().maximum == 1.0
+  assert swing_env.observation_spec()['tip'].shape == (1, 3)
+
+
+def test_wrong_action_shape_is_a_clear_error(swing_env):
+  state = swing_env.reset(jax.random.key(0))
+  with pytest.raises(ValueError, match=r'Expected an action of shape \(1,\)'):
+    swing_env.step(state, jnp.zeros(3))
+
+
+def test_non_integer_timestep_ratio():
+  task = conftest.SwingTask()
+  with pytest.raises(ValueError, match='integer multiple of physics timestep'):
+    task.set_timesteps(control_timestep=0.015, physics_timestep=0.01)
+  with pytest.raises(ValueError, match='integer multiple of physics timestep'):
+    task.control_timestep = 0.0123
+
+
+def test_unknown_element_is_a_clear_error(swing_env):
+  stranger = conftest.Pendulum(name='stranger')
+  physics = swing_env.physics(swing_env.reset(jax.random.key(0)))
+  with pytest.raises(ValueError, match='not part of the compiled model'):
+    physics.bind(stranger.tip).xpos
+  with pytest.raises(KeyError, match="No site named 'nope'"):
+    physics.named.data.site_xpos['nope']
+  with pytest.raises(AttributeError, match='has no attribute'):
+    physics.bind(swing_env.task.pendulum.tip).qpos
+
+
+def test_hook_must_return_physics():
+  class Forgetful(conftest.SwingTask):
+    def after_step(self, physics, key):
+      physics.bind(self.pendulum.joint).set(qpos=0.)   # result dropped
+
+  env = composer.Environment(Forgetful())
+  state = env.reset(jax.random.key(0))
+  with pytest.raises(TypeError, match='must return the \\(new\\) Physics'):
+    env.step(state, jnp.zeros(1))
+
+
+def test_undeclared_model_write_in_step_is_a_clear_error():
+  class Recolor(conftest.SwingTask):
+    def after_step(self, physics, key):
+      return physics.bind(self.ball.geom).set(rgba=[1., 0., 0., 1.])
+
+  env = composer.Environment(Recolor())
+  with pytest.raises(ValueError, match='per_world_model_fields'):
+    env.step(env.reset(jax.random.key(0)), jnp.zeros(1))
+  declared = composer.Environment(Recolor(),
+                                  per_world_model_fields=('geom_rgba',))
+  state = declared.step(declared.reset(jax.random.key(0)), jnp.zeros(1))
+  ball = declared.physics(state).bind(declared.task.ball.geom)
+  np.testing.assert_array_equal(ball.rgba, [1., 0., 0., 1.])
+
+
+def test_bad_constructor_arguments():
+  with pytest.raises(ValueError, match='auto_reset'):
+    composer.Environment(conftest.SwingTask(), auto_reset='sometimes')
+  with pytest.raises(ValueError, match='ObservationPadding'):
+    composer.Environment(conftest.SwingTask(), delayed_observation_padding=0)
+  env = conftest.make_swing_env()
+  with pytest.raises(ValueError, match='not a valid hook name'):
+    env.add_extra_hook('before_everything', lambda *a: None)
+
+
+def test_reset_accepts_legacy_keys(swing_env):
+  new = swing_env.reset(jax.random.key(5))
+  old = swing_env.reset(jax.random.PRNGKey(5))
+  np.testing.assert_array_equal(new.data.qpos, old.data.qpos)
+  with pytest.raises(ValueError, match='one PRNG key'):
+    swing_env.reset(jax.random.split(jax.random.key(0), 3))
+
+
+def test_step_types_match_dm_env():
+  import dm_env  # pylint: disable=g-import-not-at-top
+  for ours in environment_lib.StepType:
+    assert int(ours) == int(dm_env.StepType[ours.name])

@@ -1,0 +1,797 @@
+"""Tests for `mjx_composer.observation.updater` (ports composer's updater_test).
+
+Timing is checked against `_Reference`, a small pure-Python re-implementation
+of composer's updater (a schedule of sample times, and a buffer that keeps the
+B latest arrivals in a `deque`, with in-flight samples sorted by arrival),
+stepped alongside the jitted updater.
+"""
+
+import bisect
+import collections
+import itertools
+
+from dm_env import specs
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_composer.observation import fake_physics
+from mjx_composer.observation import updater as updater_lib
+from mjx_composer.observation.observable import base
+from mjx_composer.variation import base as variation_base
+
+N_SUB_STEPS = 5
+NUM_CONTROL_STEPS = 200
+
+
+# ---------------------------------------------------------------------------
+# Helpers.
+# ---------------------------------------------------------------------------
+
+
+class _Sequence(variation_base.Variation):
+  """Cycles through `values`; its position is carried as variation state."""
+
+  def __init__(self, values):
+    self._values = np.asarray(values)
+
+  def initial_state(self, initial_value=None):
+    del initial_value
+    return jnp.zeros((), jnp.int32)
+
+  def _sample(self, state, key, initial_value, current_value):
+    value = jnp.asarray(self._values)[state]
+    return value, (state + 1) % len(self._values)
+
+  def static_bounds(self):
+    return self._values.min(), self._values.max()
+
+
+class _UniformInteger(variation_base.Variation):
+  """Uniform integers in [low, high], inclusive."""
+
+  def __init__(self, low, high):
+    self._low, self._high = low, high
+
+  def _sample(self, state, key, initial_value, current_value):
+    self._require_key(key)
+    return jax.random.randint(key, (), self._low, self._high + 1), state
+
+  def static_bounds(self):
+    return np.asarray(self._low), np.asarray(self._high)
+
+
+class _Unbounded(variation_base.Variation):
+
+  def _sample(self, state, key, initial_value, current_value):
+    return jnp.asarray(3), state
+
+
+class _BoundedGeneric(base.Generic):
+
+  def __init__(self, fn, shape, **kwargs):
+    super().__init__(fn, **kwargs)
+    self._spec = specs.BoundedArray(shape, np.float32, minimum=-1.,
+                                    maximum=1.)
+
+  @property
+  def array_spec(self):
+    return self._spec
+
+
+class _CustomSpec(specs.Array):
+  """A spec subclass that must survive `observation_spec`."""
+
+
+class _CustomSpecGeneric(base.Generic):
+
+  @property
+  def array_spec(self):
+    return _CustomSpec((2,), np.float32)
+
+
+def _enabled(**observables):
+  out = collections.OrderedDict()
+  for name, obs in observables.items():
+    obs.enabled = True
+    out[name] = obs
+  return out
+
+
+class _Reference:
+  """composer's updater semantics, one observable, in plain Python.
+
+  Samples are due at 0, then at `previous + interval()`; each is inserted
+  with `delay()`. The buffer keeps a `deque(maxlen=B)` of arrived samples,
+  pre-filled with zeros (or, under initial-value padding, with copies of the
+  first inserted value), and a list of in-flight samples sorted by arrival
+  (ties in insertion order).
+  """
+
+  def __init__(self, fn, buffer_size, interval, delay, pad_initial):
+    self._fn, self._interval, self._delay = fn, interval, delay
+    self._arrived = collections.deque(maxlen=buffer_size)
+    if not pad_initial:
+      zero = np.zeros_like(np.asarray(fn(0)))
+      self._arrived.extend([(-1, zero)] * buffer_size)
+    self._pending = []
+    self._count = itertools.count()
+    self._insert(0, self._delay())
+    self._next = self._interval()
+
+  def _move(self, t):
+    while self._pending and self._pending[0][0] <= t:
+      _, _, timestamp, value = self._pending.pop(0)
+      self._arrived.append((timestamp, value))
+
+  def _insert(self, timestamp, delay):
+    value = np.asarray(self._fn(timestamp))
+    if not self._arrived:
+      self._arrived.extend([(-1, value)] * self._arrived.maxlen)
+    self._move(timestamp)
+    if delay == 0:
+      self._arrived.append((timestamp, value))
+    else:
+      bisect.insort(self._pending,
+                    (timestamp + delay, next(self._count), timestamp, value))
+
+  def substep(self, t):
+    """Called after sub-step `t` (sub-steps since reset)."""
+    if t == self._next:
+      self._insert(t, self._delay())
+      self._next = t + self._interval()
+
+  def read(self, t):
+    self._move(t)
+    return (np.array([ts for ts, _ in self._arrived]),
+            np.stack([v for _, v in self._arrived]))
+
+
+def _constant(value):
+  return lambda: value
+
+
+def _cycle(values):
+  return itertools.cycle(values).__next__
+
+
+# The observables of composer's testObservation.
+_TIMING_FUNCTIONS = {
+    'twice': lambda t: 2 * t,
+    'repeated': lambda t: np.array([t, t]),
+    'matrix': lambda t: np.full((2, 3), t),
+    'sqrt_plus_one': lambda t: np.sqrt(np.float32(t)) + np.float32(1),
+}
+
+
+def _timing_observables():
+  observables = fake_physics.FakePhysics.observables()
+  observables['repeated'].buffer_size = 5
+  observables['matrix'].delay = 1
+  observables['matrix'].buffer_size = 4
+  observables['sqrt_plus_one'] = base.Generic(
+      fake_physics.FakePhysics.sqrt_plus_one, update_interval=7,
+      buffer_size=3, delay=2)
+  for obs in observables.values():
+    obs.enabled = True
+  return observables
+
+
+def _run(updater, num_steps, key=jax.random.key(0), style='static'):
+  """Runs `num_steps` control steps on a FakePhysics under one jit.
+
+  Styles: 'static' calls update with Python-int sub-steps; 'scan' calls it
+  inside a `lax.scan` over sub-steps 1..n-1 with a traced counter (like the
+  environment), then with n.
+
+  Returns:
+    `(observations, buffer_timestamps)`, stacked over control steps, with
+    the reset observation first.
+  """
+  n = updater.physics_steps_per_control_step
+
+  def control_step(carry, step_key):
+    physics, state = carry
+    if style == 'static':
+      for j in range(1, n + 1):
+        physics = physics.step()
+        state = updater.update(state, physics, jax.random.fold_in(step_key, j),
+                               j)
+    else:
+      def substep(carry, i):
+        physics, state = carry
+        physics = physics.step()
+        state = jax.lax.cond(
+            i < n - 1,
+            lambda s: updater.update(s, physics,
+                                     jax.random.fold_in(step_key, i + 1),
+                                     i + 1),
+            lambda s: s, state)
+        return (physics, state), None
+      (physics, state), _ = jax.lax.scan(substep, (physics, state),
+                                         jnp.arange(n - 1, dtype=jnp.int32))
+      physics = physics.step()
+      state = updater.update(state, physics, jax.random.fold_in(step_key, n),
+                             n)
+    return (physics, state), (updater.get_observation(state),
+                              updater.buffer_timestamps(state))
+
+  def run(key):
+    physics = fake_physics.FakePhysics.create()
+    reset_key, key = jax.random.split(key)
+    state = updater.reset(physics, reset_key)
+    first = (updater.get_observation(state), updater.buffer_timestamps(state))
+    _, rest = jax.lax.scan(control_step, (physics, state),
+                           jax.random.split(key, num_steps))
+    return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first,
+                        rest)
+
+  cache_key = (id(updater), num_steps, style)
+  if cache_key not in _COMPILED:
+    _COMPILED[cache_key] = (updater, jax.jit(run))
+  return jax.device_get(_COMPILED[cache_key][1](key))
+
+
+# Jitted runs per (updater, steps, style); holding the updater keeps its id.
+_COMPILED = {}
+
+
+# ---------------------------------------------------------------------------
+# Structure and specs.
+# ---------------------------------------------------------------------------
+
+
+def _nested_observables():
+  physics_fn = lambda p: jnp.zeros((2,), jnp.float32)
+  make = lambda **kw: base.Generic(physics_fn, **kw)
+  bounded = lambda **kw: _BoundedGeneric(physics_fn, (2,), **kw)
+  first = {'a': make(), 'b': make(aggregator='sum'), 'disabled': make()}
+  second = collections.OrderedDict(
+      [('c', bounded()), ('d', bounded(aggregator='sum'))])
+  for d in (first, second):
+    for key, obs in d.items():
+      obs.enabled = key != 'disabled'
+  return first, second
+
+
+@pytest.mark.parametrize('container', [list, tuple])
+def test_nested_structures_keep_container_types(container):
+  first, second = _nested_observables()
+  updater = updater_lib.Updater(container([first, second]))
+  physics = fake_physics.FakePhysics.create()
+  spec = updater.observation_spec(physics)
+  observation = updater.get_observation(updater.reset(physics))
+  for structure in (spec, observation):
+    assert type(structure) is container
+    assert type(structure[0]) is dict
+    assert type(structure[1]) is collections.OrderedDict
+    assert list(structure[0]) == ['a', 'b']
+    assert list(structure[1]) == ['c', 'd']
+  assert spec[0]['a'].shape == (1, 2)
+  assert spec[0]['b'].shape == (2,)
+  assert type(spec[0]['a']) is specs.Array
+  assert type(spec[1]['c']) is specs.BoundedArray
+  assert spec[1]['c'].shape == (1, 2)
+  assert type(spec[1]['d']) is specs.Array   # sum does not keep bounds
+  jax.tree.map(lambda s, o: s.validate(np.asarray(o)),
+               spec, observation,
+               is_leaf=lambda x: isinstance(x, specs.Array))
+
+
+def test_observables_must_be_dicts():
+  with pytest.raises(ValueError, match='must be a dict'):
+    updater_lib.Updater(base.Generic(lambda p: 0))
+  with pytest.raises(ValueError, match='must be a dict'):
+    updater_lib.Updater([{'a': base.Generic(lambda p: 0)}, 3])
+
+
+def test_spec_inference_by_tracing():
+  observables = fake_physics.FakePhysics.observables()
+  observables['repeated'].buffer_size = 5
+  observables['matrix'].buffer_size = 4
+  observables['sqrt'] = base.Generic(fake_physics.FakePhysics.sqrt,
+                                     buffer_size=3)
+  for obs in observables.values():
+    obs.enabled = True
+  updater = updater_lib.Updater(observables, N_SUB_STEPS)
+  with pytest.raises(RuntimeError, match='not known yet'):
+    updater.observation_spec()
+  abstract = jax.eval_shape(fake_physics.FakePhysics.create)
+  spec = updater.observation_spec(abstract)
+  assert spec['repeated'].shape == (5, 2)
+  assert spec['matrix'].shape == (4, 2, 3)
+  assert spec['sqrt'].shape == (3,)
+  assert np.issubdtype(spec['repeated'].dtype, np.integer)
+  assert np.issubdtype(spec['matrix'].dtype, np.integer)
+  assert np.issubdtype(spec['sqrt'].dtype, np.floating)
+  for key, value in spec.items():
+    assert value.name == key
+  # A fresh updater learns the shapes from a traced reset, too.
+  other = updater_lib.Updater(observables, N_SUB_STEPS)
+  jax.eval_shape(other.reset, abstract)
+  assert other.observation_spec() == spec
+
+
+def test_custom_spec_type_passed_through():
+  obs = _CustomSpecGeneric(lambda p: jnp.zeros(2), buffer_size=3)
+  updater = updater_lib.Updater(_enabled(custom=obs))
+  spec = updater.observation_spec()   # No physics needed: array_spec given.
+  assert type(spec['custom']) is _CustomSpec
+  assert spec['custom'].shape == (3, 2)
+  assert spec['custom'].name == 'custom'
+
+
+@pytest.mark.parametrize('aggregator', ['min', 'max', 'mean', 'median'])
+def test_bounds_kept_by_bounds_preserving_aggregators(aggregator):
+  # composer's `bounds_reserving` typo drops these bounds; we keep them.
+  obs = _BoundedGeneric(lambda p: jnp.zeros(2), (2,), buffer_size=4,
+                        aggregator=aggregator)
+  spec = updater_lib.Updater(_enabled(x=obs)).observation_spec()['x']
+  assert type(spec) is specs.BoundedArray
+  assert spec.shape == (2,)
+  np.testing.assert_array_equal(spec.minimum, -1.)
+  np.testing.assert_array_equal(spec.maximum, 1.)
+
+
+def test_custom_aggregator_shape_and_unknown_bounds():
+  obs = _BoundedGeneric(lambda p: jnp.zeros(2), (2,), buffer_size=4,
+                        aggregator=lambda x: x[-1:] - x[:1])
+  spec = updater_lib.Updater(_enabled(x=obs)).observation_spec()['x']
+  assert type(spec) is specs.Array
+  assert spec.shape == (1, 2)
+
+
+def test_strip_singleton_buffer_dim():
+  observables = _enabled(
+      single=base.Generic(lambda p: jnp.ones((3, 3))),
+      scalar=base.Generic(lambda p: jnp.float32(2.)),
+      several=base.Generic(lambda p: jnp.ones(2), buffer_size=2),
+      mean=base.Generic(lambda p: jnp.arange(3.), aggregator='mean'))
+  updater = updater_lib.Updater(observables, strip_singleton_buffer_dim=True)
+  physics = fake_physics.FakePhysics.create()
+  observation = updater.get_observation(updater.reset(physics))
+  spec = updater.observation_spec()
+  assert observation['single'].shape == spec['single'].shape == (3, 3)
+  assert observation['scalar'].shape == spec['scalar'].shape == ()
+  assert observation['several'].shape == spec['several'].shape == (2, 2)
+  # Deviation from composer: the aggregator reduces the buffer axis, not the
+  # observation's own first axis.
+  assert observation['mean'].shape == spec['mean'].shape == (3,)
+  np.testing.assert_array_equal(observation['mean'], [0., 1., 2.])
+
+
+# ---------------------------------------------------------------------------
+# Timing.
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize('pad_initial', [False, True])
+@pytest.mark.parametrize('style', ['static', 'scan'])
+def test_observation_timing_matches_composer(pad_initial, style):
+  observables = _timing_observables()
+  updater = updater_lib.Updater(observables, N_SUB_STEPS,
+                                pad_with_initial_value=pad_initial)
+  observations, timestamps = _run(updater, NUM_CONTROL_STEPS, style=style)
+  for key, obs in observables.items():
+    u, d, b = obs.update_interval, obs.delay or 0, obs.buffer_size or 1
+    fn = _TIMING_FUNCTIONS[key]
+    reference = _Reference(fn, b, _constant(u), _constant(d), pad_initial)
+    for step in range(NUM_CONTROL_STEPS + 1):
+      t = step * N_SUB_STEPS
+      if step:
+        for s in range(t - N_SUB_STEPS + 1, t + 1):
+          reference.substep(s)
+      expected_ts, expected = reference.read(t)
+      # composer's closed form: newest visible u*floor((t-d)/u), B oldest
+      # first, negative timestamps are padding.
+      end = u * ((t - d) // u)
+      formula = end + u * np.arange(-(b - 1), 1)
+      np.testing.assert_array_equal(expected_ts, np.where(formula < 0, -1,
+                                                          formula))
+      np.testing.assert_array_equal(timestamps[key][step], expected_ts,
+                                    err_msg=f'{key} at t={t}')
+      # rtol: the GPU's float32 sqrt may differ from numpy's by an ulp.
+      np.testing.assert_allclose(observations[key][step], expected,
+                                 rtol=1e-6, err_msg=f'{key} at t={t}')
+
+
+def _schedule_observables(configs):
+  observables = collections.OrderedDict()
+  for u, d, b in configs:
+    observables[f'u{u}_d{d}_b{b}'] = base.Generic(
+        lambda p: p.time(), update_interval=u, delay=d, buffer_size=b)
+  for obs in observables.values():
+    obs.enabled = True
+  return observables
+
+
+@pytest.mark.parametrize('n', [1, 3, 4, 6])
+def test_constant_schedules_match_reference(n):
+  configs = [(u, d, b) for u in (1, 2, 3, 7) for d in (0, 1, 5)
+             for b in (1, 3)]
+  observables = _schedule_observables(configs)
+  updater = updater_lib.Updater(observables, n)
+  num_steps = 30
+  _, timestamps = _run(updater, num_steps)
+  for (u, d, b), key in zip(configs, observables):
+    reference = _Reference(lambda t: t, b, _constant(u), _constant(d), False)
+    for step in range(num_steps + 1):
+      t = step * n
+      for s in range(t - n + 1, t + 1) if step else ():
+        reference.substep(s)
+      expected, _ = reference.read(t)
+      np.testing.assert_array_equal(timestamps[key][step], expected,
+                                    err_msg=f'{key} at t={t}')
+
+
+def _library_sequence(values):
+  deterministic = pytest.importorskip('mjx_composer.variation.deterministic')
+  return deterministic.Sequence(values)
+
+
+@pytest.mark.parametrize('sequence', [_Sequence, _library_sequence],
+                         ids=['local', 'library'])
+def test_variable_rates_and_delays(sequence):
+  # composer's testVariableRatesAndDelays: sample #11 is pushed out by #8's
+  # later arrival, so buffers follow arrival order.
+  obs = base.Generic(lambda p: p.time(), buffer_size=3,
+                     update_interval=sequence([3, 2, 3, 3, 4, 1, 4]),
+                     delay=sequence([3, 5, 2, 5, 1, 2, 4]))
+  updater = updater_lib.Updater(_enabled(time=obs), 10)
+  assert updater.capacity('time') == 3 + 5   # B + ceil(max delay / min int)
+  observations, _ = _run(updater, 10)
+  for i in range(5):
+    np.testing.assert_array_equal(observations['time'][2 * i + 1],
+                                  20 * i + np.array([0, 5, 3]))
+    np.testing.assert_array_equal(observations['time'][2 * i + 2],
+                                  20 * i + np.array([8, 15, 16]))
+
+
+def _variable_run(updater, key, n, num_steps):
+  """Runs the updater and a reference fed with the same random draws."""
+  entry_keys = updater.keys
+
+  def control_step(carry, step_key):
+    physics, state = carry
+    inserted = []
+    for j in range(1, n + 1):
+      physics = physics.step()
+      state = updater.update(state, physics, jax.random.fold_in(step_key, j),
+                             j)
+      # The sample taken now (if any) is the slot stamped with t.
+      row = {}
+      for index, buffer in enumerate(state.buffers):
+        hit = buffer.timestamps == state.t
+        row[entry_keys[index]] = (jnp.any(hit),
+                                  jnp.sum(jnp.where(hit, buffer.arrivals, 0)))
+      inserted.append(row)
+    return (physics, state), (updater.buffer_timestamps(state), inserted)
+
+  @jax.jit
+  def run(key):
+    physics = fake_physics.FakePhysics.create()
+    state = updater.reset(physics, key)
+    first = {k: b.arrivals[0] for k, b in zip(entry_keys, state.buffers)}
+    _, rest = jax.lax.scan(control_step, (physics, state),
+                           jax.random.split(key, num_steps))
+    return first, rest
+
+  first, (timestamps, inserted) = jax.device_get(run(key))
+  results = {}
+  for name in entry_keys:
+    draws = {0: int(first[name])}
+    for step in range(num_steps):
+      for j in range(n):
+        taken, arrival = inserted[j][name]
+        if taken[step]:
+          s = step * n + j + 1
+          draws[s] = int(arrival[step]) - s
+    results[name] = (sorted(draws), draws, timestamps[name])
+  return results
+
+
+def test_variable_rates_random_against_reference():
+  n, num_steps = 3, 80
+  configs = {
+      'interval': (_UniformInteger(1, 4), 0, 3),
+      'delay': (2, _UniformInteger(0, 6), 2),
+      'both': (_UniformInteger(1, 2), _UniformInteger(0, 9), 1),
+  }
+  observables = collections.OrderedDict()
+  for name, (u, d, b) in configs.items():
+    observables[name] = base.Generic(lambda p: p.time(), update_interval=u,
+                                     delay=d, buffer_size=b)
+    observables[name].enabled = True
+  updater = updater_lib.Updater(observables, n)
+  results = _variable_run(updater, jax.random.key(3), n, num_steps)
+  for name, (u, d, b) in configs.items():
+    times, draws, timestamps = results[name]
+    intervals = np.diff(times)
+    low_u, high_u = (u, u) if isinstance(u, int) else (1, u._high)
+    low_d, high_d = (d, d) if isinstance(d, int) else (0, d._high)
+    assert intervals.min() >= low_u and intervals.max() <= high_u
+    assert min(draws.values()) >= low_d and max(draws.values()) <= high_d
+    # The random draws really vary.
+    assert isinstance(u, int) or len(set(intervals)) > 1
+    assert isinstance(d, int) or len(set(draws.values())) > 1
+    # Replay the same samples through composer's buffer semantics.
+    ref = _ReplayReference(b, times, draws)
+    for step in range(1, num_steps + 1):
+      t = step * n
+      np.testing.assert_array_equal(timestamps[step - 1], ref.read(t),
+                                    err_msg=f'{name} at t={t}')
+
+
+class _ReplayReference:
+  """composer's arrival-ordered buffer fed with known (timestamp, delay)."""
+
+  def __init__(self, buffer_size, times, delays):
+    self._times, self._delays = list(times), delays
+    self._arrived = collections.deque([-1] * buffer_size, maxlen=buffer_size)
+    self._pending = []
+    self._index = 0
+    self._count = itertools.count()
+
+  def read(self, t):
+    # Insert every sample taken up to t, moving arrivals as composer does.
+    while self._index < len(self._times) and self._times[self._index] <= t:
+      s = self._times[self._index]
+      self._move(s)
+      if self._delays[s] == 0:
+        self._arrived.append(s)
+      else:
+        bisect.insort(self._pending,
+                      (s + self._delays[s], next(self._count), s))
+      self._index += 1
+    self._move(t)
+    return np.array(self._arrived)
+
+  def _move(self, t):
+    while self._pending and self._pending[0][0] <= t:
+      self._arrived.append(self._pending.pop(0)[2])
+
+
+def test_adversarial_delays_respect_capacity():
+  # A long delay followed by short ones: the old sample is still the newest
+  # arrival while many newer samples are in flight. A ring indexed by sample
+  # number would need 2*ceil(D/u) + B slots; arrival slots need B + D/u.
+  delays = [4, 0, 0, 0, 4, 4, 4, 4, 1, 3, 0, 2]
+  obs = base.Generic(lambda p: p.time(), buffer_size=1, update_interval=1,
+                     delay=_Sequence(delays))
+  updater = updater_lib.Updater(_enabled(x=obs), 1)
+  assert updater.capacity('x') == 5
+  _, timestamps = _run(updater, 40)
+  cycle = itertools.cycle(delays)
+  draws = {s: next(cycle) for s in range(41)}
+  ref = _ReplayReference(1, range(41), draws)
+  for t in range(41):
+    np.testing.assert_array_equal(timestamps['x'][t], ref.read(t),
+                                  err_msg=f't={t}')
+
+
+def test_variation_without_bounds_is_rejected():
+  obs = base.Generic(lambda p: p.time(), delay=_Unbounded())
+  with pytest.raises(ValueError, match="'noisy'.*static bounds"):
+    updater_lib.Updater(_enabled(noisy=obs))
+
+
+def test_invalid_options_are_rejected():
+  with pytest.raises(ValueError, match="'x': delay must be an integer >= 0"):
+    updater_lib.Updater(_enabled(x=base.Generic(lambda p: 0, delay=-1)))
+  with pytest.raises(ValueError, match="'x': buffer_size must be"):
+    updater_lib.Updater(_enabled(x=base.Generic(
+        lambda p: 0, buffer_size=_Sequence([1, 2]))))
+  updater = updater_lib.Updater(_enabled(x=base.Generic(lambda p: 0)), 2)
+  state = updater.reset(fake_physics.FakePhysics.create())
+  with pytest.raises(ValueError, match='substep must be in 1..2'):
+    updater.update(state, fake_physics.FakePhysics.create(), None, 3)
+
+
+# ---------------------------------------------------------------------------
+# Aggregators and corruptors.
+# ---------------------------------------------------------------------------
+
+
+def test_aggregators_reduce_the_buffer_axis():
+  fn = lambda p: jnp.stack([p.time(), -p.time()]).astype(jnp.float32)
+  observables = _enabled(**{
+      name: base.Generic(fn, buffer_size=N_SUB_STEPS, aggregator=name)
+      for name in base.AGGREGATORS})
+  observables['custom'] = base.Generic(fn, buffer_size=N_SUB_STEPS,
+                                       aggregator=lambda x: x[-1] - x[0])
+  observables['custom'].enabled = True
+  updater = updater_lib.Updater(observables, N_SUB_STEPS)
+  observations, _ = _run(updater, 3)
+  window = np.arange(6, 11, dtype=np.float32)   # t = 10: samples 6..10
+  buffered = np.stack([window, -window], axis=1)
+  expected = {'min': buffered.min(0), 'max': buffered.max(0),
+              'mean': buffered.mean(0), 'median': np.median(buffered, 0),
+              'sum': buffered.sum(0), 'custom': buffered[-1] - buffered[0]}
+  for name, value in expected.items():
+    np.testing.assert_allclose(observations[name][2], value, err_msg=name)
+
+
+def _noisy_observables():
+  return _enabled(
+      noisy=base.Generic(
+          lambda p: jnp.zeros(3), buffer_size=2,
+          corruptor=lambda v, key: v + jax.random.normal(key, v.shape)),
+      clean=base.Generic(lambda p: p.time()))
+
+
+def test_corruptor_applied_per_sample_before_buffering():
+  observables = _enabled(x=base.Generic(
+      lambda p: p.time().astype(jnp.float32), buffer_size=3,
+      aggregator='sum', corruptor=lambda v, key: v + 12.))
+  updater = updater_lib.Updater(observables, 1)
+  observations, _ = _run(updater, 4)
+  # Three samples, each shifted by 12, summed (zero padding uncorrupted).
+  np.testing.assert_allclose(observations['x'][4], (2 + 3 + 4) + 3 * 12.)
+  np.testing.assert_allclose(observations['x'][0], 0 + 12.)
+
+
+def test_corruption_noise_per_world_step_and_key():
+  updater = updater_lib.Updater(_noisy_observables(), 1)
+  num_steps = 5
+  single = _run(updater, num_steps, key=jax.random.key(7))[0]['noisy']
+  again = _run(updater, num_steps, key=jax.random.key(7))[0]['noisy']
+  np.testing.assert_array_equal(single, again)   # Reproducible from the key.
+  # Noise differs across steps and across the two buffered samples.
+  assert len(np.unique(single[1:, -1, 0])) == num_steps
+  assert not np.allclose(single[3, 0], single[3, 1])
+  # The sample seen newest at step k is seen oldest at step k + 1.
+  np.testing.assert_array_equal(single[3, 1], single[4, 0])
+
+  keys = jax.random.split(jax.random.key(11), 3)
+  keys = keys.at[1].set(jax.random.key(7))
+
+  def run_world(key):
+    physics = fake_physics.FakePhysics.create()
+    reset_key, key = jax.random.split(key)
+    state = updater.reset(physics, reset_key)
+    outputs = [updater.get_observation(state)['noisy']]
+    for step_key in jax.random.split(key, num_steps):
+      physics = physics.step()
+      state = updater.update(state, physics, jax.random.fold_in(step_key, 1),
+                             1)
+      outputs.append(updater.get_observation(state)['noisy'])
+    return jnp.stack(outputs)
+
+  batched = jax.device_get(jax.jit(jax.vmap(run_world))(keys))
+  np.testing.assert_array_equal(batched[1], single)   # Same key, same world.
+  assert not np.allclose(batched[0], batched[2])      # Worlds differ.
+
+
+def test_noise_independent_of_other_observables():
+  observables = _noisy_observables()
+  reference = _run(updater_lib.Updater(observables, 2), 3)[0]['noisy']
+  observables['extra'] = base.Generic(
+      lambda p: jnp.ones(2), corruptor=lambda v, key: v * 2)
+  observables['extra'].enabled = True
+  observables.move_to_end('extra', last=False)
+  del observables['clean']
+  with_extra = _run(updater_lib.Updater(observables, 2), 3)[0]['noisy']
+  np.testing.assert_array_equal(reference, with_extra)
+
+
+def test_same_observations_in_a_batch_as_in_one_world():
+  observables = _timing_observables()
+  observables['delayed'] = base.Generic(
+      lambda p: p.time(), buffer_size=2,
+      delay=_Sequence([1, 4, 2]), update_interval=_Sequence([2, 1, 3]))
+  observables['delayed'].enabled = True
+  updater = updater_lib.Updater(observables, N_SUB_STEPS,
+                                pad_with_initial_value=True)
+  num_steps = 3
+  single = _run(updater, num_steps, key=jax.random.key(5))[0]
+
+  batched = jax.jit(jax.vmap(lambda k: _run_traced(updater, num_steps, k)))(
+      jnp.stack([jax.random.key(5)] * 3))
+  for key in observables:
+    for world in range(3):
+      np.testing.assert_allclose(batched[key][world], single[key],
+                                 err_msg=key)
+
+
+def _run_traced(updater, num_steps, key):
+  """Like `_run` (static style) but traceable, for use under vmap."""
+  n = updater.physics_steps_per_control_step
+
+  def control_step(carry, step_key):
+    physics, state = carry
+    for j in range(1, n + 1):
+      physics = physics.step()
+      state = updater.update(state, physics, jax.random.fold_in(step_key, j),
+                             j)
+    return (physics, state), updater.get_observation(state)
+
+  physics = fake_physics.FakePhysics.create()
+  reset_key, key = jax.random.split(key)
+  state = updater.reset(physics, reset_key)
+  first = updater.get_observation(state)
+  _, rest = jax.lax.scan(control_step, (physics, state),
+                         jax.random.split(key, num_steps))
+  return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
+
+
+# ---------------------------------------------------------------------------
+# Cost: what update evaluates.
+# ---------------------------------------------------------------------------
+
+
+class _Counting:
+  """An observable function that counts how often it is traced."""
+
+  def __init__(self):
+    self.calls = 0
+
+  def __call__(self, physics):
+    self.calls += 1
+    return physics.time()
+
+
+def test_update_evaluates_only_samples_that_can_be_seen():
+  n = 10
+  fns = collections.OrderedDict(
+      every=_Counting(), slow=_Counting(), averaged=_Counting(),
+      delayed=_Counting(), odd=_Counting(), disabled=_Counting())
+  observables = collections.OrderedDict(
+      every=base.Generic(fns['every']),
+      slow=base.Generic(fns['slow'], update_interval=5),
+      averaged=base.Generic(fns['averaged'], buffer_size=3),
+      delayed=base.Generic(fns['delayed'], delay=3, update_interval=2),
+      odd=base.Generic(fns['odd'], update_interval=3),
+      disabled=base.Generic(fns['disabled']))
+  for key, obs in observables.items():
+    obs.enabled = key != 'disabled'
+  updater = updater_lib.Updater(observables, n)
+  assert updater.active_substeps('every') == (10,)
+  assert updater.active_substeps('slow') == (10,)   # 5 is never seen.
+  assert updater.active_substeps('averaged') == (8, 9, 10)
+  # Reads at 10k see the sample taken at 10k - 4 only.
+  assert updater.active_substeps('delayed') == (6,)
+  # 3 does not divide 10: reads see 9, 18, 30, ... (masked per world).
+  assert updater.active_substeps('odd') == (8, 9, 10)
+  assert updater.capacity('every') == 1
+
+  physics = fake_physics.FakePhysics.create()
+  state = updater.reset(physics)
+  for fn in fns.values():
+    fn.calls = 0
+  for j in (1, 2, 3, 4, 5, 7):
+    jax.make_jaxpr(lambda s: updater.update(s, physics, None, j))(state)
+  assert all(fn.calls == 0 for fn in fns.values())
+  jax.make_jaxpr(lambda s: updater.update(s, physics, None, 6))(state)
+  assert {k for k, fn in fns.items() if fn.calls} == {'delayed'}
+
+  # With a traced sub-step known to be in 1..n-1 (inside the environment's
+  # scan), observables only read at sub-step n are not even traced.
+  for fn in fns.values():
+    fn.calls = 0
+  only_last = updater_lib.Updater(
+      collections.OrderedDict(every=observables['every']), n)
+  jaxpr = jax.make_jaxpr(lambda s, j: only_last.update(
+      s, physics, None, j, substep_bounds=(1, n - 1)))(
+          only_last.reset(physics), jnp.int32(1))
+  assert fns['every'].calls == 1   # Only by the reset above.
+  assert 'cond' not in str(jaxpr)
+  # Without the hint, the last sub-step's branch exists but is the only one
+  # evaluating the observable.
+  jaxpr = jax.make_jaxpr(lambda s, j: only_last.update(s, physics, None, j))(
+      only_last.reset(physics), jnp.int32(1))
+  assert 'cond' in str(jaxpr)
+
+
+def test_traced_substep_stays_a_branch_under_vmap():
+  observables = _enabled(x=base.Generic(lambda p: p.time()))
+  updater = updater_lib.Updater(observables, 4)
+  physics = fake_physics.FakePhysics.create()
+  states = jax.vmap(lambda _: updater.reset(physics))(jnp.arange(3))
+
+  def update_all(states, j):
+    return jax.vmap(lambda s: updater.update(s, physics, None, j))(states)
+
+  jaxpr = str(jax.make_jaxpr(update_all)(states, jnp.int32(2)))
+  # A batched predicate would have turned the cond into a select.
+  assert 'cond' in jaxpr
