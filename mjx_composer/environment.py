@@ -391,10 +391,9 @@ class Environment:
   def reset(self, key) -> State:
     """Starts an episode for one world. Pure; jit and vmap it."""
     key = _as_key(key)
-    return self._reset(key, steps_metrics=None)
+    return self._reset(key)
 
-  def _reset(self, key, steps_metrics) -> State:
-    del steps_metrics
+  def _reset(self, key) -> State:
     init_key, obs_key, next_key = jax.random.split(key, 3)
     base = self._mjx_model
     physics = self._make_physics(base, self._data0,
@@ -438,10 +437,10 @@ class Environment:
     if self._auto_reset == 'next_step':
       reset_key, step_key = jax.random.split(state.key)
       stepped = self._step(state.replace(key=step_key), action)
-      restarted = self._reset(reset_key, None)
+      restarted = self._reset(reset_key)
       return _tree_select(state.last(), restarted, stepped)
     stepped = self._step(state, action)
-    restarted = self._reset(stepped.key, None)
+    restarted = self._reset(stepped.key)
     restarted = restarted.replace(
         step_type=stepped.step_type, reward=stepped.reward,
         discount=stepped.discount, terminated=stepped.terminated,
