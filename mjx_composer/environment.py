@@ -41,6 +41,20 @@ Auto-reset, per world:
   first observation in `observation`, and the ended episode's last
   observation in `final_observation`; the next step continues the new episode.
 
+Per-world state that outlives an episode: on auto-reset a world keeps its
+model fields (`State.model_fields`, e.g. what a variator sampled) and its
+`persistent` entries, so cumulative and once-per-world randomization see the
+world's current values; `reset(key)` starts a world afresh from the compiled
+model.
+
+Initialization failures: an `initialize_episode` hook that cannot set up the
+episode (e.g. `PropPlacer` finding no collision-free pose) marks it with
+`physics.fail_initialization()`. The environment then reruns every
+`initialize_episode` hook with a fresh key, up to `max_reset_attempts`
+attempts in all, counts failed attempts in `metrics['init_failures']`, and
+sets `metrics['init_failed']` when the last attempt failed too (composer
+would raise `EpisodeInitializationError`; nothing raises inside jit).
+
 Keys: `reset(key)` derives every random draw of the episode, and of the
 episodes that auto-reset after it, from `key` alone, so the same key gives the
 same trajectory bit for bit, whatever the batch size.
@@ -112,6 +126,8 @@ class State:
     key: the world's PRNG key for what comes next.
     steps: control steps taken in the current episode.
     episode_return: the current episode's return so far.
+    persistent: per-world entries that survive auto-resets
+      (`Physics.get_persistent`).
   """
   data: mjx.Data
   task_state: Any
@@ -128,6 +144,7 @@ class State:
   key: jax.Array
   steps: jax.Array
   episode_return: jax.Array
+  persistent: dict
 
   def first(self):
     return self.step_type == StepType.FIRST
@@ -166,13 +183,16 @@ class Environment:
       `initialize_episode` hooks write (which are found automatically).
     observation_groups: optional groups passed to the observation updater
       (e.g. `{'policy': ..., 'critic': ...}`), see `observation.updater`.
+    max_reset_attempts: how many times `reset` may run the
+      `initialize_episode` hooks when they report a failed initialization
+      (`Physics.fail_initialization`), each time with a fresh key.
   """
 
   def __init__(self, task, time_limit=float('inf'), random_state=None,
                n_sub_steps=None, strip_singleton_obs_buffer_dim=False,
                delayed_observation_padding=ObservationPadding.ZERO,
                auto_reset='next_step', per_world_model_fields=(),
-               observation_groups=None):
+               observation_groups=None, max_reset_attempts=1):
     if not isinstance(delayed_observation_padding, ObservationPadding):
       raise ValueError('delayed_observation_padding must be an '
                        'ObservationPadding, got '
@@ -180,6 +200,9 @@ class Environment:
     if auto_reset not in ('next_step', 'same_step'):
       raise ValueError("auto_reset must be 'next_step' or 'same_step', got "
                        f'{auto_reset!r}.')
+    if int(max_reset_attempts) != max_reset_attempts or max_reset_attempts < 1:
+      raise ValueError('max_reset_attempts must be a positive integer, got '
+                       f'{max_reset_attempts!r}.')
     if time_limit <= 0:
       raise ValueError(f'time_limit must be positive, got {time_limit}.')
     unknown = set(per_world_model_fields) - physics_lib._MODEL_FIELDS  # pylint: disable=protected-access
@@ -189,6 +212,7 @@ class Environment:
     self._task = task
     self._time_limit = time_limit
     self._auto_reset = auto_reset
+    self._max_reset_attempts = int(max_reset_attempts)
     self._random_state = (random_state
                           if isinstance(random_state, np.random.RandomState)
                           else np.random.RandomState(random_state))
@@ -308,9 +332,12 @@ class Environment:
 
   # -- physics -------------------------------------------------------------
 
-  def _make_physics(self, model, data, task_state):
-    return physics_lib.Physics(model=model, data=data, task_state=task_state,
-                               index=self._index)
+  def _make_physics(self, model, data, task_state, persistent=None,
+                    initialization_failed=None):
+    return physics_lib.Physics(
+        model=model, data=data, task_state=task_state, index=self._index,
+        persistent={} if persistent is None else persistent,
+        initialization_failed=initialization_failed)
 
   def _host_physics(self):
     return self._make_physics(self._mjx_model, self._data0,
@@ -320,7 +347,8 @@ class Environment:
     """The `Physics` of a state (a batch of them if the state is batched)."""
     model = self._mjx_model.replace(**state.model_fields) \
         if state.model_fields else self._mjx_model
-    return self._make_physics(model, state.data, state.task_state)
+    return self._make_physics(model, state.data, state.task_state,
+                              state.persistent)
 
   # -- hooks ---------------------------------------------------------------
 
@@ -393,37 +421,79 @@ class Environment:
     key = _as_key(key)
     return self._reset(key)
 
-  def _reset(self, key) -> State:
+  def _reset(self, key, previous: State | None = None) -> State:
+    """A new episode; `previous` is the world's last state on auto-reset."""
     init_key, obs_key, next_key = jax.random.split(key, 3)
     base = self._mjx_model
-    physics = self._make_physics(base, self._data0,
-                                 self._task.initial_task_state())
-    if self._device_hooks('initialize_episode'):
-      physics = _forward_without_actuation(physics)
-      physics = self._run_hooks('initialize_episode', physics, init_key)
-    physics = _forward_without_actuation(physics)
+    start_model, persistent = base, {}
+    if previous is not None:
+      if previous.model_fields:
+        start_model = base.replace(**previous.model_fields)
+      persistent = previous.persistent
+    has_init_hooks = bool(self._device_hooks('initialize_episode'))
+    not_failed = jnp.zeros((), bool)
+
+    def attempt(attempt_key):
+      physics = self._make_physics(start_model, self._data0,
+                                   self._task.initial_task_state(),
+                                   persistent, not_failed)
+      if has_init_hooks:
+        physics = _forward_without_actuation(physics)
+        physics = self._run_hooks('initialize_episode', physics, attempt_key)
+      return physics
+
+    physics = attempt(init_key)
     changed = self._per_world_fields(base, physics.model, None, None)
-    model_fields = {f: getattr(physics.model, f)
-                    for f in sorted(set(changed) |
-                                    set(self._declared_model_fields))}
+    model_fields = sorted(set(changed) | set(self._declared_model_fields))
+    failures = physics.initialization_failed.astype(jnp.int32)
+    if has_init_hooks and self._max_reset_attempts > 1:
+      # Resample failed initializations with fresh keys. Under vmap the loop
+      # runs while any world still fails; finished worlds keep their result.
+      def carry_of(physics):
+        return (physics.data, physics.task_state,
+                {f: getattr(physics.model, f) for f in model_fields},
+                physics.persistent, physics.initialization_failed)
+
+      def retry(carry):
+        attempts, failures, _ = carry
+        physics = attempt(jax.random.fold_in(init_key, attempts))
+        return (attempts + 1,
+                failures + physics.initialization_failed.astype(jnp.int32),
+                carry_of(physics))
+
+      def should_retry(carry):
+        attempts, _, (*_, failed) = carry
+        return jnp.logical_and(failed, attempts < self._max_reset_attempts)
+
+      _, failures, (data, task_state, fields, persistent_out, failed) = (
+          jax.lax.while_loop(should_retry, retry,
+                             (jnp.ones((), jnp.int32), failures,
+                              carry_of(physics))))
+      physics = self._make_physics(base.replace(**fields), data, task_state,
+                                   persistent_out, failed)
+    physics = _forward_without_actuation(physics)
     obs_state = self._updater.reset(physics, obs_key)
     observation = self._updater.get_observation(obs_state)
     diverged = _diverged(physics.data)
     metrics = {'diverged': diverged.astype(jnp.float32),
                'episode_return': jnp.zeros((), jnp.float32),
-               'episode_length': jnp.zeros((), jnp.int32)}
+               'episode_length': jnp.zeros((), jnp.int32),
+               'init_failures': failures.astype(jnp.float32),
+               'init_failed': physics.initialization_failed.astype(
+                   jnp.float32)}
     metrics.update(self._task_metrics(physics))
     return State(
         data=physics.data, task_state=physics.task_state,
-        model_fields=model_fields, obs_state=obs_state,
-        observation=observation,
+        model_fields={f: getattr(physics.model, f) for f in model_fields},
+        obs_state=obs_state, observation=observation,
         reward=jnp.zeros(self.reward_spec().shape, jnp.float32),
         discount=jnp.ones(self.discount_spec().shape, jnp.float32),
         step_type=jnp.asarray(StepType.FIRST, jnp.int32),
         terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool),
         final_observation=observation, metrics=metrics, key=next_key,
         steps=jnp.zeros((), jnp.int32),
-        episode_return=jnp.zeros((), jnp.float32))
+        episode_return=jnp.zeros((), jnp.float32),
+        persistent=physics.persistent)
 
   def _task_metrics(self, physics):
     return {name: jnp.asarray(value, jnp.float32)
@@ -437,10 +507,10 @@ class Environment:
     if self._auto_reset == 'next_step':
       reset_key, step_key = jax.random.split(state.key)
       stepped = self._step(state.replace(key=step_key), action)
-      restarted = self._reset(reset_key)
+      restarted = self._reset(reset_key, previous=state)
       return _tree_select(state.last(), restarted, stepped)
     stepped = self._step(state, action)
-    restarted = self._reset(stepped.key)
+    restarted = self._reset(stepped.key, previous=stepped)
     restarted = restarted.replace(
         step_type=stepped.step_type, reward=stepped.reward,
         discount=stepped.discount, terminated=stepped.terminated,
@@ -478,34 +548,41 @@ class Environment:
                                 jax.random.fold_in(sub_key, 1))
       self._per_world_fields(base_model, physics.model, allowed,
                              'before_substep/after_substep')
+      _check_persistent(state.persistent, physics.persistent,
+                        'before_substep/after_substep')
       return physics, jax.random.fold_in(sub_key, 2)
 
     def scanned_substep(carry, i):
-      data, task_state, model_fields, obs_state = carry
+      data, task_state, model_fields, persistent, obs_state = carry
       model = base_model.replace(**model_fields) if model_fields else base_model
       physics, update_key = substep(
-          self._make_physics(model, data, task_state), i)
+          self._make_physics(model, data, task_state, persistent), i)
       # Sub-steps 1..n-1 update the observations inside the scan; the updater
       # skips, at trace time, every observable that cannot be sampled there.
       obs_state = self._updater.update(obs_state, physics, update_key, i + 1,
                                        substep_bounds=(1, n - 1))
       model_fields = {f: getattr(physics.model, f) for f in model_fields}
-      return (physics.data, physics.task_state, model_fields, obs_state), None
+      return (physics.data, physics.task_state, model_fields,
+              physics.persistent, obs_state), None
 
     self._per_world_fields(base_model, physics.model, allowed, 'before_step')
+    _check_persistent(state.persistent, physics.persistent, 'before_step')
     obs_state = state.obs_state
     if n > 1:
       carry = (physics.data, physics.task_state,
-               {f: getattr(physics.model, f) for f in allowed}, obs_state)
-      (data, task_state, model_fields, obs_state), _ = jax.lax.scan(
-          scanned_substep, carry, jnp.arange(n - 1, dtype=jnp.int32))
+               {f: getattr(physics.model, f) for f in allowed},
+               physics.persistent, obs_state)
+      (data, task_state, model_fields, persistent, obs_state), _ = (
+          jax.lax.scan(scanned_substep, carry,
+                       jnp.arange(n - 1, dtype=jnp.int32)))
       model = base_model.replace(**model_fields) if model_fields else base_model
-      physics = self._make_physics(model, data, task_state)
+      physics = self._make_physics(model, data, task_state, persistent)
     # The last sub-step runs outside the scan: its observation update comes
     # after the after_step hooks (composer's order) and needs no branch.
     physics, _ = substep(physics, n - 1)
     physics = self._run_hooks('after_step', physics, after_key)
     self._per_world_fields(base_model, physics.model, allowed, 'after_step')
+    _check_persistent(state.persistent, physics.persistent, 'after_step')
     obs_state = self._updater.update(obs_state, physics, obs_key, n)
     observation = self._updater.get_observation(obs_state)
 
@@ -524,7 +601,9 @@ class Environment:
     episode_return = state.episode_return + jnp.sum(reward)
     metrics = {'diverged': diverged.astype(jnp.float32),
                'episode_return': episode_return,
-               'episode_length': steps}
+               'episode_length': steps,
+               'init_failures': state.metrics['init_failures'],
+               'init_failed': state.metrics['init_failed']}
     # A diverged world's task metrics are NaN-laden: report zeros instead.
     metrics.update({k: jnp.where(diverged, 0., v)
                     for k, v in self._task_metrics(physics).items()})
@@ -537,7 +616,21 @@ class Environment:
             jnp.int32),
         terminated=terminated, truncated=truncated,
         final_observation=observation, metrics=metrics, key=next_key,
-        steps=steps, episode_return=episode_return)
+        steps=steps, episode_return=episode_return,
+        persistent=physics.persistent)
+
+
+def _check_persistent(before, after, hook_names):
+  """Step hooks may update persistent entries but not add or reshape them."""
+  shapes = lambda tree: jax.tree.map(lambda x: (jnp.shape(x),
+                                                jnp.result_type(x)), tree)
+  if (jax.tree.structure(before) != jax.tree.structure(after)
+      or shapes(before) != shapes(after)):
+    raise ValueError(
+        f'The {hook_names} hooks added, removed or reshaped persistent '
+        f'entries (before: {shapes(before)}, after: {shapes(after)}). Create '
+        'every persistent entry in initialize_episode, with its final shape '
+        'and dtype; step hooks may only update it.')
 
 
 def _forward_without_actuation(physics):

@@ -317,11 +317,20 @@ class Physics:
     task_state: a pytree of per-world task/entity state declared by the task
       (`Task.initial_task_state`), e.g. a sampled target position.
     index: static tables resolving elements and names (see `ElementIndex`).
+    persistent: per-world state that survives episodes (auto-resets), keyed
+      by owner, e.g. a variator's `Sequence` counter. Entries are created in
+      `initialize_episode` (see `get_persistent`/`set_persistent`).
+    initialization_failed: a bool scalar; an initializer that cannot
+      initialize the episode sets it (`fail_initialization`) and the
+      environment resamples the episode with a fresh key, up to
+      `max_reset_attempts` times (composer's `EpisodeInitializationError`).
   """
   model: mjx.Model
   data: mjx.Data
   task_state: Any = None
   index: ElementIndex = struct.field(pytree_node=False, default=None)
+  persistent: Any = None
+  initialization_failed: Any = None
 
   # -- dm_control-style accessors -------------------------------------------
 
@@ -380,6 +389,43 @@ class Physics:
       new[k] = jnp.asarray(v, dtype=jnp.asarray(old).dtype).reshape(
           jnp.shape(old))
     return self.replace(task_state=new)
+
+  # -- state that outlives an episode, and initialization failures ---------
+
+  def get_persistent(self, name: str, default=None):
+    """This world's persistent entry `name`, or `default` if never set.
+
+    Persistent entries survive auto-resets, so they are the place for state
+    that spans episodes (a `deterministic.Sequence` counter, a flag saying a
+    once-per-world randomization was applied). `default` must have the
+    entry's shape and dtype: on a world's first reset nothing is stored yet.
+    """
+    if self.persistent is not None and name in self.persistent:
+      return self.persistent[name]
+    return default
+
+  def set_persistent(self, name: str, value) -> 'Physics':
+    """Returns a copy with persistent entry `name` set to `value` (a pytree).
+
+    Create entries in `initialize_episode`: the environment fixes the set of
+    entries and their shapes at reset, and step hooks may only update them.
+    """
+    persistent = dict(self.persistent or {})
+    persistent[name] = value
+    return self.replace(persistent=persistent)
+
+  def fail_initialization(self, failed=True) -> 'Physics':
+    """Marks this episode's initialization as failed where `failed` is true.
+
+    The jitted counterpart of raising `EpisodeInitializationError`: the
+    environment resamples the episode (a fresh key for every
+    `initialize_episode` hook) up to `max_reset_attempts` times and counts
+    the failures in `metrics['init_failures']`.
+    """
+    previous = (jnp.zeros((), bool) if self.initialization_failed is None
+                else self.initialization_failed)
+    return self.replace(initialization_failed=jnp.logical_or(
+        previous, jnp.asarray(failed, bool)))
 
   def read(self, address: _Address) -> jax.Array:
     source = self.data if address.source == 'data' else self.model
