@@ -430,3 +430,112 @@ def test_step_types_match_dm_env():
   import dm_env  # pylint: disable=g-import-not-at-top
   for ours in environment_lib.StepType:
     assert int(ours) == int(dm_env.StepType[ours.name])
+
+
+# -- state across episodes, initialization failures ----------------------------
+
+
+class _CountingTask(conftest.SwingTask):
+  """Counts each world's episodes in a persistent entry; colours the ball
+  once per world (first reset only), from the reset key."""
+
+  def initialize_episode(self, physics, key):
+    physics = super().initialize_episode(physics, key)
+    episodes = physics.get_persistent('episodes', jnp.zeros((), jnp.int32))
+    first = episodes == 0
+    ball = physics.bind(self.ball.geom)
+    new_red = jax.random.uniform(key)
+    red = jnp.where(first, new_red, ball.rgba[0])
+    physics = ball.set(rgba=jnp.stack([red, 0., 0., 1.]))
+    return physics.set_persistent('episodes', episodes + 1)
+
+
+@pytest.mark.parametrize('auto_reset', ['next_step', 'same_step'])
+def test_persistent_state_and_model_fields_survive_auto_reset(auto_reset):
+  env = composer.Environment(_CountingTask(), time_limit=0.02,
+                             auto_reset=auto_reset)
+  reset = jax.jit(jax.vmap(env.reset))
+  step = jax.jit(jax.vmap(env.step))
+  states = reset(jax.random.split(jax.random.key(3), 4))
+  red_of = jax.vmap(
+      lambda state: env.physics(state).bind(env.task.ball.geom).rgba[0])
+  first_red = np.asarray(red_of(states))
+  assert len(np.unique(first_red)) == 4  # different worlds, different draws
+  ends = 0
+  for _ in range(7):
+    states = step(states, jnp.zeros((4, 1)))
+    ends += int(states.last()[0])
+  # Episodes of 2 steps: one reset per LAST (same_step) or per step after a
+  # LAST (next_step); the persistent counter saw every one of them.
+  episodes = np.asarray(states.persistent['episodes'])
+  expected = 1 + (ends if auto_reset == 'same_step' else
+                  ends - int(states.last()[0]))
+  np.testing.assert_array_equal(episodes, expected)
+  assert expected >= 3
+  # The once-per-world colour is still the first draw, per world.
+  red = red_of(states)
+  np.testing.assert_array_equal(red, first_red)
+  # A fresh reset starts the world afresh.
+  again = reset(jax.random.split(jax.random.key(3), 4))
+  np.testing.assert_array_equal(again.persistent['episodes'], 1)
+
+
+class _FlakyTask(conftest.SwingTask):
+  """Fails initialization with probability `p` (per attempt, from its key)."""
+
+  def __init__(self, p):
+    super().__init__()
+    self.p = p
+
+  def initialize_episode(self, physics, key):
+    physics = super().initialize_episode(physics, key)
+    draw = jax.random.uniform(jax.random.fold_in(key, 7))
+    return physics.fail_initialization(draw < self.p)
+
+
+def test_failed_initialization_is_retried_and_counted():
+  worlds = 256
+  env = composer.Environment(_FlakyTask(0.5), max_reset_attempts=20)
+  states = jax.jit(jax.vmap(env.reset))(
+      jax.random.split(jax.random.key(0), worlds))
+  failures = np.asarray(states.metrics['init_failures'])
+  # Attempts until success are geometric: failures before success has mean
+  # p / (1 - p) = 1; with 20 attempts virtually every world succeeds.
+  assert np.all(np.asarray(states.metrics['init_failed']) == 0)
+  assert 0.7 < failures.mean() < 1.3
+  assert (failures == 0).mean() > 0.35 and failures.max() >= 3
+  # Worlds that succeeded at once are the same as without retries.
+  single = composer.Environment(_FlakyTask(0.5))
+  once = jax.jit(jax.vmap(single.reset))(
+      jax.random.split(jax.random.key(0), worlds))
+  ok = failures == 0
+  np.testing.assert_array_equal(np.asarray(once.data.qpos)[ok],
+                                np.asarray(states.data.qpos)[ok])
+  np.testing.assert_array_equal(np.asarray(once.metrics['init_failed']),
+                                np.asarray(once.metrics['init_failures']))
+  # Retried worlds are resampled, not repeated.
+  retried = failures > 0
+  assert not np.any(np.all(np.asarray(once.data.qpos)[retried]
+                           == np.asarray(states.data.qpos)[retried], axis=-1))
+
+
+def test_initialization_that_always_fails_is_bounded_and_flagged():
+  env = composer.Environment(_FlakyTask(1.1), max_reset_attempts=3,
+                             time_limit=0.02)
+  state = jax.jit(env.reset)(jax.random.key(0))
+  assert float(state.metrics['init_failures']) == 3.
+  assert float(state.metrics['init_failed']) == 1.
+  state = jax.jit(env.step)(state, jnp.zeros(1))
+  assert float(state.metrics['init_failed']) == 1.  # reported all episode
+  with pytest.raises(ValueError, match='max_reset_attempts'):
+    composer.Environment(_FlakyTask(0.5), max_reset_attempts=0)
+
+
+def test_step_hooks_cannot_add_persistent_entries():
+  class Adds(conftest.SwingTask):
+    def after_step(self, physics, key):
+      return physics.set_persistent('late', jnp.zeros(()))
+
+  env = composer.Environment(Adds())
+  with pytest.raises(ValueError, match='initialize_episode'):
+    env.step(env.reset(jax.random.key(0)), jnp.zeros(1))
