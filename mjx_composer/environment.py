@@ -160,6 +160,34 @@ def _tree_select(pred, on_true, on_false):
   return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
 
 
+def _select_reset(done, reset_fn, operands, stepped):
+  """`reset_fn(*operands)` where `done`, else `stepped`.
+
+  For one world this is a select. Under `jax.vmap` a select would compute the
+  reset of every world at every step; the batching rule instead computes the
+  batch's resets only when some world is done (`lax.cond` on `any(done)`),
+  then selects per world. Results are the same either way.
+  """
+  def select(done, operands, stepped):
+    return _tree_select(done, reset_fn(*operands), stepped)
+
+  select_or_skip = jax.custom_batching.custom_vmap(select)
+
+  @select_or_skip.def_vmap
+  def _batched(axis_size, in_batched, done, operands, stepped):
+    def batch(x, is_batched):
+      return x if is_batched else jnp.broadcast_to(
+          x, (axis_size,) + jnp.shape(x))
+    done, operands, stepped = jax.tree.map(
+        batch, (done, operands, stepped), tuple(in_batched))
+    out = jax.lax.cond(jnp.any(done),
+                       lambda: jax.vmap(select)(done, operands, stepped),
+                       lambda: stepped)
+    return out, jax.tree.map(lambda _: True, out)
+
+  return select_or_skip(done, operands, stepped)
+
+
 def _is_overridden(obj, name, base_cls) -> bool:
   method = getattr(type(obj), name, None)
   return method is not None and method is not getattr(base_cls, name, None)
@@ -507,16 +535,20 @@ class Environment:
     if self._auto_reset == 'next_step':
       reset_key, step_key = jax.random.split(state.key)
       stepped = self._step(state.replace(key=step_key), action)
-      restarted = self._reset(reset_key, previous=state)
-      return _tree_select(state.last(), restarted, stepped)
+      return _select_reset(state.last(), self._reset, (reset_key, state),
+                           stepped)
+
+    def restart(stepped):
+      restarted = self._reset(stepped.key, previous=stepped)
+      return restarted.replace(
+          step_type=stepped.step_type, reward=stepped.reward,
+          discount=stepped.discount, terminated=stepped.terminated,
+          truncated=stepped.truncated,
+          final_observation=stepped.final_observation,
+          metrics=stepped.metrics)
+
     stepped = self._step(state, action)
-    restarted = self._reset(stepped.key, previous=stepped)
-    restarted = restarted.replace(
-        step_type=stepped.step_type, reward=stepped.reward,
-        discount=stepped.discount, terminated=stepped.terminated,
-        truncated=stepped.truncated,
-        final_observation=stepped.final_observation, metrics=stepped.metrics)
-    return _tree_select(stepped.last(), restarted, stepped)
+    return _select_reset(stepped.last(), restart, (stepped,), stepped)
 
   def _check_action(self, action):
     action = jnp.asarray(action)

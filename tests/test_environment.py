@@ -321,6 +321,27 @@ def test_world_does_not_depend_on_batch_size(swing_fns):
                      select_b=lambda x: x)
 
 
+def test_staggered_auto_resets_match_single_worlds(swing_fns):
+  # Under vmap, resets are computed only at steps where some world is done
+  # (a batching rule); with staggered episodes that path and the skipped
+  # one must both give each world exactly its single-world trajectory.
+  keys = jax.random.split(jax.random.key(11), 3)
+  actions = jax.random.uniform(jax.random.key(12), (8, 3, 1), minval=-1,
+                               maxval=1)
+  singles = [swing_fns['reset'](k) for k in keys]
+  singles[0] = swing_fns['step'](singles[0], jnp.zeros(1))  # one step ahead
+  batch = jax.tree.map(lambda *xs: jnp.stack(xs), *singles)
+  for t in range(8):
+    batch = swing_fns['vstep'](batch, actions[t])
+    singles = [swing_fns['step'](s, actions[t, i])
+               for i, s in enumerate(singles)]
+  assert int(batch.metrics['episode_length'][0]) != int(
+      batch.metrics['episode_length'][1])
+  for i, single in enumerate(singles):
+    assert_trees_equal(batch, single, select=lambda x, i=i: x[i],
+                       select_b=lambda x: x)
+
+
 def test_divergence_is_isolated_and_reset(swing_fns):
   keys = jax.random.split(jax.random.key(0), 4)
   states = swing_fns['vreset'](keys)
