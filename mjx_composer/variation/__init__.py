@@ -11,6 +11,9 @@ Everything here is a pure function of a JAX PRNG key and can be jitted and
 vmapped over worlds. `base` documents the calling convention, how keys are
 split, and the explicit state protocol of stateful variations
 (`initial_state` / `sample`) that variators and observables build on.
+
+`MJCFVariator` and `PhysicsVariator` bind variations to model attributes and
+sample them per world, at reset or on a `Schedule` (see `variator_base`).
 """
 
 from mjx_composer.variation import base
@@ -29,5 +32,6 @@ from mjx_composer.variation.base import initial_state
 from mjx_composer.variation.base import sample
 from mjx_composer.variation.base import static_bounds
 
-# MJCFVariator and PhysicsVariator (binding variations to model attributes)
-# are added here by the variator module.
+from mjx_composer.variation.mjcf_variator import MJCFVariator
+from mjx_composer.variation.physics_variator import PhysicsVariator
+from mjx_composer.variation.variator_base import Schedule

@@ -1,0 +1,98 @@
+"""`MJCFVariator`: variations bound to MJCF (MjSpec) attributes, per world.
+
+    class RandomizedTask(composer.Task):
+
+      def __init__(self, robot, arena):
+        ...
+        self._mjcf_variator = variation.MJCFVariator()
+        for geom in robot.mjcf_model.geoms:
+          self._mjcf_variator.bind_attributes(
+              geom, rgba=colors.RgbVariation(...),
+              size=noises.Multiplicative(distributions.Uniform(0.9, 1.1)))
+
+      def initialize_episode(self, physics, key):
+        return self._mjcf_variator.apply_variations(physics, key)
+
+composer's MJCFVariator edits the MJCF and recompiles every episode. We
+compile once, so the variator maps each supported attribute onto the
+compiled model fields it sets and re-derives on the device everything that
+MuJoCo's compiler computes from it (inertia from geom sizes and densities,
+`body_subtreemass`, `geom_rbound`, `mj_setConst`'s `*_invweight0`, ...; see
+`model_compiler`). A world varied this way equals, to float32 precision, the
+model you get by setting the same values on the MjSpec and recompiling.
+
+Elements are the handles of your entities' own specs (geoms, bodies, sites,
+joints, actuators) and the root entity's `mjcf_model.option`. Values are in
+spec units (e.g. degrees for the joint ranges of a spec whose compiler uses
+degrees). Position actuators also take `kp` (gainprm[0], with
+biasprm[1] = -kp) and `kv` (biasprm[2] = -kv). Attributes that cannot be
+made equal are refused with a message (`model_compiler.ATTRIBUTES` lists the
+supported ones).
+
+Differences from composer:
+
+* call `apply_variations(physics, key)` in `initialize_episode` (not
+  `initialize_episode_mjcf`): it runs on the device, per world;
+* initial values are the attribute values of the compiled spec, read when
+  reset is traced (composer reads them when binding);
+* the world's current values (what cumulative variations build on) are
+  carried in its persistent state, so they survive auto-resets;
+* other hooks' writes to the fields this variator derives (e.g. a
+  PhysicsVariator on `body_mass` before it) are overwritten: apply the
+  MJCFVariator first;
+* the model's `qpos0` follows varied free-body poses, but `Environment`
+  starts every episode from the compiled `qpos0`: set the free joint's qpos
+  yourself if you want the varied pose as the initial state.
+
+See `variator_base` for schedules (`Schedule`) and state.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+from mjx_composer.variation import model_compiler
+from mjx_composer.variation import variator_base
+
+
+class _Plan:
+  """Trace-time resolution of an MJCFVariator's bindings."""
+
+  def __init__(self, variator, physics):
+    bindings = variator.bindings
+    self._compiler = model_compiler.ModelCompiler(
+        physics.index,
+        [(b.element, b.attr, b.describe()) for b in bindings],
+        owner=variator.persistent_name)
+    self.initial_values = self._compiler.initial_values
+
+  def read_current(self, physics, entry):
+    del physics
+    if entry is None or 'values' not in entry:
+      return [jnp.asarray(v) for v in self.initial_values]
+    return list(entry['values'])
+
+  def write(self, physics, values):
+    fields = self._compiler(physics.model, values)
+    physics = physics.replace(model=physics.model.replace(**fields))
+    return physics, {'values': tuple(values)}
+
+
+class MJCFVariator(variator_base.Variator):
+  """Binds variations to MJCF attributes; recompile-equivalent per world.
+
+  Args:
+    schedule: when to draw (`variation.Schedule`); every episode by default.
+    name: the name of this variator's persistent entry (unique by default).
+  """
+
+  def _check_binding(self, element, attr, variation):
+    kind = model_compiler.check_attribute(element, attr)
+    initial = model_compiler.spec_value(element, kind, attr)
+    variator_base.check_static_shape(
+        variation, initial,
+        variator_base.describe_element(element) + '.' + attr,
+        self.persistent_name)
+
+  def _prepare(self, physics):
+    return _Plan(self, physics)

@@ -1,0 +1,191 @@
+"""`PhysicsVariator`: variations bound to compiled model fields, per world.
+
+    self._physics_variator = variation.PhysicsVariator()
+    self._physics_variator.bind_attributes(
+        geom, friction=distributions.Uniform([0.5, 0.001, 0.001],
+                                             [1.5, 0.01, 0.01]))
+    self._physics_variator.bind_attributes(joint, damping=noises.Multiplicative(
+        distributions.LogNormal(0., 0.1)))
+
+    def initialize_episode(self, physics, key):
+      return self._physics_variator.apply_variations(physics, key)
+
+Attribute names are those of composer's `physics.bind(element)`: the
+`mjModel` field without the element kind's prefix (`friction` for
+`geom_friction`, `mass` for `body_mass`, `damping` for a joint's
+`dof_damping`, `gear`, `rgba`, ...); the full field name (`body_mass`) is
+accepted too. The option (`spec.option` of the root entity) binds its
+physical fields (`gravity`, `wind`, `magnetic`, `density`, `viscosity`,
+`impratio`).
+
+Like composer's, this variator writes the fields and nothing else: quantities
+MuJoCo's compiler derives from them (`body_subtreemass`, `dof_invweight0`,
+...) keep their compiled values. Use `MJCFVariator` for variations that must
+equal a recompiled model. Initial values are the compiled model's values;
+current values are the world's. See `variator_base` for schedules.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+import numpy as np
+
+from mjx_composer import physics as physics_lib
+from mjx_composer.variation import variator_base
+
+# The class of `MjSpec.option` (not `mujoco.MjOption`, the compiled struct).
+SPEC_OPTION = type(mujoco.MjSpec().option)
+# Option fields a variator may write: the physical ones. `timestep` is
+# static for the environment (its control timestep), flags and solver
+# settings are static in MJX.
+OPTION_FIELDS = ('gravity', 'wind', 'magnetic', 'density', 'viscosity',
+                 'impratio')
+# MJX decides at put_model time, statically, whether fluid forces exist.
+FLUID_FIELDS = ('density', 'viscosity', 'wind')
+
+
+def option_has_fluid(opt) -> bool:
+  """MJX's static `has_fluid_params` rule (`mjx/_src/io.py`)."""
+  return bool(opt.density > 0 or opt.viscosity > 0 or np.any(opt.wind))
+
+
+@dataclasses.dataclass
+class _Target:
+  """Where one binding writes: a model field slice or an option field."""
+  address: Any          # physics._Address, or None for the option
+  option_field: str | None
+
+
+class _Plan:
+  """Trace-time resolution of a PhysicsVariator's bindings."""
+
+  def __init__(self, variator, physics):
+    index = physics.index
+    mj_model = index.model
+    self.targets = []
+    self.initial_values = []
+    for binding in variator.bindings:
+      element, attr = binding.element, binding.attr
+      if isinstance(element, SPEC_OPTION):
+        if attr in FLUID_FIELDS and not option_has_fluid(mj_model.opt):
+          raise ValueError(
+              f'{variator.persistent_name}: cannot vary option {attr}: the '
+              'compiled model has no fluid forces (density, viscosity and '
+              'wind are all zero), and MJX decides that statically. Give the '
+              'root spec a nonzero option density or viscosity.')
+        compiled = np.asarray(getattr(mj_model.opt, attr), np.float64)
+        if not np.allclose(np.asarray(getattr(element, attr), np.float64),
+                           compiled, rtol=1e-9, atol=1e-12):
+          raise ValueError(
+              f'{variator.persistent_name}: the MjOption bound to {attr} does '
+              'not hold the compiled model\'s values: bind the root '
+              'entity\'s `mjcf_model.option` (options of attached entities '
+              'are not compiled).')
+        field = getattr(physics.model.opt, attr)
+        initial = compiled.astype(field.dtype)
+        self.targets.append(_Target(None, attr))
+        self.initial_values.append(initial.reshape(jnp.shape(field)))
+        continue
+      try:
+        kind, ids, is_seq = index.resolve(element)
+      except (ValueError, KeyError) as e:
+        raise ValueError(f'{variator.persistent_name}: cannot apply the '
+                         f'variation bound to {binding.describe()}: {e}') from e
+      address = index.address(kind, _short_name(kind, attr), ids, is_seq)
+      if address.source != 'model':
+        raise ValueError(
+            f'{variator.persistent_name}: {binding.describe()} is a data '
+            f'field ({address.field}); a PhysicsVariator varies compiled '
+            'model fields. Write data in initialize_episode instead.')
+      field = getattr(physics.model, address.field)
+      if not hasattr(field, 'dtype') or isinstance(field, np.ndarray):
+        raise ValueError(
+            f'{variator.persistent_name}: model field {address.field} is '
+            'static in MJX (part of the compiled structure) and cannot vary '
+            'per world.')
+      host = np.asarray(getattr(mj_model, address.field))
+      host = host.reshape(field.shape).astype(field.dtype)
+      self.targets.append(_Target(address, None))
+      self.initial_values.append(np.asarray(host[address.index]))
+
+  def read_current(self, physics, entry):
+    del entry  # The current values are the world's model fields.
+    values = []
+    for target in self.targets:
+      if target.address is None:
+        values.append(getattr(physics.model.opt, target.option_field))
+      else:
+        values.append(physics.read(target.address))
+    return values
+
+  def write(self, physics, values):
+    opt_updates = {}
+    for target, value in zip(self.targets, values):
+      if target.address is None:
+        opt_updates[target.option_field] = value
+      else:
+        physics = physics.write(target.address, value)
+    if opt_updates:
+      model = physics.model
+      physics = physics.replace(
+          model=model.replace(opt=model.opt.replace(**opt_updates)))
+    return physics, {}
+
+
+def _short_name(kind, attr: str) -> str:
+  """`body_mass` -> `mass` for a body, `dof_damping` -> `damping` for joints."""
+  prefixes = (kind.prefix, 'dof') if kind.name == 'joint' else (kind.prefix,)
+  for prefix in prefixes:
+    if attr.startswith(prefix + '_') and physics_lib.hasattr_model(attr):
+      return attr[len(prefix) + 1:]
+  return attr
+
+
+class PhysicsVariator(variator_base.Variator):
+  """Binds variations to compiled model fields (composer's PhysicsVariator).
+
+  Args:
+    schedule: when to draw (`variation.Schedule`); every episode by default.
+    name: the name of this variator's persistent entry (unique by default).
+  """
+
+  def _check_binding(self, element, attr, variation):
+    del variation  # Shapes are known once the model is compiled.
+    if isinstance(element, SPEC_OPTION):
+      if attr not in OPTION_FIELDS:
+        raise ValueError(
+            f'Cannot vary option attribute {attr!r} per world. Supported '
+            f'option attributes: {list(OPTION_FIELDS)}.')
+      return
+    kind = physics_lib.element_kind(element)   # TypeError for non-elements.
+    short = _short_name(kind, attr)
+    valid = _model_attributes(kind)
+    if short not in valid:
+      raise ValueError(
+          f'A {kind.name} has no compiled model attribute {attr!r} that can '
+          f'vary per world. Valid attributes: {sorted(valid)}.')
+
+  def _prepare(self, physics):
+    return _Plan(self, physics)
+
+
+def _model_attributes(kind) -> set[str]:
+  """Binding names of a kind's mjx.Model array fields (per element)."""
+  names = set()
+  for field in dataclasses.fields(mjx.Model):
+    if field.type is not jax.Array:
+      continue   # static numpy metadata: structure, not variable per world
+    name = field.name
+    if name.startswith(kind.prefix + '_'):
+      names.add(name[len(kind.prefix) + 1:])
+    elif kind.name == 'joint' and name.startswith('dof_'):
+      names.add(name[4:])
+    elif kind.name == 'joint' and name in ('qpos0', 'qpos_spring'):
+      names.add(name)
+  return names

@@ -1,0 +1,351 @@
+"""What `MJCFVariator` and `PhysicsVariator` share: bindings, schedules, state.
+
+A variator binds variations to attributes of elements and, when applied,
+samples them for one world and writes the result into that world's model.
+Everything that must outlive an episode (when to resample, the state of
+stateful variations such as `deterministic.Sequence`, the current values of
+MJCF attributes) is kept in the world's persistent entries
+(`Physics.get_persistent`), under one entry per variator, created at reset
+with its final shapes.
+
+Schedules (`Schedule`) say when a variator resamples:
+
+* `Schedule.per_episode()` (the default): every call from
+  `initialize_episode` draws fresh values, so every episode of every world
+  gets its own (unlike Playground's randomize-once wrapper).
+* `Schedule.once_per_world()`: the first reset of a world draws; later
+  (auto-)resets keep the world's values. `Environment.reset(key)` starts a
+  world afresh, so it draws again.
+* `Schedule.every_steps(k)`: the reset call draws and restarts the count;
+  call `apply_variations(physics, key, in_step=True)` from `before_step` too,
+  and it draws again every k control steps: at the start of control steps
+  k+1, 2k+1, ... of the episode (so every draw holds for k steps, the last
+  one until the episode ends).
+
+Inside jit a skipped draw is a `jnp.where` between the new and the current
+values: the sampling (and, for an `MJCFVariator`, the re-derivation of
+compiled fields) still runs, its result is just not used. An every-k-steps
+MJCFVariator with derived attributes (sizes, masses, poses) therefore pays
+for that re-derivation at every control step.
+
+Initial values are the compiled defaults (never the values of a previous
+episode), so non-cumulative variations never compound across episodes;
+`current_value` is the world's current value, which cumulative variations
+(`noises.Additive(..., cumulative=True)`) build on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjx_composer.variation import base
+
+
+@dataclasses.dataclass(frozen=True)
+class Schedule:
+  """When a variator draws new values (see the module docstring).
+
+  Build one with `Schedule.per_episode()`, `Schedule.once_per_world()` or
+  `Schedule.every_steps(k)`.
+  """
+  mode: str = 'episode'
+  interval: int = 0
+
+  def __post_init__(self):
+    if self.mode not in ('episode', 'world', 'steps'):
+      raise ValueError(f'Unknown schedule mode {self.mode!r}: use '
+                       'Schedule.per_episode(), Schedule.once_per_world() or '
+                       'Schedule.every_steps(k).')
+    if self.mode == 'steps' and (int(self.interval) != self.interval
+                                 or self.interval < 1):
+      raise ValueError('Schedule.every_steps(k) needs a positive integer k, '
+                       f'got {self.interval!r}.')
+
+  @classmethod
+  def per_episode(cls) -> 'Schedule':
+    """Draw at every reset (composer's behaviour)."""
+    return cls('episode')
+
+  @classmethod
+  def once_per_world(cls) -> 'Schedule':
+    """Draw at a world's first reset only; auto-resets keep the values."""
+    return cls('world')
+
+  @classmethod
+  def every_steps(cls, k: int) -> 'Schedule':
+    """Draw at reset and then every `k` control steps (see module doc)."""
+    return cls('steps', k)
+
+  def __str__(self):
+    if self.mode == 'steps':
+      return f'Schedule.every_steps({self.interval})'
+    return {'episode': 'Schedule.per_episode()',
+            'world': 'Schedule.once_per_world()'}[self.mode]
+
+
+@dataclasses.dataclass
+class Binding:
+  """One variation bound to one attribute of one element.
+
+  Attributes:
+    element: the element handle (or `MjOption`) as the user passed it.
+    attr: the attribute name.
+    variation: a variation, a constant, or a nested structure of them.
+    slot: a number fixed at bind time; the binding's key is
+      `fold_in(key, slot)`, so (un)binding other attributes never changes
+      the values this one draws.
+  """
+  element: Any
+  attr: str
+  variation: Any
+  slot: int
+
+  def describe(self) -> str:
+    return f'{describe_element(self.element)}.{self.attr}'
+
+
+def describe_element(element) -> str:
+  name = getattr(element, 'name', '')
+  kind = type(element).__name__
+  return f'{kind}({name!r})' if name else kind
+
+
+_COUNTER = itertools.count()
+
+
+class Variator:
+  """Base class: bindings, schedules and the persistent state protocol.
+
+  Subclasses implement `_check_binding(element, attr, variation)` (bind-time
+  validation) and `_prepare(physics)`, the trace-time resolution, which
+  returns a plan with `initial_values` (one numpy array per binding, the
+  compiled default), `read_current(physics, entry)` (the world's current
+  values) and `write(physics, values) -> (physics, extra entries)`.
+
+  The persistent entry (`persistent_name`) holds `states` (the bindings'
+  variation states), `applied` (once per world) or `count` (every k steps),
+  and whatever `write` returns (MJCF attribute values).
+  """
+
+  def __init__(self, schedule: Schedule | None = None, name: str | None = None):
+    """Initializes the variator.
+
+    Args:
+      schedule: when to draw (a `Schedule`); defaults to every episode.
+      name: the name of this variator's persistent entry. Defaults to a
+        unique name; give one explicitly if several environments built in
+        different orders must agree on it.
+    """
+    if schedule is None:
+      schedule = Schedule.per_episode()
+    if not isinstance(schedule, Schedule):
+      raise TypeError('schedule must be a variation.Schedule (e.g. '
+                      'Schedule.every_steps(10)), got '
+                      f'{type(schedule).__name__}.')
+    self._schedule = schedule
+    self._name = name or f'{type(self).__name__}_{next(_COUNTER)}'
+    self._bindings: dict[tuple[int, str], Binding] = {}
+    self._next_slot = 0
+    self._plans: dict[int, Any] = {}
+
+  @property
+  def schedule(self) -> Schedule:
+    return self._schedule
+
+  @property
+  def persistent_name(self) -> str:
+    """The key of this variator's entry in `physics.persistent`."""
+    return self._name
+
+  @property
+  def bindings(self) -> tuple[Binding, ...]:
+    return tuple(self._bindings.values())
+
+  def bind_attributes(self, element, **variations):
+    """Binds variations to attributes of `element`.
+
+    Args:
+      element: the element whose attributes vary.
+      **variations: `attribute=variation`, where a variation is a
+        `Variation`, any callable `(initial_value, current_value, key)`, a
+        constant, or a nested structure of them. `attribute=None` unbinds an
+        attribute bound before.
+
+    Raises:
+      ValueError, TypeError: for an attribute this variator cannot vary, or
+        a value whose shape can never match the attribute's.
+    """
+    for attr, variation in variations.items():
+      key = (id(element), attr)
+      if variation is None:
+        self._bindings.pop(key, None)
+        continue
+      self._check_binding(element, attr, variation)
+      old = self._bindings.get(key)
+      if old is not None:
+        old.variation = variation
+      else:
+        self._bindings[key] = Binding(element, attr, variation,
+                                      self._next_slot)
+        self._next_slot += 1
+    self._plans.clear()
+
+  def clear(self):
+    """Removes every binding."""
+    self._bindings.clear()
+    self._plans.clear()
+
+  def _check_binding(self, element, attr, variation):
+    raise NotImplementedError
+
+  def _prepare(self, physics):
+    raise NotImplementedError
+
+  def _plan(self, physics):
+    """The trace-time plan for this physics' compiled model (cached)."""
+    index = physics.index
+    plan = self._plans.get(id(index))
+    if plan is None or plan[0] is not index:
+      plan = (index, self._prepare(physics))
+      self._plans[id(index)] = plan
+    return plan[1]
+
+  # -- applying -------------------------------------------------------------
+
+  def apply_variations(self, physics, key, *, in_step: bool = False):
+    """Samples the bound attributes for this world, per the schedule.
+
+    Call it from `initialize_episode` (every schedule), and for
+    `Schedule.every_steps(k)` also from `before_step` with `in_step=True`.
+
+    Args:
+      physics: the world's `Physics`.
+      key: a JAX PRNG key (the hook's key).
+      in_step: True when called from a step hook.
+
+    Returns:
+      The `Physics` with the varied model fields and this variator's
+      persistent entry.
+    """
+    if not self._bindings:
+      return physics
+    schedule = self._schedule
+    name = self._name
+    entry = physics.get_persistent(name)
+    if in_step:
+      if schedule.mode != 'steps':
+        raise ValueError(
+            f'{name}: apply_variations(..., in_step=True) only applies to '
+            f'Schedule.every_steps(k); this variator draws on '
+            f'{schedule}. Call it from initialize_episode only.')
+      if entry is None:
+        raise ValueError(
+            f'{name}: call apply_variations(physics, key) from '
+            'initialize_episode as well: it creates the step counter that '
+            'the in-step calls advance.')
+    plan = self._plan(physics)
+    bindings = self.bindings
+    initial = plan.initial_values
+    current = plan.read_current(physics, entry)
+    fresh_states = tuple(
+        base.initial_state(b.variation, initial[i])
+        for i, b in enumerate(bindings))
+    states = (fresh_states if entry is None or 'states' not in entry
+              else entry['states'])
+
+    new_entry = {}
+    if schedule.mode == 'episode':
+      draw = True
+    elif schedule.mode == 'world':
+      applied = (jnp.zeros((), bool) if entry is None else entry['applied'])
+      draw = jnp.logical_not(applied)
+      new_entry['applied'] = jnp.ones((), bool)
+    else:
+      if in_step:
+        # `count` is the number of control steps completed this episode.
+        done = entry['count']
+        draw = (done > 0) & (done % schedule.interval == 0)
+        count = done + 1
+      else:
+        count, draw = jnp.zeros((), jnp.int32), True
+      new_entry['count'] = jnp.asarray(count, jnp.int32)
+
+    values, new_states = [], []
+    with base.evaluation_round(key):
+      for i, binding in enumerate(bindings):
+        value, state = base.sample(binding.variation, states[i],
+                                   jax.random.fold_in(key, binding.slot),
+                                   initial[i], current[i])
+        values.append(_conform(value, initial[i], binding, self._name))
+        new_states.append(state)
+    new_states = tuple(new_states)
+    if draw is not True:
+      values = [jnp.where(draw, v, c) for v, c in zip(values, current)]
+      new_states = jax.tree.map(lambda a, b: jnp.where(draw, a, b),
+                                new_states, tuple(states))
+    new_entry['states'] = new_states
+    physics, extra = plan.write(physics, values)
+    new_entry.update(extra)
+    return physics.set_persistent(name, new_entry)
+
+
+def _conform(value, initial: np.ndarray, binding: Binding, owner: str):
+  """`value` as an array of the attribute's shape and dtype, or an error."""
+  try:
+    array = jnp.asarray(value, dtype=initial.dtype)
+  except (TypeError, ValueError) as e:
+    raise ValueError(
+        f'{owner}: the variation bound to {binding.describe()} gave '
+        f'{value!r}, which is not an array of numbers.') from e
+  shape = np.shape(initial)
+  if not _broadcasts(array.shape, shape):
+    raise ValueError(
+        f'{owner}: the variation bound to {binding.describe()} gives values '
+        f'of shape {array.shape}, but the attribute has shape {shape}.')
+  return jnp.broadcast_to(array, shape)
+
+
+def _broadcasts(source: tuple, target: tuple) -> bool:
+  try:
+    return np.broadcast_shapes(source, target) == tuple(target)
+  except ValueError:
+    return False
+
+
+def check_static_shape(variation, initial: np.ndarray, describe: str,
+                       owner: str):
+  """Bind-time shape check when the attribute's value is known.
+
+  Evaluates the shape of the variation's output abstractly (no sampling)
+  with the attribute's value as initial and current value.
+  """
+  shape = np.shape(initial)
+
+  def draw(key):
+    value, _ = base.sample(variation, base.initial_state(variation, initial),
+                           key, initial, initial)
+    return jnp.asarray(value)
+
+  try:
+    out = jax.eval_shape(draw, jax.random.key(0))
+  except (jax.errors.ConcretizationTypeError,
+          jax.errors.TracerArrayConversionError,
+          jax.errors.TracerBoolConversionError,
+          jax.errors.TracerIntegerConversionError):
+    # Needs concrete values (e.g. a numpy callable): the shape is checked
+    # when reset is traced.
+    return
+  except (TypeError, ValueError) as e:
+    raise ValueError(
+        f'{owner}: the variation bound to {describe} cannot give a value for '
+        f'an attribute of shape {shape}: {e}') from e
+  if not _broadcasts(out.shape, shape):
+    raise ValueError(
+        f'{owner}: the variation bound to {describe} gives values of shape '
+        f'{out.shape}, but the attribute has shape {shape}.')
