@@ -4,6 +4,13 @@ The scene composes three bundled entities: a `Floor` arena, an `Arm` robot
 built in code, and a free `Ball` prop dropped at a random spot each episode.
 The target is per-world task state, sampled in `initialize_episode`.
 
+Domain randomization (`randomize=True`, the default) resamples per episode
+and per world, through one `MJCFVariator` whose derived quantities (inertia,
+`invweight0`, `actuator_acc0`, ...) match a recompiled model: the colours of
+every arm link and the ball, the arm links' densities (so their masses), the
+ball's radius and mass, the ball's and floor's friction, and the arm's motor
+gears.
+
 Observations come in two groups: the policy sees joint positions and
 velocities with sensor noise, a delayed and buffered hand position and the
 target; the critic additionally sees the clean (privileged) ball pose.
@@ -19,6 +26,10 @@ from mjx_composer.entities import props
 from mjx_composer.entities import robots
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
+from mjx_composer.variation import colors
+from mjx_composer.variation import distributions
+from mjx_composer.variation import mjcf_variator
+from mjx_composer.variation import noises
 
 _TARGET_LOW = np.array([-0.45, -0.45, 0.15], np.float32)
 _TARGET_HIGH = np.array([0.45, 0.45, 0.6], np.float32)
@@ -42,10 +53,12 @@ class Reach(task.Task):
     control_timestep: seconds per agent step. physics_timestep: seconds per
       physics step (must divide the control timestep).
     observation_noise: standard deviation of the joint sensor noise.
+    randomize: resample colours, masses, sizes, friction and actuator gains
+      every episode (see the module docstring).
   """
 
   def __init__(self, control_timestep=0.02, physics_timestep=0.004,
-               observation_noise=0.01):
+               observation_noise=0.01, randomize=True):
     self._arena = arenas.Floor(size=(1.5, 1.5))
     self._arm = robots.Arm()
     self._arena.attach(self._arm)
@@ -75,6 +88,28 @@ class Reach(task.Task):
     self._target.enabled = True
     self._distance = observable.Generic(self._hand_to_target)
     self._distance.enabled = True
+    self._variator = mjcf_variator.MJCFVariator()
+    if randomize:
+      self._bind_randomization()
+
+  def _bind_randomization(self):
+    scale = lambda low, high: noises.Multiplicative(
+        distributions.Uniform(low, high))
+    bind = self._variator.bind_attributes
+    for geom in self._arm.mjcf_model.geoms:
+      bind(geom, rgba=colors.HsvVariation(
+          h=distributions.Uniform(0., 1.), s=distributions.Uniform(0.3, 0.8),
+          v=distributions.Uniform(0.5, 1.)))
+      if geom.name != 'base':   # the fixed pedestal's mass is irrelevant
+        bind(geom, density=scale(0.7, 1.3))
+    for actuator in self._arm.actuators:
+      bind(actuator, gear=scale(0.8, 1.2))
+    bind(self._ball.geom, size=scale(0.7, 1.3), mass=scale(0.5, 2.),
+         friction=scale(0.5, 1.5),
+         rgba=colors.RgbVariation(r=distributions.Uniform(0., 1.),
+                                  g=distributions.Uniform(0., 1.),
+                                  b=distributions.Uniform(0., 1.)))
+    bind(self._arena.ground_geoms[0], friction=scale(0.7, 1.3))
 
   @property
   def root_entity(self):
@@ -108,14 +143,16 @@ class Reach(task.Task):
     return {'target': jnp.zeros(3, jnp.float32)}
 
   def initialize_episode(self, physics, key):
-    target_key, ball_key = jax.random.split(key)
+    variation_key, target_key, ball_key = jax.random.split(key, 3)
+    physics = self._variator.apply_variations(physics, variation_key)
     target = jax.random.uniform(target_key, (3,), minval=_TARGET_LOW,
                                 maxval=_TARGET_HIGH)
     angle, radius = jax.random.uniform(ball_key, (2,), minval=jnp.array(
         [-np.pi, 0.3]), maxval=jnp.array([np.pi, 0.8]))
     ball_xy = radius * jnp.array([jnp.cos(angle), jnp.sin(angle)])
+    radius = physics.bind(self._ball.geom).size[0]   # varied per world
     physics = self._ball.set_pose(
-        physics, position=jnp.concatenate([ball_xy, jnp.array([0.05])]))
+        physics, position=jnp.concatenate([ball_xy, radius[None]]))
     return physics.update_task_state(target=target)
 
   def _hand_to_target(self, physics):
