@@ -4,8 +4,9 @@ For each number of worlds it times, on the same compiled model and with the
 same number of physics sub-steps per control step:
 
 * raw:       `jax.lax.scan` over `jax.vmap(mjx.step)` (n sub-steps per step);
-* composed:  `jax.vmap(env.step)` of the bundled reach task with its full
-             observation set (10 observables, 3 with noise, 2 buffered, a
+* composed:  `jax.vmap(env.step)` of the bundled reach task (domain
+             randomization off: `variation_cost.py` measures that) with its
+             full observation set (10 observables, 3 with noise, 2 buffered, a
              policy/critic split, flattened) and same-step auto-reset;
 * no_obs:    the same environment with every observable disabled.
 
@@ -32,7 +33,7 @@ from mjx_composer.tasks import reach
 
 
 def build(observables: bool):
-  task = reach.Reach()
+  task = reach.Reach(randomize=False)  # variation_cost.py measures DR
   if not observables:
     for obs in task.observables.values():
       obs.enabled = False
