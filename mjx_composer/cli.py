@@ -15,19 +15,28 @@ import jax.numpy as jnp
 import numpy as np
 import tqdm
 
-TASKS = ('reach',)
+TASKS = ('reach', 'push')
+# What each task's `distance` metric measures, for the summary line.
+_DISTANCE_LABELS = {'reach': 'hand-target distance',
+                    'push': 'box-zone distance'}
 
 
 def make_environment(task_name='reach', time_limit=2.0, auto_reset='same_step'):
   """Builds a bundled task's `Environment` with its observation groups."""
   from mjx_composer import environment  # pylint: disable=g-import-not-at-top
-  from mjx_composer.tasks import reach  # pylint: disable=g-import-not-at-top
-  if task_name != 'reach':
+  if task_name == 'reach':
+    from mjx_composer.tasks import reach  # pylint: disable=g-import-not-at-top
+    task = reach.Reach()
+    groups = reach.Reach.observation_groups()
+  elif task_name == 'push':
+    from mjx_composer.tasks import push  # pylint: disable=g-import-not-at-top
+    task = push.Push()
+    groups = task.observation_groups()
+  else:
     raise ValueError(f'Unknown task {task_name!r}; choose from {TASKS}.')
-  task = reach.Reach()
   return environment.Environment(
       task, time_limit=time_limit, auto_reset=auto_reset,
-      observation_groups=reach.Reach.observation_groups())
+      observation_groups=groups)
 
 
 def make_rollout(env, num_worlds, chunk):
@@ -52,6 +61,8 @@ def make_rollout(env, num_worlds, chunk):
         'distance': totals['distance'] + jnp.sum(
             jnp.where(ended, states.metrics['distance'], 0.)),
         'diverged': totals['diverged'] + jnp.sum(states.metrics['diverged']),
+        'init_failures': totals['init_failures'] + jnp.sum(
+            jnp.where(ended, states.metrics['init_failures'], 0.)),
     }
     return (states, key, totals), None
 
@@ -98,7 +109,8 @@ def demo(argv=None):
   rollout = make_rollout(env, args.worlds, chunk)
   totals = {'episodes': jnp.zeros((), jnp.int32),
             'return': jnp.zeros(()), 'length': jnp.zeros((), jnp.int32),
-            'distance': jnp.zeros(()), 'diverged': jnp.zeros(())}
+            'distance': jnp.zeros(()), 'diverged': jnp.zeros(()),
+            'init_failures': jnp.zeros(())}
 
   t0 = time.perf_counter()
   states = reset(jax.random.split(reset_key, args.worlds))
@@ -124,18 +136,22 @@ def demo(argv=None):
     print(f'Episodes finished: {episodes:,}; mean return '
           f'{float(totals["return"]) / episodes:.3f}, mean length '
           f'{int(totals["length"]) / episodes:.1f} steps, mean final '
-          f'hand-target distance {float(totals["distance"]) / episodes:.3f} m.')
+          f'{_DISTANCE_LABELS[args.task]} '
+          f'{float(totals["distance"]) / episodes:.3f} m.')
   else:
     print('No episode finished: raise --steps or lower --time-limit.')
   print(f'Diverged worlds: {int(totals["diverged"])}.')
+  if int(totals['init_failures']):
+    print('Failed episode initializations (e.g. props that could not be '
+          f'placed): {int(totals["init_failures"])}.')
   return 0
 
 
 def main(argv=None):
   argv = list(sys.argv[1:] if argv is None else argv)
   if not argv or argv[0] not in ('demo',):
-    print('usage: mjx-composer demo [--task reach] [--worlds N] [--steps T] '
-          '[--time-limit S] [--seed K]')
+    print('usage: mjx-composer demo [--task reach|push] [--worlds N] '
+          '[--steps T] [--time-limit S] [--seed K]')
     return 2
   return demo(argv[1:])
 

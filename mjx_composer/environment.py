@@ -461,7 +461,7 @@ class Environment:
     has_init_hooks = bool(self._device_hooks('initialize_episode'))
     not_failed = jnp.zeros((), bool)
 
-    def attempt(attempt_key):
+    def attempt(attempt_key, persistent):
       physics = self._make_physics(start_model, self._data0,
                                    self._task.initial_task_state(),
                                    persistent, not_failed)
@@ -470,7 +470,7 @@ class Environment:
         physics = self._run_hooks('initialize_episode', physics, attempt_key)
       return physics
 
-    physics = attempt(init_key)
+    physics = attempt(init_key, persistent)
     changed = self._per_world_fields(base, physics.model, None, None)
     model_fields = sorted(set(changed) | set(self._declared_model_fields))
     failures = physics.initialization_failed.astype(jnp.int32)
@@ -483,8 +483,10 @@ class Environment:
                 physics.persistent, physics.initialization_failed)
 
       def retry(carry):
-        attempts, failures, _ = carry
-        physics = attempt(jax.random.fold_in(init_key, attempts))
+        # Persistent entries carry over from the failed attempt, as
+        # composer's variation state does (a Sequence moves on).
+        attempts, failures, (*_, persistent, _) = carry
+        physics = attempt(jax.random.fold_in(init_key, attempts), persistent)
         return (attempts + 1,
                 failures + physics.initialization_failed.astype(jnp.int32),
                 carry_of(physics))

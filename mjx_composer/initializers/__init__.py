@@ -1,0 +1,3 @@
+"""Bundled initializers (composer's `composer.initializers`)."""
+
+from mjx_composer.initializers.prop_initializer import PropPlacer
