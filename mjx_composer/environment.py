@@ -483,9 +483,10 @@ class Environment:
                 physics.persistent, physics.initialization_failed)
 
       def retry(carry):
-        # Persistent entries carry over from the failed attempt, as
-        # composer's variation state does (a Sequence moves on).
-        attempts, failures, (*_, persistent, _) = carry
+        # Every attempt starts from the same model and persistent entries:
+        # a failed attempt leaves no trace (a Sequence does not move on, a
+        # once-per-world draw is not marked done), only a fresh key.
+        attempts, failures, _ = carry
         physics = attempt(jax.random.fold_in(init_key, attempts), persistent)
         return (attempts + 1,
                 failures + physics.initialization_failed.astype(jnp.int32),
