@@ -40,6 +40,8 @@ class Arm(robot.Robot):
              rgba=(0.8, 0.5, 0.2, 1.)):
     spec = mujoco.MjSpec()
     spec.modelname = name
+    # Joint ranges below are in radians; MjSpec's compiler defaults to degrees.
+    spec.compiler.degree = False
     hinge = mujoco.mjtJoint.mjJNT_HINGE
     capsule = mujoco.mjtGeom.mjGEOM_CAPSULE
     # The pedestal is fixed to the parent; yaw and shoulder share a body.
@@ -60,6 +62,10 @@ class Arm(robot.Robot):
                             armature=0.05)
     lower.add_geom(name='lower', type=capsule, size=[0.025, 0, 0],
                    fromto=[0, 0, 0, 0, 0, lower_length], rgba=rgba)
+    # The upper link's capsule starts inside the pedestal. MuJoCo's parent
+    # filter does not apply here (the pedestal is welded to the world), so
+    # exclude the pair explicitly.
+    spec.add_exclude(bodyname1='base', bodyname2='upper')
     self._hand = lower.add_site(name='hand', pos=[0, 0, lower_length],
                                 size=[0.03, 0, 0], rgba=[0.9, 0.9, 0.1, 1])
     self._joints = (yaw, shoulder, elbow)
