@@ -1,4 +1,4 @@
-"""A planar-yaw three-joint arm, built in code with MjSpec."""
+"""A three-joint arm on a fixed pedestal, built in code with MjSpec."""
 
 import mujoco
 
@@ -45,9 +45,12 @@ class Arm(robot.Robot):
     hinge = mujoco.mjtJoint.mjJNT_HINGE
     capsule = mujoco.mjtGeom.mjGEOM_CAPSULE
     # The pedestal is fixed to the parent; yaw and shoulder share a body.
+    # It is a box, not a cylinder: MJX collides cylinders with capsules and
+    # spheres through an iterative SDF search, which costs more to compile
+    # and to run than all the arm's other contacts, and not with boxes at all.
     base = spec.worldbody.add_body(name='base', pos=[0, 0, 0.05])
-    base.add_geom(name='base', type=mujoco.mjtGeom.mjGEOM_CYLINDER,
-                  size=[0.06, 0.05, 0], rgba=[0.3, 0.3, 0.3, 1])
+    base.add_geom(name='base', type=mujoco.mjtGeom.mjGEOM_BOX,
+                  size=[0.06, 0.06, 0.05], rgba=[0.3, 0.3, 0.3, 1])
     upper = base.add_body(name='upper', pos=[0, 0, 0.06])
     yaw = upper.add_joint(name='yaw', type=hinge, axis=[0, 0, 1],
                           damping=1.0, armature=0.05)

@@ -17,7 +17,6 @@ boxes are in the zone.
 
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 
 from mjx_composer import task
@@ -81,23 +80,10 @@ class Push(task.Task):
         size=(_ARENA_HALF_SIZE, _ARENA_HALF_SIZE), size_variation=None)
     self._arm = robots.Arm()
     self._arena.attach(self._arm)
-    # MJX has no cylinder-box collision: the arm's cylindrical pedestal stops
-    # colliding, and an invisible box around it, seen by the boxes only
-    # (contact bit 2), stands in for it. (A capsule would be cheaper, but
-    # MJX's capsule-box test misses some deep contacts that MuJoCo finds.)
-    for geom in self._arm.mjcf_model.geoms:
-      if geom.type == mujoco.mjtGeom.mjGEOM_CYLINDER:
-        geom.contype, geom.conaffinity = 0, 0
-        self._arena.mjcf_model.worldbody.add_geom(
-            name='pedestal_guard', type=mujoco.mjtGeom.mjGEOM_BOX,
-            pos=np.asarray(geom.pos) + np.asarray(geom.parent.pos),
-            size=[geom.size[0], geom.size[0], geom.size[1]], contype=2,
-            conaffinity=0, rgba=[0, 0, 0, 0])
     self._boxes = []
     self._ring = []
     for i in range(num_boxes):
       box = props.Box(half_lengths=(_BOX_HALF_SIZE,) * 3, mass=0.1,
-                      conaffinity=3,   # bit 2: the pedestal guard
                       rgba=_BOX_COLOURS[i % len(_BOX_COLOURS)],
                       name=f'box_{i}')
       frame = self._arena.add_free_entity(box)
