@@ -1,12 +1,13 @@
 """Trains a bundled composed task with Brax's PPO and reports time to a return.
 
-    python benchmarks/train_ppo.py --task reach --num-timesteps 20000000 \\
-        --num-envs 4096 --threshold 20 --out runs/reach
+    python benchmarks/train_ppo.py --task reach --num-timesteps 8000000 \\
+        --threshold 20 --out runs/reach
 
 Brax's `ppo.train` runs unchanged on the task through
 `mjx_composer.adapters.brax` (per-episode randomization, our auto-reset,
-truncation reported as truncation); the policy sees the 'policy' observation
-group and the critic the privileged 'critic' group. The script shows a
+truncation reported as truncation). The policy and the critic see the
+'policy' observation group; with `--obs asymmetric` the critic sees the
+privileged 'critic' group instead. The script shows a
 progress bar, evaluates `--num-evals` times, and writes to `--out`:
 
 * `returns.csv` and `returns.json`: step, wall-clock seconds since the start
@@ -50,20 +51,20 @@ def parse_args(argv=None):
   from mjx_composer import cli  # pylint: disable=g-import-not-at-top
   parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
   parser.add_argument('--task', default='reach', choices=cli.TASKS)
-  parser.add_argument('--num-timesteps', type=int, default=20_000_000)
-  parser.add_argument('--num-envs', type=int, default=4096)
+  parser.add_argument('--num-timesteps', type=int, default=10_000_000)
+  parser.add_argument('--num-envs', type=int, default=2048)
   parser.add_argument('--threshold', type=float, default=20.,
                       help='evaluation return to report the time to')
   parser.add_argument('--out', default='runs/ppo')
   parser.add_argument('--time-limit', type=float, default=1.,
                       help='episode length in seconds (reach: 50 steps)')
-  parser.add_argument('--num-evals', type=int, default=20)
+  parser.add_argument('--num-evals', type=int, default=11)
   parser.add_argument('--num-eval-envs', type=int, default=256)
-  parser.add_argument('--batch-size', type=int, default=None,
-                      help='minibatch size (default: --num-envs)')
-  parser.add_argument('--num-minibatches', type=int, default=16)
+  parser.add_argument('--batch-size', type=int, default=1024,
+                      help='minibatch size')
+  parser.add_argument('--num-minibatches', type=int, default=32)
   parser.add_argument('--unroll-length', type=int, default=10)
-  parser.add_argument('--num-updates-per-batch', type=int, default=4)
+  parser.add_argument('--num-updates-per-batch', type=int, default=8)
   parser.add_argument('--learning-rate', type=float, default=3e-3)
   parser.add_argument('--entropy-cost', type=float, default=0.)
   parser.add_argument('--init-noise-std', type=float, default=0.5)
@@ -84,8 +85,10 @@ def parse_args(argv=None):
   parser.add_argument('--render-worlds', type=int, default=4,
                       help='worlds in the rollout images (0: none)')
   parser.add_argument('--render-steps', type=int, default=50)
+  parser.add_argument('--render-from', metavar='POLICY_PKL', default=None,
+                      help='skip training: render the policy saved in this '
+                      'policy.pkl into --out')
   args = parser.parse_args(argv)
-  args.batch_size = args.batch_size or args.num_envs
   if (args.batch_size * args.num_minibatches) % args.num_envs:
     parser.error('--batch-size x --num-minibatches must be a multiple of '
                  '--num-envs.')
@@ -197,27 +200,48 @@ def main(argv=None):
         f'observations {brax_env.observation_size}, '
         f'{brax_env.action_size} actions.')
 
+  if args.render_from:
+    policy = load_policy(args.render_from)
+    _rollout_images(env, brax_env, policy, args, args.out)
+    print(f'Rendered {args.render_worlds} worlds of {args.render_from} into '
+          f'{args.out}.')
+    return 0
+
   rows = []
+  # The bar redraws in place on a terminal; in a log (a CI job, a remote
+  # run) it would bury the evaluation lines, so it is left out there.
   bar = tqdm.tqdm(total=args.num_timesteps, unit='step', unit_scale=True,
-                  desc='training (first update compiles)', file=sys.stdout)
+                  desc='training (first update compiles)', file=sys.stdout,
+                  disable=not sys.stdout.isatty())
   start = None
   hit = None
+  # Each evaluation is appended as it comes, so an interrupted run keeps
+  # its returns.
+  log_path = os.path.join(args.out, 'returns.csv')
+  if os.path.exists(log_path):
+    os.remove(log_path)
 
   def progress(step, metrics):
     nonlocal hit
     row = {'step': int(step), 'wall_s': time.perf_counter() - start,
            'train_walltime_s': float(metrics.get('training/walltime', 0.)),
+           'train_sps': float(metrics.get('training/sps', 0.)),
            'eval_return': float(metrics['eval/episode_reward']),
            'eval_return_std': float(metrics['eval/episode_reward_std']),
            'eval_episode_length': float(metrics['eval/avg_episode_length'])}
     rows.append(row)
+    with open(log_path, 'a', newline='') as f:
+      writer = csv.DictWriter(f, fieldnames=list(row))
+      if len(rows) == 1:
+        writer.writeheader()
+      writer.writerow(row)
     if hit is None and row['eval_return'] >= args.threshold:
       hit = row
     bar.set_description(f'return {row["eval_return"]:.1f}')
     bar.update(min(int(step), args.num_timesteps) - bar.n)
     tqdm.tqdm.write(f'step {step:>12,}  {row["wall_s"]:8.1f}s  return '
-                    f'{row["eval_return"]:8.2f} ± {row["eval_return_std"]:.2f}',
-                    file=sys.stdout)
+                    f'{row["eval_return"]:8.2f} ± {row["eval_return_std"]:.2f}'
+                    f'  ({row["train_sps"]:,.0f} steps/s)', file=sys.stdout)
 
   start = time.perf_counter()
   make_policy, params, _ = ppo.train(
@@ -236,10 +260,6 @@ def main(argv=None):
   bar.close()
 
   # Returns log and plot.
-  with open(os.path.join(args.out, 'returns.csv'), 'w', newline='') as f:
-    writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
   with open(os.path.join(args.out, 'returns.json'), 'w') as f:
     json.dump(rows, f, indent=1)
   _write_plot(os.path.join(args.out, 'returns.png'), rows, args.threshold,
