@@ -22,12 +22,12 @@ import re
 import shutil
 import time
 
+# The notebook tools come with the test extra: a missing install fails here.
+import ipykernel  # pylint: disable=unused-import
+import matplotlib  # pylint: disable=unused-import
+import nbclient
+import nbformat
 import pytest
-
-nbformat = pytest.importorskip('nbformat')
-nbclient = pytest.importorskip('nbclient')
-pytest.importorskip('ipykernel')
-pytest.importorskip('matplotlib')
 
 _NOTEBOOKS = pathlib.Path(__file__).resolve().parent.parent / 'notebooks'
 # Per cell: the first jitted rollout compiles for about a minute on 2 CPU

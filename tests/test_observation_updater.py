@@ -426,7 +426,7 @@ def test_constant_schedules_match_reference(n):
 
 
 def _library_sequence(values):
-  deterministic = pytest.importorskip('mjx_composer.variation.deterministic')
+  from mjx_composer.variation import deterministic  # pylint: disable=g-import-not-at-top
   return deterministic.Sequence(values)
 
 
