@@ -7,9 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-pytest.importorskip('brax')
-
-# pylint: disable=g-import-not-at-top,wrong-import-position
+# brax comes with the test extra; a missing install fails here, not skips.
 from brax.envs import wrappers as brax_wrappers
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import train as ppo
@@ -198,19 +196,25 @@ def test_ppo_improves_reach_through_the_adapter():
       ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(32, 32),
       value_hidden_layer_sizes=(64, 64), init_noise_std=0.5)
   evals = []
+  num_eval_envs = 128
   _, params, metrics = ppo.train(
-      environment=brax_env, num_timesteps=150_000, num_envs=64,
-      batch_size=64, num_minibatches=4, unroll_length=10,
-      num_updates_per_batch=4, learning_rate=3e-3, entropy_cost=0.,
-      discounting=0.95, num_evals=2, num_eval_envs=64,
+      environment=brax_env, num_timesteps=500_000, num_envs=128,
+      batch_size=64, num_minibatches=8, unroll_length=10,
+      num_updates_per_batch=8, learning_rate=3e-3, entropy_cost=0.,
+      discounting=0.95, num_evals=2, num_eval_envs=num_eval_envs,
       deterministic_eval=True, seed=0, network_factory=network_factory,
       progress_fn=lambda step, m: evals.append(
           (step, float(m['eval/episode_reward']),
            float(m['eval/episode_reward_std']))),
       **brax_adapter.training_kwargs(brax_env))
+  print('PPO evaluations (step, mean return, std):', evals)
   assert len(evals) == 2 and evals[0][0] == 0, evals
-  (_, before, _), (_, after, _) = evals
+  (_, before, before_std), (_, after, after_std) = evals
   assert metrics['eval/avg_episode_length'] == brax_env.episode_length
-  # Deterministic (fixed seed); measured 1.98 -> 2.36 on CPU.
-  assert after > before + 0.2, evals
+  # The untrained policy's deterministic return is about 1.9 (of at most 25);
+  # measured on CPU: 1.89 -> 2.72 (std 1.8 and 2.3 over 128 episodes).
+  # Require a rise of two standard errors of the difference between the two
+  # evaluations' means (about 0.5), so noise alone does not pass.
+  standard_error = np.hypot(before_std, after_std) / np.sqrt(num_eval_envs)
+  assert after > before + 2 * standard_error, evals
   assert all(np.isfinite(x).all() for x in jax.tree.leaves(params))
