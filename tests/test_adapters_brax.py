@@ -178,6 +178,23 @@ def test_wrong_set_ups_are_refused(env, brax_env, rollout):
   del env
 
 
+def test_replicated_state_matches_what_pmapped_training_returns():
+  # The training state that `jax.device_put_replicated` (restored by the
+  # adapter on JAX >= 0.10) replicates must be typed and sharded like what
+  # Brax's training epoch, pmapped over axis 'i', returns: any difference
+  # makes every jitted function those arrays reach compile twice.
+  devices = jax.local_devices()[:1]
+  tree = {'w': jnp.ones((2, 3)), 'scale': 2.}   # 2.: a weakly typed leaf
+  replicated = jax.device_put_replicated(tree, devices)
+  trained = jax.pmap(lambda t: jax.tree.map(lambda v: v * 1, t),
+                     axis_name='i')(replicated)
+  for before, after in zip(jax.tree.leaves(replicated),
+                           jax.tree.leaves(trained)):
+    assert before[0].sharding == after[0].sharding
+    assert not before.weak_type and not after.weak_type
+    assert before.dtype == after.dtype and before.shape == after.shape
+
+
 def _reach_task():
   """The bundled reach task, with one physics step per control step.
 
