@@ -159,8 +159,7 @@ class BraxEnv(brax_base.Env):
       episode_length = max(1, math.ceil(
           environment.time_limit / environment.control_timestep() - 1e-9))
     self._episode_length = int(episode_length)
-    self._metric_names = None
-    self._obs_shape = None
+    self._abstract_state_cache = None
 
   # -- Brax's Env interface ------------------------------------------------
 
@@ -225,9 +224,11 @@ class BraxEnv(brax_base.Env):
   # -- helpers -------------------------------------------------------------
 
   def _abstract_state(self):
-    if self._obs_shape is None:
-      self._obs_shape = jax.eval_shape(self.reset, jax.random.PRNGKey(0))
-    return self._obs_shape
+    # Shapes only (no compile); observation_size asks for them.
+    if self._abstract_state_cache is None:
+      self._abstract_state_cache = jax.eval_shape(self.reset,
+                                                  jax.random.PRNGKey(0))
+    return self._abstract_state_cache
 
   def select_observation(self, observation):
     """The part of a composer observation that Brax sees, flattened."""
