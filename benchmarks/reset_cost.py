@@ -44,9 +44,12 @@ _PLACEMENTS = ('placer', 'ring', 'unchecked', 'fixed')
 def build(placement, max_reset_attempts):
   task = push.Push(num_boxes=5, placement=placement)
   return environment.Environment(
-      task, time_limit=2.0, auto_reset='same_step',
+      task,
+      time_limit=2.0,
+      auto_reset='same_step',
       observation_groups=task.observation_groups(),
-      max_reset_attempts=max_reset_attempts)
+      max_reset_attempts=max_reset_attempts,
+  )
 
 
 def time_calls(fn, make_args, repeats):
@@ -68,20 +71,31 @@ def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--worlds', type=int, nargs='+', default=[8192])
   parser.add_argument('--repeats', type=int, default=5)
-  parser.add_argument('--max-reset-attempts', type=int, default=1,
-                      help='Environment(max_reset_attempts=...); above 1 the '
-                      'reset also holds the retry loop (compiled twice)')
-  parser.add_argument('--placements', nargs='+', default=list(_PLACEMENTS),
-                      choices=_PLACEMENTS,
-                      help='which variants to time (default: all)')
-  parser.add_argument('--out', default=os.path.join(
-      os.environ.get('OUT', '.'), 'reset_cost.json'))
+  parser.add_argument(
+      '--max-reset-attempts',
+      type=int,
+      default=1,
+      help='Environment(max_reset_attempts=...); above 1 the '
+      'reset also holds the retry loop (compiled twice)',
+  )
+  parser.add_argument(
+      '--placements',
+      nargs='+',
+      default=list(_PLACEMENTS),
+      choices=_PLACEMENTS,
+      help='which variants to time (default: all)',
+  )
+  parser.add_argument(
+      '--out',
+      default=os.path.join(os.environ.get('OUT', '.'), 'reset_cost.json'),
+  )
   args = parser.parse_args()
 
   device = jax.devices()[0]
   print(f'JAX {jax.__version__}, {device.platform}: {device.device_kind}')
-  envs = {name: build(name, args.max_reset_attempts)
-          for name in args.placements}
+  envs = {
+      name: build(name, args.max_reset_attempts) for name in args.placements
+  }
   resets = {name: jax.jit(jax.vmap(env.reset)) for name, env in envs.items()}
   results = []
   for worlds in args.worlds:
@@ -97,10 +111,14 @@ def main():
       if name == 'placer':
         states = placer_states = resets[name](keys(0)[0])
         row['init_failures_mean'] = float(
-            jnp.mean(states.metrics['init_failures']))
+            jnp.mean(states.metrics['init_failures'])
+        )
         row['init_failed'] = int(jnp.sum(states.metrics['init_failed']))
-      print(f'{worlds:>7} worlds: reset {name:<9} {seconds * 1e3:9.2f} ms '
-            f'(first call {compile_s:.1f} s)', flush=True)
+      print(
+          f'{worlds:>7} worlds: reset {name:<9} {seconds * 1e3:9.2f} ms '
+          f'(first call {compile_s:.1f} s)',
+          flush=True,
+      )
 
     results.append(row)
     if 'placer' not in envs:
@@ -113,32 +131,54 @@ def main():
     compile_s, seconds = time_calls(place, keys, args.repeats)
     row['placer_only_s'] = seconds
     row['placer_only_first_call_s'] = compile_s
-    print(f'{worlds:>7} worlds: placer alone  {seconds * 1e3:9.2f} ms '
-          f'(first call {compile_s:.1f} s)', flush=True)
+    print(
+        f'{worlds:>7} worlds: placer alone  {seconds * 1e3:9.2f} ms '
+        f'(first call {compile_s:.1f} s)',
+        flush=True,
+    )
 
   out_dir = os.path.dirname(os.path.abspath(args.out))
   os.makedirs(out_dir, exist_ok=True)
   with open(args.out, 'w') as f:
-    json.dump({'device': device.device_kind, 'platform': device.platform,
-               'jax': jax.__version__, 'props': 5,
-               'max_reset_attempts': args.max_reset_attempts,
-               'repeats': args.repeats, 'results': results}, f, indent=2)
+    json.dump(
+        {
+            'device': device.device_kind,
+            'platform': device.platform,
+            'jax': jax.__version__,
+            'props': 5,
+            'max_reset_attempts': args.max_reset_attempts,
+            'repeats': args.repeats,
+            'results': results,
+        },
+        f,
+        indent=2,
+    )
 
   def ms(row, name):
     return f'{row[name] * 1e3:.1f} ms' if name in row else '-'
 
-  print('\n| worlds | reset, PropPlacer (5 props) | reset, ring (baseline) | '
-        'placer / ring | placer alone | unchecked | fixed | failed '
-        'initializations |')
+  print(
+      '\n| worlds | reset, PropPlacer (5 props) | reset, ring (baseline) | '
+      'placer / ring | placer alone | unchecked | fixed | failed '
+      'initializations |'
+  )
   print('|---|---|---|---|---|---|---|---|')
   for r in results:
-    ratio = (f'{r["placer_s"] / r["ring_s"]:.2f}'
-             if 'placer_s' in r and 'ring_s' in r else '-')
-    failures = (f'{r["init_failures_mean"]:.2g} per world'
-                if 'init_failures_mean' in r else '-')
-    print(f'| {r["worlds"]:,} | {ms(r, "placer_s")} | {ms(r, "ring_s")} | '
-          f'{ratio} | {ms(r, "placer_only_s")} | {ms(r, "unchecked_s")} | '
-          f'{ms(r, "fixed_s")} | {failures} |')
+    ratio = (
+        f'{r["placer_s"] / r["ring_s"]:.2f}'
+        if 'placer_s' in r and 'ring_s' in r
+        else '-'
+    )
+    failures = (
+        f'{r["init_failures_mean"]:.2g} per world'
+        if 'init_failures_mean' in r
+        else '-'
+    )
+    print(
+        f'| {r["worlds"]:,} | {ms(r, "placer_s")} | {ms(r, "ring_s")} | '
+        f'{ratio} | {ms(r, "placer_only_s")} | {ms(r, "unchecked_s")} | '
+        f'{ms(r, "fixed_s")} | {failures} |'
+    )
   print(f'\nJSON: {args.out}')
 
 

@@ -38,14 +38,18 @@ def build(observables: bool):
     for obs in task.observables.values():
       obs.enabled = False
   return environment.Environment(
-      task, time_limit=2.0, auto_reset='same_step',
-      observation_groups=reach.Reach.observation_groups() if observables
-      else None)
+      task,
+      time_limit=2.0,
+      auto_reset='same_step',
+      observation_groups=reach.Reach.observation_groups()
+      if observables
+      else None,
+  )
 
 
 def time_fn(fn, args, repeats):
-  out = jax.block_until_ready(fn(*args))   # compile + warm up
-  out = jax.block_until_ready(fn(*out))    # outputs may retrace once (dtypes)
+  out = jax.block_until_ready(fn(*args))  # compile + warm up
+  out = jax.block_until_ready(fn(*out))  # outputs may retrace once (dtypes)
   times = []
   for _ in range(repeats):
     t0 = time.perf_counter()
@@ -63,7 +67,9 @@ def raw_rollout(model, n_sub_steps, steps):
       d = d.replace(ctrl=ctrl)
       d = jax.lax.fori_loop(0, n_sub_steps, lambda _, x: step(x), d)
       return d, None
+
     return jax.lax.scan(control_step, data, None, length=steps)[0], ctrl
+
   return rollout
 
 
@@ -74,18 +80,23 @@ def env_rollout(env, steps):
   def rollout(states, actions):
     def control_step(s, _):
       return vstep(s, actions), None
+
     return jax.lax.scan(control_step, states, None, length=steps)[0], actions
+
   return rollout
 
 
 def main():
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument('--worlds', type=int, nargs='+', default=[1024])
-  parser.add_argument('--steps', type=int, default=100,
-                      help='control steps per timed call')
+  parser.add_argument(
+      '--steps', type=int, default=100, help='control steps per timed call'
+  )
   parser.add_argument('--repeats', type=int, default=3)
-  parser.add_argument('--out', default=os.path.join(
-      os.environ.get('OUT', '.'), 'throughput.json'))
+  parser.add_argument(
+      '--out',
+      default=os.path.join(os.environ.get('OUT', '.'), 'throughput.json'),
+  )
   args = parser.parse_args()
 
   device = jax.devices()[0]
@@ -97,37 +108,57 @@ def main():
   results = []
   for worlds in args.worlds:
     row = {'worlds': worlds}
-    actions = jax.random.uniform(jax.random.key(1), (worlds,) + spec.shape,
-                                 minval=-1., maxval=1.)
-    data = jax.vmap(lambda _: mjx.make_data(base.mjx_model))(
-        jnp.arange(worlds))
+    actions = jax.random.uniform(
+        jax.random.key(1), (worlds,) + spec.shape, minval=-1.0, maxval=1.0
+    )
+    data = jax.vmap(lambda _: mjx.make_data(base.mjx_model))(jnp.arange(worlds))
     data = jax.jit(jax.vmap(lambda d: mjx.forward(base.mjx_model, d)))(data)
-    seconds = time_fn(raw_rollout(base.mjx_model, n, args.steps),
-                      (data, actions), args.repeats)
+    seconds = time_fn(
+        raw_rollout(base.mjx_model, n, args.steps),
+        (data, actions),
+        args.repeats,
+    )
     row['raw'] = worlds * args.steps * n / seconds
     for name, env in envs.items():
       states = jax.jit(jax.vmap(env.reset))(
-          jax.random.split(jax.random.key(0), worlds))
-      seconds = time_fn(env_rollout(env, args.steps), (states, actions),
-                        args.repeats)
+          jax.random.split(jax.random.key(0), worlds)
+      )
+      seconds = time_fn(
+          env_rollout(env, args.steps), (states, actions), args.repeats
+      )
       row[name] = worlds * args.steps * n / seconds
     results.append(row)
-    print(f'{worlds:>7} worlds: raw {row["raw"]:,.0f}  composed '
-          f'{row["composed"]:,.0f}  no_obs {row["no_obs"]:,.0f} physics '
-          'steps/s', flush=True)
+    print(
+        f'{worlds:>7} worlds: raw {row["raw"]:,.0f}  composed '
+        f'{row["composed"]:,.0f}  no_obs {row["no_obs"]:,.0f} physics '
+        'steps/s',
+        flush=True,
+    )
 
   with open(args.out, 'w') as f:
-    json.dump({'device': device.device_kind, 'jax': jax.__version__,
-               'n_sub_steps': n, 'steps_per_call': args.steps,
-               'results': results}, f, indent=2)
-  print('\n| worlds | raw MJX (physics steps/s) | composed | composed / raw '
-        '| no observables | no_obs / raw | observation cost |')
+    json.dump(
+        {
+            'device': device.device_kind,
+            'jax': jax.__version__,
+            'n_sub_steps': n,
+            'steps_per_call': args.steps,
+            'results': results,
+        },
+        f,
+        indent=2,
+    )
+  print(
+      '\n| worlds | raw MJX (physics steps/s) | composed | composed / raw '
+      '| no observables | no_obs / raw | observation cost |'
+  )
   print('|---|---|---|---|---|---|---|')
   for r in results:
-    print(f'| {r["worlds"]:,} | {r["raw"] / 1e6:.2f} M | '
-          f'{r["composed"] / 1e6:.2f} M | {r["composed"] / r["raw"]:.3f} | '
-          f'{r["no_obs"] / 1e6:.2f} M | {r["no_obs"] / r["raw"]:.3f} | '
-          f'{1 - r["composed"] / r["no_obs"]:+.1%} |')
+    print(
+        f'| {r["worlds"]:,} | {r["raw"] / 1e6:.2f} M | '
+        f'{r["composed"] / 1e6:.2f} M | {r["composed"] / r["raw"]:.3f} | '
+        f'{r["no_obs"] / 1e6:.2f} M | {r["no_obs"] / r["raw"]:.3f} | '
+        f'{1 - r["composed"] / r["no_obs"]:+.1%} |'
+    )
 
 
 if __name__ == '__main__':

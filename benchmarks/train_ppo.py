@@ -48,78 +48,116 @@ def _parse_sizes(text):
 
 def parse_args(argv=None):
   from mjx_composer import cli  # pylint: disable=g-import-not-at-top
+
   parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
   parser.add_argument('--task', default='reach', choices=cli.TASKS)
   parser.add_argument('--num-timesteps', type=int, default=10_000_000)
   parser.add_argument('--num-envs', type=int, default=2048)
-  parser.add_argument('--threshold', type=float, default=20.,
-                      help='evaluation return to report the time to')
+  parser.add_argument(
+      '--threshold',
+      type=float,
+      default=20.0,
+      help='evaluation return to report the time to',
+  )
   parser.add_argument('--out', default='runs/ppo')
-  parser.add_argument('--time-limit', type=float, default=1.,
-                      help='episode length in seconds (reach: 50 steps)')
+  parser.add_argument(
+      '--time-limit',
+      type=float,
+      default=1.0,
+      help='episode length in seconds (reach: 50 steps)',
+  )
   parser.add_argument('--num-evals', type=int, default=11)
   parser.add_argument('--num-eval-envs', type=int, default=256)
-  parser.add_argument('--batch-size', type=int, default=1024,
-                      help='minibatch size')
+  parser.add_argument(
+      '--batch-size', type=int, default=1024, help='minibatch size'
+  )
   parser.add_argument('--num-minibatches', type=int, default=32)
   parser.add_argument('--unroll-length', type=int, default=10)
   parser.add_argument('--num-updates-per-batch', type=int, default=8)
   parser.add_argument('--learning-rate', type=float, default=3e-3)
-  parser.add_argument('--entropy-cost', type=float, default=0.)
+  parser.add_argument('--entropy-cost', type=float, default=0.0)
   parser.add_argument('--init-noise-std', type=float, default=0.5)
   # Off by default: on CPU tests, Brax's running normalizer made PPO's KL and
   # value loss explode on reach (observation dims that are constant early,
   # such as the resting ball's velocities, get std 1e-6).
-  parser.add_argument('--normalize', action='store_true',
-                      help='normalize observations (Brax running stats)')
+  parser.add_argument(
+      '--normalize',
+      action='store_true',
+      help='normalize observations (Brax running stats)',
+  )
   parser.add_argument('--discounting', type=float, default=0.95)
-  parser.add_argument('--policy-layers', type=_parse_sizes, default=(64, 64),
-                      help='comma-separated hidden sizes')
-  parser.add_argument('--value-layers', type=_parse_sizes,
-                      default=(256, 256))
-  parser.add_argument('--obs', choices=('asymmetric', 'policy'),
-                      default='policy', help="'asymmetric': the critic "
-                      "sees the 'critic' group; 'policy': both see 'policy'")
+  parser.add_argument(
+      '--policy-layers',
+      type=_parse_sizes,
+      default=(64, 64),
+      help='comma-separated hidden sizes',
+  )
+  parser.add_argument('--value-layers', type=_parse_sizes, default=(256, 256))
+  parser.add_argument(
+      '--obs',
+      choices=('asymmetric', 'policy'),
+      default='policy',
+      help="'asymmetric': the critic "
+      "sees the 'critic' group; 'policy': both see 'policy'",
+  )
   parser.add_argument('--seed', type=int, default=0)
-  parser.add_argument('--render-worlds', type=int, default=4,
-                      help='worlds in the rollout images (0: none)')
+  parser.add_argument(
+      '--render-worlds',
+      type=int,
+      default=4,
+      help='worlds in the rollout images (0: none)',
+  )
   parser.add_argument('--render-steps', type=int, default=50)
-  parser.add_argument('--render-from', metavar='POLICY_PKL', default=None,
-                      help='skip training: render the policy saved in this '
-                      'policy.pkl into --out')
+  parser.add_argument(
+      '--render-from',
+      metavar='POLICY_PKL',
+      default=None,
+      help='skip training: render the policy saved in this '
+      'policy.pkl into --out',
+  )
   args = parser.parse_args(argv)
   if (args.batch_size * args.num_minibatches) % args.num_envs:
-    parser.error('--batch-size x --num-minibatches must be a multiple of '
-                 '--num-envs.')
+    parser.error(
+        '--batch-size x --num-minibatches must be a multiple of ' '--num-envs.'
+    )
   return args
 
 
 def make_networks(args):
   from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
+
   value_key = 'critic' if args.obs == 'asymmetric' else 'policy'
   return functools.partial(
-      ppo_networks.make_ppo_networks, policy_obs_key='policy',
-      value_obs_key=value_key, policy_hidden_layer_sizes=args.policy_layers,
+      ppo_networks.make_ppo_networks,
+      policy_obs_key='policy',
+      value_obs_key=value_key,
+      policy_hidden_layer_sizes=args.policy_layers,
       value_hidden_layer_sizes=args.value_layers,
-      init_noise_std=args.init_noise_std)
+      init_noise_std=args.init_noise_std,
+  )
 
 
 def load_policy(path, deterministic=True):
   """Rebuilds `policy(obs, key) -> (action, extras)` from a `policy.pkl`."""
   from brax.training.acme import running_statistics  # pylint: disable=g-import-not-at-top
   from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
+
   with open(path, 'rb') as f:
     saved = pickle.load(f)
   config = saved['config']
   networks = ppo_networks.make_ppo_networks(
       {k: tuple(v) for k, v in config['observation_size'].items()},
       config['action_size'],
-      preprocess_observations_fn=(running_statistics.normalize
-                                  if config['normalize'] else
-                                  lambda x, unused_params: x),
-      policy_obs_key='policy', value_obs_key=config['value_obs_key'],
+      preprocess_observations_fn=(
+          running_statistics.normalize
+          if config['normalize']
+          else lambda x, unused_params: x
+      ),
+      policy_obs_key='policy',
+      value_obs_key=config['value_obs_key'],
       policy_hidden_layer_sizes=tuple(config['policy_layers']),
-      value_hidden_layer_sizes=tuple(config['value_layers']))
+      value_hidden_layer_sizes=tuple(config['value_layers']),
+  )
   make_policy = ppo_networks.make_inference_fn(networks)
   return make_policy(saved['params'], deterministic=deterministic)
 
@@ -127,6 +165,7 @@ def load_policy(path, deterministic=True):
 def _write_plot(path, rows, threshold, title):
   try:
     import matplotlib  # pylint: disable=g-import-not-at-top
+
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt  # pylint: disable=g-import-not-at-top
   except ImportError:
@@ -153,32 +192,45 @@ def _rollout_images(env, brax_env, policy, args, out):
   """Renders the trained policy on a few worlds: a strip and a GIF."""
   from mjx_composer import rendering  # pylint: disable=g-import-not-at-top
   from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
   n = args.render_worlds
   reset = jax.jit(brax_env.reset)
   step = jax.jit(lambda s, k: brax_env.step(s, policy(s.obs, k)[0]))
   state = reset(jax.random.split(jax.random.PRNGKey(args.seed + 1), n))
   key = jax.random.PRNGKey(args.seed + 2)
   frames = []
-  camera = dict(distance=2.2, elevation=-25.0, azimuth=135.0,
-                lookat=[0., 0., 0.25])
+  camera = dict(
+      distance=2.2, elevation=-25.0, azimuth=135.0, lookat=[0.0, 0.0, 0.25]
+  )
   for _ in range(args.render_steps):
     inner = brax_adapter.composer_state(state)
-    target = inner.task_state.get('target') if isinstance(
-        inner.task_state, dict) else None
-    frames.append(rendering.render(env, inner, height=180, width=240,
-                                   camera=camera, markers=target))
+    target = (
+        inner.task_state.get('target')
+        if isinstance(inner.task_state, dict)
+        else None
+    )
+    frames.append(
+        rendering.render(
+            env, inner, height=180, width=240, camera=camera, markers=target
+        )
+    )
     key, sub = jax.random.split(key)
     state = step(state, sub)
-  frames = np.stack(frames)              # (T, worlds, H, W, 3)
+  frames = np.stack(frames)  # (T, worlds, H, W, 3)
   columns = np.linspace(0, len(frames) - 1, 6).astype(int)
   strip = rendering.image_grid(
-      frames[columns].transpose(1, 0, 2, 3, 4).reshape(
-          (-1,) + frames.shape[2:]), columns=len(columns))
+      frames[columns]
+      .transpose(1, 0, 2, 3, 4)
+      .reshape((-1,) + frames.shape[2:]),
+      columns=len(columns),
+  )
   rendering.save_image(os.path.join(out, 'rollout.png'), strip)
   grid_columns = int(np.ceil(np.sqrt(n)))
-  rendering.save_gif(os.path.join(out, 'rollout.gif'),
-                     [rendering.image_grid(f, columns=grid_columns)
-                      for f in frames], fps=1. / env.control_timestep())
+  rendering.save_gif(
+      os.path.join(out, 'rollout.gif'),
+      [rendering.image_grid(f, columns=grid_columns) for f in frames],
+      fps=1.0 / env.control_timestep(),
+  )
 
 
 def main(argv=None):
@@ -192,26 +244,36 @@ def main(argv=None):
   device = jax.devices()[0]
   print(f'JAX {jax.__version__} on {device.platform}: {device.device_kind}')
 
-  env = cli.make_environment(args.task, time_limit=args.time_limit,
-                             auto_reset='same_step')
+  env = cli.make_environment(
+      args.task, time_limit=args.time_limit, auto_reset='same_step'
+  )
   brax_env = brax_adapter.BraxEnv(env)
-  print(f'Task {args.task!r}: episodes of {brax_env.episode_length} steps; '
-        f'observations {brax_env.observation_size}, '
-        f'{brax_env.action_size} actions.')
+  print(
+      f'Task {args.task!r}: episodes of {brax_env.episode_length} steps; '
+      f'observations {brax_env.observation_size}, '
+      f'{brax_env.action_size} actions.'
+  )
 
   if args.render_from:
     policy = load_policy(args.render_from)
     _rollout_images(env, brax_env, policy, args, args.out)
-    print(f'Rendered {args.render_worlds} worlds of {args.render_from} into '
-          f'{args.out}.')
+    print(
+        f'Rendered {args.render_worlds} worlds of {args.render_from} into '
+        f'{args.out}.'
+    )
     return 0
 
   rows = []
   # The bar redraws in place on a terminal; in a log (a CI job, a remote
   # run) it would bury the evaluation lines, so it is left out there.
-  bar = tqdm.tqdm(total=args.num_timesteps, unit='step', unit_scale=True,
-                  desc='training (first update compiles)', file=sys.stdout,
-                  disable=not sys.stdout.isatty())
+  bar = tqdm.tqdm(
+      total=args.num_timesteps,
+      unit='step',
+      unit_scale=True,
+      desc='training (first update compiles)',
+      file=sys.stdout,
+      disable=not sys.stdout.isatty(),
+  )
   start = None
   hit = None
   # Each evaluation is appended as it comes, so an interrupted run keeps
@@ -222,12 +284,15 @@ def main(argv=None):
 
   def progress(step, metrics):
     nonlocal hit
-    row = {'step': int(step), 'wall_s': time.perf_counter() - start,
-           'train_walltime_s': float(metrics.get('training/walltime', 0.)),
-           'train_sps': float(metrics.get('training/sps', 0.)),
-           'eval_return': float(metrics['eval/episode_reward']),
-           'eval_return_std': float(metrics['eval/episode_reward_std']),
-           'eval_episode_length': float(metrics['eval/avg_episode_length'])}
+    row = {
+        'step': int(step),
+        'wall_s': time.perf_counter() - start,
+        'train_walltime_s': float(metrics.get('training/walltime', 0.0)),
+        'train_sps': float(metrics.get('training/sps', 0.0)),
+        'eval_return': float(metrics['eval/episode_reward']),
+        'eval_return_std': float(metrics['eval/episode_reward_std']),
+        'eval_episode_length': float(metrics['eval/avg_episode_length']),
+    }
     rows.append(row)
     with open(log_path, 'a', newline='') as f:
       writer = csv.DictWriter(f, fieldnames=list(row))
@@ -238,80 +303,108 @@ def main(argv=None):
       hit = row
     bar.set_description(f'return {row["eval_return"]:.1f}')
     bar.update(min(int(step), args.num_timesteps) - bar.n)
-    tqdm.tqdm.write(f'step {step:>12,}  {row["wall_s"]:8.1f}s  return '
-                    f'{row["eval_return"]:8.2f} ± {row["eval_return_std"]:.2f}'
-                    f'  ({row["train_sps"]:,.0f} steps/s)', file=sys.stdout)
+    tqdm.tqdm.write(
+        f'step {step:>12,}  {row["wall_s"]:8.1f}s  return '
+        f'{row["eval_return"]:8.2f} ± {row["eval_return_std"]:.2f}'
+        f'  ({row["train_sps"]:,.0f} steps/s)',
+        file=sys.stdout,
+    )
 
   start = time.perf_counter()
   make_policy, params, _ = ppo.train(
-      environment=brax_env, num_timesteps=args.num_timesteps,
-      num_envs=args.num_envs, batch_size=args.batch_size,
+      environment=brax_env,
+      num_timesteps=args.num_timesteps,
+      num_envs=args.num_envs,
+      batch_size=args.batch_size,
       num_minibatches=args.num_minibatches,
       unroll_length=args.unroll_length,
       num_updates_per_batch=args.num_updates_per_batch,
-      learning_rate=args.learning_rate, entropy_cost=args.entropy_cost,
-      discounting=args.discounting, normalize_observations=args.normalize,
-      num_evals=args.num_evals, num_eval_envs=args.num_eval_envs,
-      deterministic_eval=True, seed=args.seed,
-      network_factory=make_networks(args), progress_fn=progress,
-      **brax_adapter.training_kwargs(brax_env))
+      learning_rate=args.learning_rate,
+      entropy_cost=args.entropy_cost,
+      discounting=args.discounting,
+      normalize_observations=args.normalize,
+      num_evals=args.num_evals,
+      num_eval_envs=args.num_eval_envs,
+      deterministic_eval=True,
+      seed=args.seed,
+      network_factory=make_networks(args),
+      progress_fn=progress,
+      **brax_adapter.training_kwargs(brax_env),
+  )
   total = time.perf_counter() - start
   bar.close()
 
   # Returns log and plot.
   with open(os.path.join(args.out, 'returns.json'), 'w') as f:
     json.dump(rows, f, indent=1)
-  _write_plot(os.path.join(args.out, 'returns.png'), rows, args.threshold,
-              f'PPO on {args.task} ({args.num_envs} worlds, '
-              f'{device.platform})')
+  _write_plot(
+      os.path.join(args.out, 'returns.png'),
+      rows,
+      args.threshold,
+      f'PPO on {args.task} ({args.num_envs} worlds, ' f'{device.platform})',
+  )
 
   # The policy, with what it takes to rebuild it.
   obs_size = brax_env.observation_size
-  config = {'task': args.task, 'observation_size': obs_size,
-            'action_size': brax_env.action_size,
-            'value_obs_key': 'critic' if args.obs == 'asymmetric'
-                             else 'policy',
-            'normalize': args.normalize,
-            'policy_layers': list(args.policy_layers),
-            'value_layers': list(args.value_layers)}
+  config = {
+      'task': args.task,
+      'observation_size': obs_size,
+      'action_size': brax_env.action_size,
+      'value_obs_key': 'critic' if args.obs == 'asymmetric' else 'policy',
+      'normalize': args.normalize,
+      'policy_layers': list(args.policy_layers),
+      'value_layers': list(args.value_layers),
+  }
   with open(os.path.join(args.out, 'policy.pkl'), 'wb') as f:
     pickle.dump({'params': jax.device_get(params), 'config': config}, f)
 
   rendered = False
   if args.render_worlds > 0:
     try:
-      _rollout_images(env, brax_env,
-                      make_policy(params, deterministic=True), args,
-                      args.out)
+      _rollout_images(
+          env, brax_env, make_policy(params, deterministic=True), args, args.out
+      )
       rendered = True
     except (RuntimeError, ImportError) as e:
       warnings.warn(f'No rollout images: {e}')
 
   summary = {
-      'task': args.task, 'device': f'{device.platform}: {device.device_kind}',
-      'jax': jax.__version__, 'num_envs': args.num_envs,
-      'num_timesteps': args.num_timesteps, 'threshold': args.threshold,
+      'task': args.task,
+      'device': f'{device.platform}: {device.device_kind}',
+      'jax': jax.__version__,
+      'num_envs': args.num_envs,
+      'num_timesteps': args.num_timesteps,
+      'threshold': args.threshold,
       'time_to_threshold_s': hit['wall_s'] if hit else None,
       'steps_to_threshold': hit['step'] if hit else None,
       'final_return': rows[-1]['eval_return'],
       'best_return': max(r['eval_return'] for r in rows),
-      'initial_return': rows[0]['eval_return'], 'total_s': total,
-      'episode_length': brax_env.episode_length, 'rendered': rendered,
-      'args': {k: v for k, v in vars(args).items()}}
+      'initial_return': rows[0]['eval_return'],
+      'total_s': total,
+      'episode_length': brax_env.episode_length,
+      'rendered': rendered,
+      'args': {k: v for k, v in vars(args).items()},
+  }
   with open(os.path.join(args.out, 'summary.json'), 'w') as f:
     json.dump(summary, f, indent=1, default=str)
 
   print(f'\n{"task":<22}{args.task}\n{"device":<22}{summary["device"]}')
   print(f'{"worlds x steps":<22}{args.num_envs} x {args.num_timesteps:,}')
-  print(f'{"return: first/final":<22}{rows[0]["eval_return"]:.2f} / '
-        f'{rows[-1]["eval_return"]:.2f} (max '
-        f'{brax_env.episode_length} per episode)')
+  print(
+      f'{"return: first/final":<22}{rows[0]["eval_return"]:.2f} / '
+      f'{rows[-1]["eval_return"]:.2f} (max '
+      f'{brax_env.episode_length} per episode)'
+  )
   if hit:
-    print(f'{"time to threshold":<22}{hit["wall_s"]:.1f}s at step '
-          f'{hit["step"]:,} (return >= {args.threshold:g})')
+    print(
+        f'{"time to threshold":<22}{hit["wall_s"]:.1f}s at step '
+        f'{hit["step"]:,} (return >= {args.threshold:g})'
+    )
   else:
-    print(f'{"time to threshold":<22}not reached (return >= '
-          f'{args.threshold:g})')
+    print(
+        f'{"time to threshold":<22}not reached (return >= '
+        f'{args.threshold:g})'
+    )
   print(f'{"total wall-clock":<22}{total:.1f}s; outputs in {args.out}')
   return 0
 

@@ -28,6 +28,7 @@ from mjx_composer import cli
 
 class Policy(nn.Module):
   """A Gaussian policy: an MLP for the mean, a learned log-std per action."""
+
   action_size: int
   hidden: tuple = (64, 64)
 
@@ -36,16 +37,22 @@ class Policy(nn.Module):
     x = obs
     for width in self.hidden:
       x = nn.tanh(nn.Dense(width)(x))
-    mean = nn.Dense(self.action_size,
-                    kernel_init=nn.initializers.normal(0.01))(x)
-    log_std = self.param('log_std', nn.initializers.constant(-0.5),
-                         (self.action_size,))
+    mean = nn.Dense(self.action_size, kernel_init=nn.initializers.normal(0.01))(
+        x
+    )
+    log_std = self.param(
+        'log_std', nn.initializers.constant(-0.5), (self.action_size,)
+    )
     return mean, log_std
 
 
 def gaussian_log_prob(action, mean, log_std):
-  return jnp.sum(-0.5 * ((action - mean) / jnp.exp(log_std)) ** 2 - log_std
-                 - 0.5 * jnp.log(2 * jnp.pi), axis=-1)
+  return jnp.sum(
+      -0.5 * ((action - mean) / jnp.exp(log_std)) ** 2
+      - log_std
+      - 0.5 * jnp.log(2 * jnp.pi),
+      axis=-1,
+  )
 
 
 def make_trainer(env, num_worlds, learning_rate=3e-3, discount=0.97):
@@ -65,16 +72,18 @@ def make_trainer(env, num_worlds, learning_rate=3e-3, discount=0.97):
 
   def rollout(params, states, key):
     """One episode per world; returns the observations, actions and rewards."""
+
     def one_step(carry, step_key):
       states = carry
       obs = states.observation['policy']
       mean, log_std = policy.apply(params, obs)
-      action = mean + jnp.exp(log_std) * jax.random.normal(step_key,
-                                                          mean.shape)
-      states = step(states, jnp.clip(action, -1., 1.))
+      action = mean + jnp.exp(log_std) * jax.random.normal(step_key, mean.shape)
+      states = step(states, jnp.clip(action, -1.0, 1.0))
       return states, (obs, action, states.reward)
+
     states, (obs, actions, rewards) = jax.lax.scan(
-        one_step, states, jax.random.split(key, unroll))
+        one_step, states, jax.random.split(key, unroll)
+    )
     return states, obs, actions, rewards
 
   def loss_fn(params, obs, actions, returns):
@@ -94,13 +103,17 @@ def make_trainer(env, num_worlds, learning_rate=3e-3, discount=0.97):
     def discounted(next_return, reward):
       ret = reward + discount * next_return
       return ret, ret
-    _, returns = jax.lax.scan(discounted, jnp.zeros(num_worlds), rewards,
-                              reverse=True)
+
+    _, returns = jax.lax.scan(
+        discounted, jnp.zeros(num_worlds), rewards, reverse=True
+    )
     grads = jax.grad(loss_fn)(params, obs, actions, returns)
     updates, opt_state = optimizer.update(grads, opt_state)
     params = optax.apply_updates(params, updates)
-    stats = {'episode_return': rewards.sum(0).mean(),
-             'final_distance': states.metrics['distance'].mean()}
+    stats = {
+        'episode_return': rewards.sum(0).mean(),
+        'final_distance': states.metrics['distance'].mean(),
+    }
     return (states, params, opt_state, key), stats
 
   return init, iteration
@@ -115,8 +128,9 @@ def main(argv=None):
   parser.add_argument('--seed', type=int, default=0)
   args = parser.parse_args(argv)
 
-  env = cli.make_environment('reach', time_limit=args.time_limit,
-                             auto_reset='same_step')
+  env = cli.make_environment(
+      'reach', time_limit=args.time_limit, auto_reset='same_step'
+  )
   init, iteration = make_trainer(env, args.worlds, args.learning_rate)
   carry = init(jax.random.key(args.seed))
   start = time.perf_counter()
@@ -126,10 +140,14 @@ def main(argv=None):
     returns.append(float(stats['episode_return']))
     if i == 0:
       print(f'compiled in {time.perf_counter() - start:.0f}s')
-    print(f'iteration {i:3d}  return {returns[-1]:7.3f}  final distance '
-          f'{float(stats["final_distance"]):.3f} m')
-  print(f'return: first {returns[0]:.3f}, last {returns[-1]:.3f}, in '
-        f'{time.perf_counter() - start:.0f}s')
+    print(
+        f'iteration {i:3d}  return {returns[-1]:7.3f}  final distance '
+        f'{float(stats["final_distance"]):.3f} m'
+    )
+  print(
+      f'return: first {returns[0]:.3f}, last {returns[-1]:.3f}, in '
+      f'{time.perf_counter() - start:.0f}s'
+  )
   return returns
 
 

@@ -31,9 +31,9 @@ class Arena(entity.Entity):
     spec.compiler.boundmass = 1e-5
     spec.compiler.boundinertia = 1e-11
     spec.visual.map.znear = 0.01
-    spec.visual.headlight.diffuse = [.6, .6, .6]
-    spec.visual.headlight.ambient = [.3, .3, .3]
-    spec.visual.headlight.specular = [0., 0., 0.]
+    spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
+    spec.visual.headlight.ambient = [0.3, 0.3, 0.3]
+    spec.visual.headlight.specular = [0.0, 0.0, 0.0]
     spec.modelname = name or spec.modelname or 'arena'
     if spec.modelname == 'MuJoCo Model':
       spec.modelname = 'arena'

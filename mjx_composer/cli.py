@@ -17,26 +17,34 @@ import tqdm
 
 TASKS = ('reach', 'push')
 # What each task's `distance` metric measures, for the summary line.
-_DISTANCE_LABELS = {'reach': 'hand-target distance',
-                    'push': 'box-zone distance'}
+_DISTANCE_LABELS = {
+    'reach': 'hand-target distance',
+    'push': 'box-zone distance',
+}
 
 
 def make_environment(task_name='reach', time_limit=2.0, auto_reset='same_step'):
   """Builds a bundled task's `Environment` with its observation groups."""
   from mjx_composer import environment  # pylint: disable=g-import-not-at-top
+
   if task_name == 'reach':
     from mjx_composer.tasks import reach  # pylint: disable=g-import-not-at-top
+
     task = reach.Reach()
     groups = reach.Reach.observation_groups()
   elif task_name == 'push':
     from mjx_composer.tasks import push  # pylint: disable=g-import-not-at-top
+
     task = push.Push()
     groups = task.observation_groups()
   else:
     raise ValueError(f'Unknown task {task_name!r}; choose from {TASKS}.')
   return environment.Environment(
-      task, time_limit=time_limit, auto_reset=auto_reset,
-      observation_groups=groups)
+      task,
+      time_limit=time_limit,
+      auto_reset=auto_reset,
+      observation_groups=groups,
+  )
 
 
 def make_rollout(env, num_worlds, chunk):
@@ -48,56 +56,72 @@ def make_rollout(env, num_worlds, chunk):
   def one_step(carry, _):
     states, key, totals = carry
     key, action_key = jax.random.split(key)
-    actions = jax.random.uniform(action_key, (num_worlds,) + spec.shape,
-                                 minval=low, maxval=high)
+    actions = jax.random.uniform(
+        action_key, (num_worlds,) + spec.shape, minval=low, maxval=high
+    )
     states = step(states, actions)
     ended = states.last()
     totals = {
         'episodes': totals['episodes'] + jnp.sum(ended),
-        'return': totals['return'] + jnp.sum(
-            jnp.where(ended, states.metrics['episode_return'], 0.)),
-        'length': totals['length'] + jnp.sum(
-            jnp.where(ended, states.metrics['episode_length'], 0)),
-        'distance': totals['distance'] + jnp.sum(
-            jnp.where(ended, states.metrics['distance'], 0.)),
+        'return': totals['return']
+        + jnp.sum(jnp.where(ended, states.metrics['episode_return'], 0.0)),
+        'length': totals['length']
+        + jnp.sum(jnp.where(ended, states.metrics['episode_length'], 0)),
+        'distance': totals['distance']
+        + jnp.sum(jnp.where(ended, states.metrics['distance'], 0.0)),
         'diverged': totals['diverged'] + jnp.sum(states.metrics['diverged']),
-        'init_failures': totals['init_failures'] + jnp.sum(
-            jnp.where(ended, states.metrics['init_failures'], 0.)),
+        'init_failures': totals['init_failures']
+        + jnp.sum(jnp.where(ended, states.metrics['init_failures'], 0.0)),
     }
     return (states, key, totals), None
 
   @jax.jit
   def rollout(states, key, totals):
-    (states, key, totals), _ = jax.lax.scan(one_step, (states, key, totals),
-                                            None, length=chunk)
+    (states, key, totals), _ = jax.lax.scan(
+        one_step, (states, key, totals), None, length=chunk
+    )
     return states, key, totals
 
   return rollout
 
 
 def demo(argv=None):
-  parser = argparse.ArgumentParser(prog='mjx-composer demo', description=(
-      'Run a bundled composed task for N worlds and T control steps.'))
+  parser = argparse.ArgumentParser(
+      prog='mjx-composer demo',
+      description=(
+          'Run a bundled composed task for N worlds and T control steps.'
+      ),
+  )
   parser.add_argument('--task', default='reach', choices=TASKS)
   parser.add_argument('--worlds', type=int, default=64)
-  parser.add_argument('--steps', type=int, default=200,
-                      help='control steps per world')
-  parser.add_argument('--chunk', type=int, default=25,
-                      help='control steps per jitted call (progress granularity)')
-  parser.add_argument('--time-limit', type=float, default=1.0,
-                      help='episode length in seconds')
+  parser.add_argument(
+      '--steps', type=int, default=200, help='control steps per world'
+  )
+  parser.add_argument(
+      '--chunk',
+      type=int,
+      default=25,
+      help='control steps per jitted call (progress granularity)',
+  )
+  parser.add_argument(
+      '--time-limit', type=float, default=1.0, help='episode length in seconds'
+  )
   parser.add_argument('--seed', type=int, default=0)
   args = parser.parse_args(argv)
   if args.worlds < 1 or args.steps < 1 or args.chunk < 1:
     parser.error('--worlds, --steps and --chunk must be positive.')
 
-  print(f'JAX {jax.__version__} on {jax.devices()[0].platform}: '
-        f'{jax.devices()[0].device_kind}')
+  print(
+      f'JAX {jax.__version__} on {jax.devices()[0].platform}: '
+      f'{jax.devices()[0].device_kind}'
+  )
   t0 = time.perf_counter()
   env = make_environment(args.task, args.time_limit)
-  print(f'Task {args.task!r}: {env.mj_model.nbody} bodies, '
-        f'{env.mj_model.nu} actuators, {env.n_sub_steps} sub-steps per '
-        f'control step, built in {time.perf_counter() - t0:.1f}s.')
+  print(
+      f'Task {args.task!r}: {env.mj_model.nbody} bodies, '
+      f'{env.mj_model.nu} actuators, {env.n_sub_steps} sub-steps per '
+      f'control step, built in {time.perf_counter() - t0:.1f}s.'
+  )
   for group, spec in env.observation_spec().items():
     print(f'  observation group {group!r}: {spec.shape}')
 
@@ -107,51 +131,69 @@ def demo(argv=None):
   key, reset_key = jax.random.split(key)
   reset = jax.jit(jax.vmap(env.reset))
   rollout = make_rollout(env, args.worlds, chunk)
-  totals = {'episodes': jnp.zeros((), jnp.int32),
-            'return': jnp.zeros(()), 'length': jnp.zeros((), jnp.int32),
-            'distance': jnp.zeros(()), 'diverged': jnp.zeros(()),
-            'init_failures': jnp.zeros(())}
+  totals = {
+      'episodes': jnp.zeros((), jnp.int32),
+      'return': jnp.zeros(()),
+      'length': jnp.zeros((), jnp.int32),
+      'distance': jnp.zeros(()),
+      'diverged': jnp.zeros(()),
+      'init_failures': jnp.zeros(()),
+  }
 
   t0 = time.perf_counter()
   states = reset(jax.random.split(reset_key, args.worlds))
   states, key, totals = jax.block_until_ready(rollout(states, key, totals))
-  print(f'Compiled reset and a {chunk}-step rollout in '
-        f'{time.perf_counter() - t0:.1f}s.')
-  totals = jax.tree.map(jnp.zeros_like, totals)   # don't count warm-up
+  print(
+      f'Compiled reset and a {chunk}-step rollout in '
+      f'{time.perf_counter() - t0:.1f}s.'
+  )
+  totals = jax.tree.map(jnp.zeros_like, totals)  # don't count warm-up
   t0 = time.perf_counter()
-  with tqdm.tqdm(total=num_chunks * chunk * args.worlds, unit='step',
-                 unit_scale=True, desc='stepping', file=sys.stdout) as bar:
+  with tqdm.tqdm(
+      total=num_chunks * chunk * args.worlds,
+      unit='step',
+      unit_scale=True,
+      desc='stepping',
+      file=sys.stdout,
+  ) as bar:
     for _ in range(num_chunks):
-      states, key, totals = jax.block_until_ready(
-          rollout(states, key, totals))
+      states, key, totals = jax.block_until_ready(rollout(states, key, totals))
       bar.update(chunk * args.worlds)
   elapsed = time.perf_counter() - t0
   totals = jax.device_get(totals)
   steps = num_chunks * chunk * args.worlds
-  print(f'\n{steps:,} control steps ({steps * env.n_sub_steps:,} physics '
-        f'steps) in {elapsed:.2f}s: {steps / elapsed:,.0f} control steps/s, '
-        f'{steps * env.n_sub_steps / elapsed:,.0f} physics steps/s.')
+  print(
+      f'\n{steps:,} control steps ({steps * env.n_sub_steps:,} physics '
+      f'steps) in {elapsed:.2f}s: {steps / elapsed:,.0f} control steps/s, '
+      f'{steps * env.n_sub_steps / elapsed:,.0f} physics steps/s.'
+  )
   episodes = int(totals['episodes'])
   if episodes:
-    print(f'Episodes finished: {episodes:,}; mean return '
-          f'{float(totals["return"]) / episodes:.3f}, mean length '
-          f'{int(totals["length"]) / episodes:.1f} steps, mean final '
-          f'{_DISTANCE_LABELS[args.task]} '
-          f'{float(totals["distance"]) / episodes:.3f} m.')
+    print(
+        f'Episodes finished: {episodes:,}; mean return '
+        f'{float(totals["return"]) / episodes:.3f}, mean length '
+        f'{int(totals["length"]) / episodes:.1f} steps, mean final '
+        f'{_DISTANCE_LABELS[args.task]} '
+        f'{float(totals["distance"]) / episodes:.3f} m.'
+    )
   else:
     print('No episode finished: raise --steps or lower --time-limit.')
   print(f'Diverged worlds: {int(totals["diverged"])}.')
   if int(totals['init_failures']):
-    print('Failed episode initializations (e.g. props that could not be '
-          f'placed): {int(totals["init_failures"])}.')
+    print(
+        'Failed episode initializations (e.g. props that could not be '
+        f'placed): {int(totals["init_failures"])}.'
+    )
   return 0
 
 
 def main(argv=None):
   argv = list(sys.argv[1:] if argv is None else argv)
   if not argv or argv[0] not in ('demo',):
-    print('usage: mjx-composer demo [--task reach|push] [--worlds N] '
-          '[--steps T] [--time-limit S] [--seed K]')
+    print(
+        'usage: mjx-composer demo [--task reach|push] [--worlds N] '
+        '[--steps T] [--time-limit S] [--seed K]'
+    )
     return 2
   return demo(argv[1:])
 

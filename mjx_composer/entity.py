@@ -48,15 +48,17 @@ class Entity(abc.ABC):
   """
 
   def __init__(self, *args, **kwargs):
-    self._parent = None            # weakref to the parent entity
+    self._parent = None  # weakref to the parent entity
     self._attached: list[Entity] = []
     self._attachment_frame = None  # MjsBody in the parent's own spec
     observable_options = kwargs.pop('observable_options', None)
     self._build(*args, **kwargs)
     spec = self.mjcf_model
     if not isinstance(spec, mujoco.MjSpec):
-      raise TypeError(f'{type(self).__name__}.mjcf_model must return a '
-                      f'mujoco.MjSpec, got {type(spec).__name__}.')
+      raise TypeError(
+          f'{type(self).__name__}.mjcf_model must return a '
+          f'mujoco.MjSpec, got {type(spec).__name__}.'
+      )
     if not spec.modelname or spec.modelname == _DEFAULT_SPEC_NAME:
       spec.modelname = type(self).__name__.lower()
     if '/' in spec.modelname:
@@ -71,6 +73,7 @@ class Entity(abc.ABC):
   def _build_observables(self):
     """Returns this entity's `Observables`; override to declare your own."""
     from mjx_composer.observation import observable  # pylint: disable=g-import-not-at-top
+
     return observable.Observables(self)
 
   @property
@@ -159,38 +162,48 @@ class Entity(abc.ABC):
       `pos`/`quat` to move it.
     """
     if not isinstance(entity, Entity):
-      raise TypeError(f'Can only attach an Entity, got {type(entity).__name__}.')
+      raise TypeError(
+          f'Can only attach an Entity, got {type(entity).__name__}.'
+      )
     if entity is self or any(e is self for e in entity.iter_entities()):
       raise ValueError('Cannot attach an entity to itself or its descendant.')
     if entity.parent is not None:
       raise ValueError(
           f'Entity {entity.name!r} is already attached to '
           f'{entity.parent.name!r}; detach() it first, or build another '
-          'instance to attach it twice.')
+          'instance to attach it twice.'
+      )
     for sibling in self._attached:
       if sibling.name == entity.name:
         raise ValueError(
             f'{self.name!r} already has an attached entity named '
             f'{entity.name!r}: compiled names would clash. Give each instance '
-            'a distinct name (its mjcf_model.modelname).')
+            'a distinct name (its mjcf_model.modelname).'
+        )
     spec = self.mjcf_model
     site = self.attachment_site if attach_site is None else attach_site
     if isinstance(site, mujoco.MjsSite):
       if not any(s is site for s in spec.sites):
-        raise ValueError(f'attach_site {site.name!r} is not a site of '
-                         f'{self.name!r}\'s own spec.')
+        raise ValueError(
+            f'attach_site {site.name!r} is not a site of '
+            f"{self.name!r}'s own spec."
+        )
       frame = site.parent.add_body(name=entity.name + '/')
       frame.pos = site.pos
       frame.quat = site.quat
       frame.alt = site.alt
     elif isinstance(site, mujoco.MjsBody):
       if not any(b is site for b in spec.bodies):
-        raise ValueError(f'attach_site {site.name!r} is not a body of '
-                         f'{self.name!r}\'s own spec.')
+        raise ValueError(
+            f'attach_site {site.name!r} is not a body of '
+            f"{self.name!r}'s own spec."
+        )
       frame = site.add_body(name=entity.name + '/')
     else:
-      raise TypeError('attach_site must be an MjsSite or MjsBody, got '
-                      f'{type(site).__name__}.')
+      raise TypeError(
+          'attach_site must be an MjsSite or MjsBody, got '
+          f'{type(site).__name__}.'
+      )
     entity._parent = weakref.ref(self)  # pylint: disable=protected-access
     entity._attachment_frame = frame  # pylint: disable=protected-access
     self._attached.append(entity)
@@ -233,7 +246,8 @@ class Entity(abc.ABC):
     handles = {}
     for (kind, original), (_, copied) in zip(
         physics_lib.iter_elements(self.mjcf_model),
-        physics_lib.iter_elements(spec)):
+        physics_lib.iter_elements(spec),
+    ):
       if kind == 'body' and copied is spec.worldbody:
         pass
       elif not copied.name:
@@ -260,14 +274,18 @@ class Entity(abc.ABC):
       return vec @ xmat
     if vec.shape[-1] == 2:
       return vec @ xmat[:2, :2]
-    raise ValueError('`vec` should have its last dimension of size 2 or 3, '
-                     f'got shape {vec.shape}.')
+    raise ValueError(
+        '`vec` should have its last dimension of size 2 or 3, '
+        f'got shape {vec.shape}.'
+    )
 
   def global_xmat_to_local_frame(self, physics, xmat):
     """Expresses a global rotation matrix ((3,3) or (9,)) in this frame."""
     xmat = jnp.asarray(xmat)
     if xmat.shape not in ((3, 3), (9,)):
-      raise ValueError(f'`xmat` must have shape (3, 3) or (9,), got {xmat.shape}.')
+      raise ValueError(
+          f'`xmat` must have shape (3, 3) or (9,), got {xmat.shape}.'
+      )
     self_xmat = physics.bind(self.root_body).xmat.reshape(3, 3)
     return (self_xmat.T @ xmat.reshape(3, 3)).reshape(xmat.shape)
 
@@ -314,7 +332,9 @@ class Entity(abc.ABC):
       if position is not None:
         qpos = qpos.at[:3].set(jnp.asarray(position, qpos.dtype))
       if quaternion is not None:
-        qpos = qpos.at[3:].set(tr.normalize(jnp.asarray(quaternion, qpos.dtype)))
+        qpos = qpos.at[3:].set(
+            tr.normalize(jnp.asarray(quaternion, qpos.dtype))
+        )
       return physics.bind(joint).set(qpos=qpos)
     values = {}
     if position is not None:
@@ -323,8 +343,9 @@ class Entity(abc.ABC):
       values['quat'] = tr.normalize(jnp.asarray(quaternion, jnp.float32))
     return physics.bind(frame).set(**values) if values else physics
 
-  def shift_pose(self, physics, position=None, quaternion=None,
-                 rotate_velocity=False):
+  def shift_pose(
+      self, physics, position=None, quaternion=None, rotate_velocity=False
+  ):
     """Translates by `position` and pre-multiplies the orientation.
 
     New position = current + `position`; new quaternion = `quaternion ⊗
@@ -340,15 +361,18 @@ class Entity(abc.ABC):
       if rotate_velocity and self._freejoint() is not None:
         linear, _ = self.get_velocity(physics)
         physics = self.set_velocity(
-            physics, velocity=tr.rotate_vec(tr.normalize(quaternion), linear))
+            physics, velocity=tr.rotate_vec(tr.normalize(quaternion), linear)
+        )
     return self.set_pose(physics, new_pos, new_quat)
 
   def get_velocity(self, physics):
     """Returns `(linear (3,), angular (3,))` of a free entity's freejoint."""
     joint = self._freejoint()
     if joint is None:
-      raise ValueError('get_velocity needs a free entity (a freejoint on its '
-                       'attachment frame).')
+      raise ValueError(
+          'get_velocity needs a free entity (a freejoint on its '
+          'attachment frame).'
+      )
     qvel = physics.bind(joint).qvel
     return qvel[:3], qvel[3:]
 
@@ -357,8 +381,10 @@ class Entity(abc.ABC):
     joint = self._freejoint()
     if joint is None:
       import logging  # pylint: disable=g-import-not-at-top
-      logging.warning('set_velocity on a non-free entity %r does nothing.',
-                      self.name)
+
+      logging.warning(
+          'set_velocity on a non-free entity %r does nothing.', self.name
+      )
       return physics
     qvel = physics.bind(joint).qvel
     if velocity is not None:
@@ -391,8 +417,10 @@ class ModelWrapperEntity(Entity):
     elif isinstance(mjcf_model, str) or hasattr(mjcf_model, '__fspath__'):
       spec = mujoco.MjSpec.from_file(str(mjcf_model), assets=assets or {})
     else:
-      raise TypeError('mjcf_model must be an MjSpec, an MJCF path or an XML '
-                      f'string, got {type(mjcf_model).__name__}.')
+      raise TypeError(
+          'mjcf_model must be an MjSpec, an MJCF path or an XML '
+          f'string, got {type(mjcf_model).__name__}.'
+      )
     if name is not None:
       spec.modelname = name
     self._spec = spec
@@ -400,4 +428,3 @@ class ModelWrapperEntity(Entity):
   @property
   def mjcf_model(self):
     return self._spec
-

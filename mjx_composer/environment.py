@@ -80,8 +80,15 @@ from mjx_composer import physics as physics_lib
 from mjx_composer.observation import updater as updater_lib
 from mjx_composer.observation.updater import ObservationPadding  # pylint: disable=unused-import
 
-HOOK_NAMES = ('initialize_episode_mjcf', 'after_compile', 'initialize_episode',
-              'before_step', 'before_substep', 'after_substep', 'after_step')
+HOOK_NAMES = (
+    'initialize_episode_mjcf',
+    'after_compile',
+    'initialize_episode',
+    'before_step',
+    'before_substep',
+    'after_substep',
+    'after_step',
+)
 _BUILD_HOOKS = HOOK_NAMES[:2]
 # Hooks through which the task receives the action (entities never do).
 _ACTION_HOOKS = ('before_step', 'before_substep')
@@ -89,6 +96,7 @@ _ACTION_HOOKS = ('before_step', 'before_substep')
 
 class StepType(enum.IntEnum):
   """dm_env's step types, as stored in `State.step_type`."""
+
   FIRST = 0
   MID = 1
   LAST = 2
@@ -129,6 +137,7 @@ class State:
     persistent: per-world entries that survive auto-resets
       (`Physics.get_persistent`).
   """
+
   data: mjx.Data
   task_state: Any
   model_fields: dict
@@ -168,6 +177,7 @@ def _select_reset(done, reset_fn, operands, stepped):
   batch's resets only when some world is done (`lax.cond` on `any(done)`),
   then selects per world. Results are the same either way.
   """
+
   def select(done, operands, stepped):
     return _tree_select(done, reset_fn(*operands), stepped)
 
@@ -176,13 +186,18 @@ def _select_reset(done, reset_fn, operands, stepped):
   @select_or_skip.def_vmap
   def _batched(axis_size, in_batched, done, operands, stepped):
     def batch(x, is_batched):
-      return x if is_batched else jnp.broadcast_to(
-          x, (axis_size,) + jnp.shape(x))
+      return (
+          x if is_batched else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x))
+      )
+
     done, operands, stepped = jax.tree.map(
-        batch, (done, operands, stepped), tuple(in_batched))
-    out = jax.lax.cond(jnp.any(done),
-                       lambda: jax.vmap(select)(done, operands, stepped),
-                       lambda: stepped)
+        batch, (done, operands, stepped), tuple(in_batched)
+    )
+    out = jax.lax.cond(
+        jnp.any(done),
+        lambda: jax.vmap(select)(done, operands, stepped),
+        lambda: stepped,
+    )
     return out, jax.tree.map(lambda _: True, out)
 
   return select_or_skip(done, operands, stepped)
@@ -216,34 +231,52 @@ class Environment:
       (`Physics.fail_initialization`), each time with a fresh key.
   """
 
-  def __init__(self, task, time_limit=float('inf'), random_state=None,
-               n_sub_steps=None, strip_singleton_obs_buffer_dim=False,
-               delayed_observation_padding=ObservationPadding.ZERO,
-               auto_reset='next_step', per_world_model_fields=(),
-               observation_groups=None, max_reset_attempts=1):
+  def __init__(
+      self,
+      task,
+      time_limit=float('inf'),
+      random_state=None,
+      n_sub_steps=None,
+      strip_singleton_obs_buffer_dim=False,
+      delayed_observation_padding=ObservationPadding.ZERO,
+      auto_reset='next_step',
+      per_world_model_fields=(),
+      observation_groups=None,
+      max_reset_attempts=1,
+  ):
     if not isinstance(delayed_observation_padding, ObservationPadding):
-      raise ValueError('delayed_observation_padding must be an '
-                       'ObservationPadding, got '
-                       f'{delayed_observation_padding!r}.')
+      raise ValueError(
+          'delayed_observation_padding must be an '
+          'ObservationPadding, got '
+          f'{delayed_observation_padding!r}.'
+      )
     if auto_reset not in ('next_step', 'same_step'):
-      raise ValueError("auto_reset must be 'next_step' or 'same_step', got "
-                       f'{auto_reset!r}.')
+      raise ValueError(
+          "auto_reset must be 'next_step' or 'same_step', got "
+          f'{auto_reset!r}.'
+      )
     if int(max_reset_attempts) != max_reset_attempts or max_reset_attempts < 1:
-      raise ValueError('max_reset_attempts must be a positive integer, got '
-                       f'{max_reset_attempts!r}.')
+      raise ValueError(
+          'max_reset_attempts must be a positive integer, got '
+          f'{max_reset_attempts!r}.'
+      )
     if time_limit <= 0:
       raise ValueError(f'time_limit must be positive, got {time_limit}.')
     unknown = set(per_world_model_fields) - physics_lib._MODEL_FIELDS  # pylint: disable=protected-access
     if unknown:
-      raise ValueError(f'Unknown mjx.Model fields {sorted(unknown)} in '
-                       'per_world_model_fields.')
+      raise ValueError(
+          f'Unknown mjx.Model fields {sorted(unknown)} in '
+          'per_world_model_fields.'
+      )
     self._task = task
     self._time_limit = time_limit
     self._auto_reset = auto_reset
     self._max_reset_attempts = int(max_reset_attempts)
-    self._random_state = (random_state
-                          if isinstance(random_state, np.random.RandomState)
-                          else np.random.RandomState(random_state))
+    self._random_state = (
+        random_state
+        if isinstance(random_state, np.random.RandomState)
+        else np.random.RandomState(random_state)
+    )
     self._extra_hooks = {name: [] for name in HOOK_NAMES}
     self._declared_model_fields = tuple(per_world_model_fields)
 
@@ -255,16 +288,18 @@ class Environment:
       self._mj_model = spec.compile()
     except Exception as e:
       raise ValueError(f'The composed model failed to compile: {e}') from e
-    handle_names = {key: (original, kind, composed.name)
-                    for key, (original, kind, composed) in handles.items()}
+    handle_names = {
+        key: (original, kind, composed.name)
+        for key, (original, kind, composed) in handles.items()
+    }
     self._index = physics_lib.ElementIndex(self._mj_model, handle_names)
     self._mjx_model = mjx.put_model(self._mj_model)
     self._data0 = mjx.make_data(self._mjx_model)
 
-    physics = self._make_physics(self._mjx_model, self._data0,
-                                 task.initial_task_state())
-    result = self._call_host_hooks('after_compile', physics,
-                                   self._random_state)
+    physics = self._make_physics(
+        self._mjx_model, self._data0, task.initial_task_state()
+    )
+    result = self._call_host_hooks('after_compile', physics, self._random_state)
     if isinstance(result, physics_lib.Physics):
       self._mjx_model = result.model
 
@@ -275,16 +310,22 @@ class Environment:
     else:
       self._n_sub_steps = task.physics_steps_per_control_step
     self._control_timestep = physics_timestep * self._n_sub_steps
-    self._step_limit = (math.inf if math.isinf(time_limit) else
-                        max(1, math.ceil(time_limit / self._control_timestep
-                                         - 1e-9)))
+    self._step_limit = (
+        math.inf
+        if math.isinf(time_limit)
+        else max(1, math.ceil(time_limit / self._control_timestep - 1e-9))
+    )
 
     self._updater = updater_lib.Updater(
-        task.observables, self._n_sub_steps,
+        task.observables,
+        self._n_sub_steps,
         strip_singleton_buffer_dim=strip_singleton_obs_buffer_dim,
         pad_with_initial_value=(
-            delayed_observation_padding == ObservationPadding.INITIAL_VALUE),
-        groups=observation_groups, physics=self._host_physics())
+            delayed_observation_padding == ObservationPadding.INITIAL_VALUE
+        ),
+        groups=observation_groups,
+        physics=self._host_physics(),
+    )
 
   # -- properties ----------------------------------------------------------
 
@@ -334,8 +375,10 @@ class Environment:
     of the random state; device hooks must return the Physics.
     """
     if hook_name not in HOOK_NAMES:
-      raise ValueError(f'{hook_name!r} is not a valid hook name. Valid hook '
-                       f'names: {HOOK_NAMES}')
+      raise ValueError(
+          f'{hook_name!r} is not a valid hook name. Valid hook '
+          f'names: {HOOK_NAMES}'
+      )
     if not callable(hook):
       raise ValueError(f'{hook!r} is not a callable.')
     self._extra_hooks[hook_name].append(hook)
@@ -350,33 +393,55 @@ class Environment:
 
   def reward_spec(self):
     spec = self._task.get_reward_spec()
-    return spec if spec is not None else specs.Array(
-        shape=(), dtype=np.float32, name='reward')
+    return (
+        spec
+        if spec is not None
+        else specs.Array(shape=(), dtype=np.float32, name='reward')
+    )
 
   def discount_spec(self):
     spec = self._task.get_discount_spec()
-    return spec if spec is not None else specs.BoundedArray(
-        shape=(), dtype=np.float32, minimum=0., maximum=1., name='discount')
+    return (
+        spec
+        if spec is not None
+        else specs.BoundedArray(
+            shape=(),
+            dtype=np.float32,
+            minimum=0.0,
+            maximum=1.0,
+            name='discount',
+        )
+    )
 
   # -- physics -------------------------------------------------------------
 
-  def _make_physics(self, model, data, task_state, persistent=None,
-                    initialization_failed=None):
+  def _make_physics(
+      self, model, data, task_state, persistent=None, initialization_failed=None
+  ):
     return physics_lib.Physics(
-        model=model, data=data, task_state=task_state, index=self._index,
+        model=model,
+        data=data,
+        task_state=task_state,
+        index=self._index,
         persistent={} if persistent is None else persistent,
-        initialization_failed=initialization_failed)
+        initialization_failed=initialization_failed,
+    )
 
   def _host_physics(self):
-    return self._make_physics(self._mjx_model, self._data0,
-                              self._task.initial_task_state())
+    return self._make_physics(
+        self._mjx_model, self._data0, self._task.initial_task_state()
+    )
 
   def physics(self, state: State) -> physics_lib.Physics:
     """The `Physics` of a state (a batch of them if the state is batched)."""
-    model = self._mjx_model.replace(**state.model_fields) \
-        if state.model_fields else self._mjx_model
-    return self._make_physics(model, state.data, state.task_state,
-                              state.persistent)
+    model = (
+        self._mjx_model.replace(**state.model_fields)
+        if state.model_fields
+        else self._mjx_model
+    )
+    return self._make_physics(
+        model, state.data, state.task_state, state.persistent
+    )
 
   # -- hooks ---------------------------------------------------------------
 
@@ -400,38 +465,56 @@ class Environment:
     """The (owner, callable, takes_action) list for a device hook, in order."""
     from mjx_composer import entity as entity_lib  # pylint: disable=g-import-not-at-top
     from mjx_composer import task as task_lib  # pylint: disable=g-import-not-at-top
+
     hooks = []
     if _is_overridden(self._task, name, task_lib.Task) or name == 'before_step':
-      hooks.append((type(self._task).__name__, getattr(self._task, name),
-                    name in _ACTION_HOOKS))
+      hooks.append(
+          (
+              type(self._task).__name__,
+              getattr(self._task, name),
+              name in _ACTION_HOOKS,
+          )
+      )
     for entity in self._task.root_entity.iter_entities():
       if _is_overridden(entity, name, entity_lib.Entity):
-        hooks.append((f'{type(entity).__name__}({entity.name!r})',
-                      getattr(entity, name), False))
+        hooks.append(
+            (
+                f'{type(entity).__name__}({entity.name!r})',
+                getattr(entity, name),
+                False,
+            )
+        )
     for hook in self._extra_hooks[name]:
-      hooks.append((getattr(hook, '__name__', repr(hook)), hook,
-                    name in _ACTION_HOOKS))
+      hooks.append(
+          (getattr(hook, '__name__', repr(hook)), hook, name in _ACTION_HOOKS)
+      )
     return hooks
 
   def _run_hooks(self, name, physics, key, action=None):
     """Runs a device hook for the task, then entities, then extra hooks."""
     for i, (owner, hook, takes_action) in enumerate(self._device_hooks(name)):
       hook_key = jax.random.fold_in(key, i)
-      args = (physics, action, hook_key) if takes_action else (physics,
-                                                               hook_key)
+      args = (
+          (physics, action, hook_key) if takes_action else (physics, hook_key)
+      )
       result = hook(*args)
       if not isinstance(result, physics_lib.Physics):
         raise TypeError(
             f'{owner}.{name} returned {type(result).__name__}: device hooks '
-            'are pure and must return the (new) Physics.')
+            'are pure and must return the (new) Physics.'
+        )
       physics = result
     return physics
 
-  def _per_world_fields(self, before: mjx.Model, after: mjx.Model, allowed,
-                        hook_names):
+  def _per_world_fields(
+      self, before: mjx.Model, after: mjx.Model, allowed, hook_names
+  ):
     """Model fields that hooks changed; raises if any is not allowed."""
-    changed = [f.name for f in dataclasses.fields(mjx.Model)
-               if getattr(after, f.name) is not getattr(before, f.name)]
+    changed = [
+        f.name
+        for f in dataclasses.fields(mjx.Model)
+        if getattr(after, f.name) is not getattr(before, f.name)
+    ]
     if allowed is not None:
       bad = sorted(set(changed) - set(allowed))
       if bad:
@@ -439,7 +522,8 @@ class Environment:
             f'The {hook_names} hooks wrote model fields {bad} that are not '
             'per-world. Declare them with Environment(..., '
             f'per_world_model_fields={tuple(bad)!r}), or write them in '
-            'initialize_episode.')
+            'initialize_episode.'
+        )
     return changed
 
   # -- reset ---------------------------------------------------------------
@@ -462,9 +546,13 @@ class Environment:
     not_failed = jnp.zeros((), bool)
 
     def attempt(attempt_key, persistent):
-      physics = self._make_physics(start_model, self._data0,
-                                   self._task.initial_task_state(),
-                                   persistent, not_failed)
+      physics = self._make_physics(
+          start_model,
+          self._data0,
+          self._task.initial_task_state(),
+          persistent,
+          not_failed,
+      )
       if has_init_hooks:
         physics = _forward_without_actuation(physics)
         physics = self._run_hooks('initialize_episode', physics, attempt_key)
@@ -478,9 +566,13 @@ class Environment:
       # Resample failed initializations with fresh keys. Under vmap the loop
       # runs while any world still fails; finished worlds keep their result.
       def carry_of(physics):
-        return (physics.data, physics.task_state,
-                {f: getattr(physics.model, f) for f in model_fields},
-                physics.persistent, physics.initialization_failed)
+        return (
+            physics.data,
+            physics.task_state,
+            {f: getattr(physics.model, f) for f in model_fields},
+            physics.persistent,
+            physics.initialization_failed,
+        )
 
       def retry(carry):
         # Every attempt starts from the same model and persistent entries:
@@ -488,47 +580,62 @@ class Environment:
         # once-per-world draw is not marked done), only a fresh key.
         attempts, failures, _ = carry
         physics = attempt(jax.random.fold_in(init_key, attempts), persistent)
-        return (attempts + 1,
-                failures + physics.initialization_failed.astype(jnp.int32),
-                carry_of(physics))
+        return (
+            attempts + 1,
+            failures + physics.initialization_failed.astype(jnp.int32),
+            carry_of(physics),
+        )
 
       def should_retry(carry):
         attempts, _, (*_, failed) = carry
         return jnp.logical_and(failed, attempts < self._max_reset_attempts)
 
       _, failures, (data, task_state, fields, persistent_out, failed) = (
-          jax.lax.while_loop(should_retry, retry,
-                             (jnp.ones((), jnp.int32), failures,
-                              carry_of(physics))))
-      physics = self._make_physics(base.replace(**fields), data, task_state,
-                                   persistent_out, failed)
+          jax.lax.while_loop(
+              should_retry,
+              retry,
+              (jnp.ones((), jnp.int32), failures, carry_of(physics)),
+          )
+      )
+      physics = self._make_physics(
+          base.replace(**fields), data, task_state, persistent_out, failed
+      )
     physics = _forward_without_actuation(physics)
     obs_state = self._updater.reset(physics, obs_key)
     observation = self._updater.get_observation(obs_state)
     diverged = _diverged(physics.data)
-    metrics = {'diverged': diverged.astype(jnp.float32),
-               'episode_return': jnp.zeros((), jnp.float32),
-               'episode_length': jnp.zeros((), jnp.int32),
-               'init_failures': failures.astype(jnp.float32),
-               'init_failed': physics.initialization_failed.astype(
-                   jnp.float32)}
+    metrics = {
+        'diverged': diverged.astype(jnp.float32),
+        'episode_return': jnp.zeros((), jnp.float32),
+        'episode_length': jnp.zeros((), jnp.int32),
+        'init_failures': failures.astype(jnp.float32),
+        'init_failed': physics.initialization_failed.astype(jnp.float32),
+    }
     metrics.update(self._task_metrics(physics))
     return State(
-        data=physics.data, task_state=physics.task_state,
+        data=physics.data,
+        task_state=physics.task_state,
         model_fields={f: getattr(physics.model, f) for f in model_fields},
-        obs_state=obs_state, observation=observation,
+        obs_state=obs_state,
+        observation=observation,
         reward=jnp.zeros(self.reward_spec().shape, jnp.float32),
         discount=jnp.ones(self.discount_spec().shape, jnp.float32),
         step_type=jnp.asarray(StepType.FIRST, jnp.int32),
-        terminated=jnp.zeros((), bool), truncated=jnp.zeros((), bool),
-        final_observation=observation, metrics=metrics, key=next_key,
+        terminated=jnp.zeros((), bool),
+        truncated=jnp.zeros((), bool),
+        final_observation=observation,
+        metrics=metrics,
+        key=next_key,
         steps=jnp.zeros((), jnp.int32),
         episode_return=jnp.zeros((), jnp.float32),
-        persistent=physics.persistent)
+        persistent=physics.persistent,
+    )
 
   def _task_metrics(self, physics):
-    return {name: jnp.asarray(value, jnp.float32)
-            for name, value in self._task.get_metrics(physics).items()}
+    return {
+        name: jnp.asarray(value, jnp.float32)
+        for name, value in self._task.get_metrics(physics).items()
+    }
 
   # -- step ----------------------------------------------------------------
 
@@ -538,17 +645,21 @@ class Environment:
     if self._auto_reset == 'next_step':
       reset_key, step_key = jax.random.split(state.key)
       stepped = self._step(state.replace(key=step_key), action)
-      return _select_reset(state.last(), self._reset, (reset_key, state),
-                           stepped)
+      return _select_reset(
+          state.last(), self._reset, (reset_key, state), stepped
+      )
 
     def restart(stepped):
       restarted = self._reset(stepped.key, previous=stepped)
       return restarted.replace(
-          step_type=stepped.step_type, reward=stepped.reward,
-          discount=stepped.discount, terminated=stepped.terminated,
+          step_type=stepped.step_type,
+          reward=stepped.reward,
+          discount=stepped.discount,
+          terminated=stepped.terminated,
           truncated=stepped.truncated,
           final_observation=stepped.final_observation,
-          metrics=stepped.metrics)
+          metrics=stepped.metrics,
+      )
 
     stepped = self._step(state, action)
     return _select_reset(stepped.last(), restart, (stepped,), stepped)
@@ -559,8 +670,9 @@ class Environment:
     if action.shape != spec.shape:
       raise ValueError(
           f'Expected an action of shape {spec.shape} for one world (the '
-          f'task\'s action_spec), got {action.shape}. To step a batch, '
-          'jax.vmap(env.step) over states and actions.')
+          f"task's action_spec), got {action.shape}. To step a batch, "
+          'jax.vmap(env.step) over states and actions.'
+      )
     if not jnp.issubdtype(action.dtype, jnp.floating):
       action = action.astype(jnp.float32)
     return action
@@ -576,40 +688,55 @@ class Environment:
 
     def substep(physics, i):
       sub_key = jax.random.fold_in(substep_key, i)
-      physics = self._run_hooks('before_substep', physics,
-                                jax.random.fold_in(sub_key, 0), action)
+      physics = self._run_hooks(
+          'before_substep', physics, jax.random.fold_in(sub_key, 0), action
+      )
       physics = physics.step()
-      physics = self._run_hooks('after_substep', physics,
-                                jax.random.fold_in(sub_key, 1))
-      self._per_world_fields(base_model, physics.model, allowed,
-                             'before_substep/after_substep')
-      _check_persistent(state.persistent, physics.persistent,
-                        'before_substep/after_substep')
+      physics = self._run_hooks(
+          'after_substep', physics, jax.random.fold_in(sub_key, 1)
+      )
+      self._per_world_fields(
+          base_model, physics.model, allowed, 'before_substep/after_substep'
+      )
+      _check_persistent(
+          state.persistent, physics.persistent, 'before_substep/after_substep'
+      )
       return physics, jax.random.fold_in(sub_key, 2)
 
     def scanned_substep(carry, i):
       data, task_state, model_fields, persistent, obs_state = carry
       model = base_model.replace(**model_fields) if model_fields else base_model
       physics, update_key = substep(
-          self._make_physics(model, data, task_state, persistent), i)
+          self._make_physics(model, data, task_state, persistent), i
+      )
       # Sub-steps 1..n-1 update the observations inside the scan; the updater
       # skips, at trace time, every observable that cannot be sampled there.
-      obs_state = self._updater.update(obs_state, physics, update_key, i + 1,
-                                       substep_bounds=(1, n - 1))
+      obs_state = self._updater.update(
+          obs_state, physics, update_key, i + 1, substep_bounds=(1, n - 1)
+      )
       model_fields = {f: getattr(physics.model, f) for f in model_fields}
-      return (physics.data, physics.task_state, model_fields,
-              physics.persistent, obs_state), None
+      return (
+          physics.data,
+          physics.task_state,
+          model_fields,
+          physics.persistent,
+          obs_state,
+      ), None
 
     self._per_world_fields(base_model, physics.model, allowed, 'before_step')
     _check_persistent(state.persistent, physics.persistent, 'before_step')
     obs_state = state.obs_state
     if n > 1:
-      carry = (physics.data, physics.task_state,
-               {f: getattr(physics.model, f) for f in allowed},
-               physics.persistent, obs_state)
-      (data, task_state, model_fields, persistent, obs_state), _ = (
-          jax.lax.scan(scanned_substep, carry,
-                       jnp.arange(n - 1, dtype=jnp.int32)))
+      carry = (
+          physics.data,
+          physics.task_state,
+          {f: getattr(physics.model, f) for f in allowed},
+          physics.persistent,
+          obs_state,
+      )
+      (data, task_state, model_fields, persistent, obs_state), _ = jax.lax.scan(
+          scanned_substep, carry, jnp.arange(n - 1, dtype=jnp.int32)
+      )
       model = base_model.replace(**model_fields) if model_fields else base_model
       physics = self._make_physics(model, data, task_state, persistent)
     # The last sub-step runs outside the scan: its observation update comes
@@ -629,58 +756,80 @@ class Environment:
     steps = state.steps + 1
     terminated = jnp.logical_or(
         jnp.asarray(self._task.should_terminate_episode(physics), bool),
-        diverged)
-    truncated = jnp.logical_and(jnp.logical_not(terminated),
-                                steps >= self._step_limit)
+        diverged,
+    )
+    truncated = jnp.logical_and(
+        jnp.logical_not(terminated), steps >= self._step_limit
+    )
     last = jnp.logical_or(terminated, truncated)
     episode_return = state.episode_return + jnp.sum(reward)
-    metrics = {'diverged': diverged.astype(jnp.float32),
-               'episode_return': episode_return,
-               'episode_length': steps,
-               'init_failures': state.metrics['init_failures'],
-               'init_failed': state.metrics['init_failed']}
+    metrics = {
+        'diverged': diverged.astype(jnp.float32),
+        'episode_return': episode_return,
+        'episode_length': steps,
+        'init_failures': state.metrics['init_failures'],
+        'init_failed': state.metrics['init_failed'],
+    }
     # A diverged world's task metrics are NaN-laden: report zeros instead.
-    metrics.update({k: jnp.where(diverged, 0., v)
-                    for k, v in self._task_metrics(physics).items()})
+    metrics.update(
+        {
+            k: jnp.where(diverged, 0.0, v)
+            for k, v in self._task_metrics(physics).items()
+        }
+    )
     return State(
-        data=physics.data, task_state=physics.task_state,
+        data=physics.data,
+        task_state=physics.task_state,
         model_fields={f: getattr(physics.model, f) for f in allowed},
-        obs_state=obs_state, observation=observation, reward=reward,
+        obs_state=obs_state,
+        observation=observation,
+        reward=reward,
         discount=discount,
         step_type=jnp.where(last, StepType.LAST, StepType.MID).astype(
-            jnp.int32),
-        terminated=terminated, truncated=truncated,
-        final_observation=observation, metrics=metrics, key=next_key,
-        steps=steps, episode_return=episode_return,
-        persistent=physics.persistent)
+            jnp.int32
+        ),
+        terminated=terminated,
+        truncated=truncated,
+        final_observation=observation,
+        metrics=metrics,
+        key=next_key,
+        steps=steps,
+        episode_return=episode_return,
+        persistent=physics.persistent,
+    )
 
 
 def _check_persistent(before, after, hook_names):
   """Step hooks may update persistent entries but not add or reshape them."""
-  shapes = lambda tree: jax.tree.map(lambda x: (jnp.shape(x),
-                                                jnp.result_type(x)), tree)
-  if (jax.tree.structure(before) != jax.tree.structure(after)
-      or shapes(before) != shapes(after)):
+  shapes = lambda tree: jax.tree.map(
+      lambda x: (jnp.shape(x), jnp.result_type(x)), tree
+  )
+  if jax.tree.structure(before) != jax.tree.structure(after) or shapes(
+      before
+  ) != shapes(after):
     raise ValueError(
         f'The {hook_names} hooks added, removed or reshaped persistent '
         f'entries (before: {shapes(before)}, after: {shapes(after)}). Create '
         'every persistent entry in initialize_episode, with its final shape '
-        'and dtype; step hooks may only update it.')
+        'and dtype; step hooks may only update it.'
+    )
 
 
 def _forward_without_actuation(physics):
   """`mj_forward` with actuation disabled, as composer's reset context does."""
   opt = physics.model.opt
-  model = physics.model.replace(opt=opt.replace(
-      disableflags=opt.disableflags | mjx.DisableBit.ACTUATION))
+  model = physics.model.replace(
+      opt=opt.replace(disableflags=opt.disableflags | mjx.DisableBit.ACTUATION)
+  )
   data = mjx.forward(model, physics.data)
   return physics.replace(data=data)
 
 
 def _diverged(data) -> jax.Array:
   fields = [data.qpos, data.qvel, data.qacc, data.act]
-  return jnp.logical_not(jnp.all(jnp.stack(
-      [jnp.all(jnp.isfinite(f)) for f in fields])))
+  return jnp.logical_not(
+      jnp.all(jnp.stack([jnp.all(jnp.isfinite(f)) for f in fields]))
+  )
 
 
 def _as_key(key):
@@ -690,6 +839,8 @@ def _as_key(key):
       return key
   elif key.shape == (2,) and key.dtype == jnp.uint32:
     return jax.random.wrap_key_data(key)
-  raise ValueError('reset expects one PRNG key (jax.random.key(seed)); got an '
-                   f'array of shape {key.shape} and dtype {key.dtype}. For a '
-                   'batch, jax.vmap(env.reset)(jax.random.split(key, n)).')
+  raise ValueError(
+      'reset expects one PRNG key (jax.random.key(seed)); got an '
+      f'array of shape {key.shape} and dtype {key.dtype}. For a '
+      'batch, jax.vmap(env.reset)(jax.random.split(key, n)).'
+  )

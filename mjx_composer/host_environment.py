@@ -76,8 +76,12 @@ class HostEnvironment(dm_env.Environment):
       step_type = dm_env.StepType(int(step_type))
       if step_type == dm_env.StepType.FIRST:
         return dm_env.TimeStep(step_type, None, None, observation)
-    return dm_env.TimeStep(step_type, np.asarray(state.reward),
-                           np.asarray(state.discount), observation)
+    return dm_env.TimeStep(
+        step_type,
+        np.asarray(state.reward),
+        np.asarray(state.discount),
+        observation,
+    )
 
   def action_spec(self):
     return self._env.action_spec()

@@ -41,10 +41,11 @@ import numpy as np
 @dataclasses.dataclass(frozen=True)
 class _Kind:
   """How one MuJoCo object type is laid out in `mjModel`/`mjData`."""
-  name: str          # e.g. 'joint'
-  obj: Any           # mujoco.mjtObj value
-  prefix: str        # model field prefix, e.g. 'jnt'
-  count: str         # model size attribute, e.g. 'njnt'
+
+  name: str  # e.g. 'joint'
+  obj: Any  # mujoco.mjtObj value
+  prefix: str  # model field prefix, e.g. 'jnt'
+  count: str  # model size attribute, e.g. 'njnt'
 
 
 _KINDS = {
@@ -53,28 +54,51 @@ _KINDS = {
     mujoco.MjsSite: _Kind('site', mujoco.mjtObj.mjOBJ_SITE, 'site', 'nsite'),
     mujoco.MjsJoint: _Kind('joint', mujoco.mjtObj.mjOBJ_JOINT, 'jnt', 'njnt'),
     mujoco.MjsActuator: _Kind(
-        'actuator', mujoco.mjtObj.mjOBJ_ACTUATOR, 'actuator', 'nu'),
+        'actuator', mujoco.mjtObj.mjOBJ_ACTUATOR, 'actuator', 'nu'
+    ),
     mujoco.MjsSensor: _Kind(
-        'sensor', mujoco.mjtObj.mjOBJ_SENSOR, 'sensor', 'nsensor'),
+        'sensor', mujoco.mjtObj.mjOBJ_SENSOR, 'sensor', 'nsensor'
+    ),
     mujoco.MjsTendon: _Kind(
-        'tendon', mujoco.mjtObj.mjOBJ_TENDON, 'tendon', 'ntendon'),
-    mujoco.MjsCamera: _Kind('camera', mujoco.mjtObj.mjOBJ_CAMERA, 'cam', 'ncam'),
-    mujoco.MjsLight: _Kind('light', mujoco.mjtObj.mjOBJ_LIGHT, 'light', 'nlight'),
-    mujoco.MjsEquality: _Kind('equality', mujoco.mjtObj.mjOBJ_EQUALITY, 'eq',
-                              'neq'),
+        'tendon', mujoco.mjtObj.mjOBJ_TENDON, 'tendon', 'ntendon'
+    ),
+    mujoco.MjsCamera: _Kind(
+        'camera', mujoco.mjtObj.mjOBJ_CAMERA, 'cam', 'ncam'
+    ),
+    mujoco.MjsLight: _Kind(
+        'light', mujoco.mjtObj.mjOBJ_LIGHT, 'light', 'nlight'
+    ),
+    mujoco.MjsEquality: _Kind(
+        'equality', mujoco.mjtObj.mjOBJ_EQUALITY, 'eq', 'neq'
+    ),
 }
 KINDS_BY_NAME = {kind.name: kind for kind in _KINDS.values()}
 # The MjSpec list attribute that holds each kind's elements, in order.
 SPEC_LISTS = {
-    'body': 'bodies', 'geom': 'geoms', 'site': 'sites', 'joint': 'joints',
-    'actuator': 'actuators', 'sensor': 'sensors', 'tendon': 'tendons',
-    'camera': 'cameras', 'light': 'lights', 'equality': 'equalities',
+    'body': 'bodies',
+    'geom': 'geoms',
+    'site': 'sites',
+    'joint': 'joints',
+    'actuator': 'actuators',
+    'sensor': 'sensors',
+    'tendon': 'tendons',
+    'camera': 'cameras',
+    'light': 'lights',
+    'equality': 'equalities',
 }
 
 # Data fields indexed per element of a kind (first axis = element id).
 _DATA_PER_ELEMENT = {
-    'body': ('xpos', 'xquat', 'xmat', 'xipos', 'ximat', 'subtree_com', 'cvel',
-             'xfrc_applied'),
+    'body': (
+        'xpos',
+        'xquat',
+        'xmat',
+        'xipos',
+        'ximat',
+        'subtree_com',
+        'cvel',
+        'xfrc_applied',
+    ),
     'joint': ('xanchor', 'xaxis'),
     'geom': ('geom_xpos', 'geom_xmat'),
     'site': ('site_xpos', 'site_xmat'),
@@ -86,11 +110,22 @@ _DATA_PER_ELEMENT = {
 # Joint fields addressed through `jnt_qposadr` (width 7/4/1/1 by joint type).
 _QPOS_FIELDS = {'data': ('qpos',), 'model': ('qpos0', 'qpos_spring')}
 # Joint fields addressed through `jnt_dofadr` (width 6/3/1/1 by joint type).
-_DOF_DATA_FIELDS = ('qvel', 'qacc', 'qacc_warmstart', 'qfrc_applied',
-                    'qfrc_bias', 'qfrc_passive', 'qfrc_actuator', 'qfrc_smooth',
-                    'qacc_smooth', 'qfrc_constraint', 'qfrc_inverse',
-                    'qfrc_gravcomp', 'qfrc_fluid')
-_QPOS_WIDTH = {0: 7, 1: 4, 2: 1, 3: 1}   # mjtJoint: free, ball, slide, hinge
+_DOF_DATA_FIELDS = (
+    'qvel',
+    'qacc',
+    'qacc_warmstart',
+    'qfrc_applied',
+    'qfrc_bias',
+    'qfrc_passive',
+    'qfrc_actuator',
+    'qfrc_smooth',
+    'qacc_smooth',
+    'qfrc_constraint',
+    'qfrc_inverse',
+    'qfrc_gravcomp',
+    'qfrc_fluid',
+)
+_QPOS_WIDTH = {0: 7, 1: 4, 2: 1, 3: 1}  # mjtJoint: free, ball, slide, hinge
 _DOF_WIDTH = {0: 6, 1: 3, 2: 1, 3: 1}
 # Data fields whose short binding name differs from the data field name.
 _DATA_ALIASES = {'tendon': {'length': 'ten_length'}}
@@ -103,15 +138,17 @@ def element_kind(element) -> _Kind:
       return kind
   raise TypeError(
       f'Cannot bind {element!r}: expected an MjSpec element handle '
-      f'({", ".join(c.__name__ for c in _KINDS)}).')
+      f'({", ".join(c.__name__ for c in _KINDS)}).'
+  )
 
 
 @dataclasses.dataclass(frozen=True)
 class _Address:
   """Where an attribute of some elements lives: `source.field[index]`."""
-  source: str            # 'data' or 'model'
+
+  source: str  # 'data' or 'model'
   field: str
-  index: Any             # int, slice or np.ndarray of ints (static)
+  index: Any  # int, slice or np.ndarray of ints (static)
 
 
 class ElementIndex:
@@ -125,10 +162,10 @@ class ElementIndex:
 
   def __init__(self, model: mujoco.MjModel, handle_names: dict[int, tuple]):
     """Args:
-      model: the compiled host model.
-      handle_names: `id(handle) -> (handle, kind name, full name)` for every
-        element of every entity in the composed tree. The handle is kept so
-        that its `id` stays unique for the life of this index.
+    model: the compiled host model.
+    handle_names: `id(handle) -> (handle, kind name, full name)` for every
+      element of every entity in the composed tree. The handle is kept so
+      that its `id` stays unique for the life of this index.
     """
     self.model = model
     self._handles = handle_names
@@ -148,8 +185,9 @@ class ElementIndex:
     if entry is None or entry[0] is not element:
       raise ValueError(
           f'Element {_describe(element)} is not part of the compiled model: '
-          'it does not belong to any entity attached to the task\'s root '
-          'entity (attach its entity before building the Environment).')
+          "it does not belong to any entity attached to the task's root "
+          'entity (attach its entity before building the Environment).'
+      )
     return entry[2]
 
   def element_id(self, kind: _Kind, element) -> int:
@@ -162,10 +200,14 @@ class ElementIndex:
       name = self.full_name(element)
     idx = mujoco.mj_name2id(self.model, kind.obj, name)
     if idx < 0:
-      known = [mujoco.mj_id2name(self.model, kind.obj, i)
-               for i in range(getattr(self.model, kind.count))]
-      raise KeyError(f'No {kind.name} named {name!r} in the compiled model. '
-                     f'Known {kind.name}s: {[k for k in known if k]}')
+      known = [
+          mujoco.mj_id2name(self.model, kind.obj, i)
+          for i in range(getattr(self.model, kind.count))
+      ]
+      raise KeyError(
+          f'No {kind.name} named {name!r} in the compiled model. '
+          f'Known {kind.name}s: {[k for k in known if k]}'
+      )
     return idx
 
   def resolve(self, elements) -> tuple[_Kind, list[int], bool]:
@@ -176,37 +218,63 @@ class ElementIndex:
       raise ValueError('Cannot bind an empty list of elements.')
     kinds = {element_kind(e) for e in items}
     if len(kinds) != 1:
-      raise TypeError('All elements bound together must be of one kind; got '
-                      f'{sorted(k.name for k in kinds)}.')
+      raise TypeError(
+          'All elements bound together must be of one kind; got '
+          f'{sorted(k.name for k in kinds)}.'
+      )
     kind = kinds.pop()
     return kind, [self.element_id(kind, e) for e in items], is_seq
 
   # -- attribute addressing -------------------------------------------------
 
-  def address(self, kind: _Kind, attr: str, ids: Sequence[int],
-              is_seq: bool) -> _Address:
+  def address(
+      self, kind: _Kind, attr: str, ids: Sequence[int], is_seq: bool
+  ) -> _Address:
     """Where `attr` of the elements `ids` lives, as a static index."""
     if kind.name == 'joint':
       if attr in _QPOS_FIELDS['data'] or attr in _QPOS_FIELDS['model']:
         source = 'data' if attr in _QPOS_FIELDS['data'] else 'model'
-        return _Address(source, attr, self._ranges(
-            self._jnt_qposadr, [_QPOS_WIDTH[int(self._jnt_type[i])]
-                                for i in ids], ids))
+        return _Address(
+            source,
+            attr,
+            self._ranges(
+                self._jnt_qposadr,
+                [_QPOS_WIDTH[int(self._jnt_type[i])] for i in ids],
+                ids,
+            ),
+        )
       dof_field = attr if attr in _DOF_DATA_FIELDS else None
       source = 'data'
       if dof_field is None and hasattr_model(f'dof_{attr}'):
         dof_field, source = f'dof_{attr}', 'model'
       if dof_field is not None:
-        return _Address(source, dof_field, self._ranges(
-            self._jnt_dofadr, [_DOF_WIDTH[int(self._jnt_type[i])]
-                               for i in ids], ids))
+        return _Address(
+            source,
+            dof_field,
+            self._ranges(
+                self._jnt_dofadr,
+                [_DOF_WIDTH[int(self._jnt_type[i])] for i in ids],
+                ids,
+            ),
+        )
     if kind.name == 'sensor' and attr == 'sensordata':
-      return _Address('data', 'sensordata', self._ranges(
-          self._sensor_adr, [int(self._sensor_dim[i]) for i in ids], ids))
+      return _Address(
+          'data',
+          'sensordata',
+          self._ranges(
+              self._sensor_adr, [int(self._sensor_dim[i]) for i in ids], ids
+          ),
+      )
     if kind.name == 'actuator' and attr == 'act':
-      return _Address('data', 'act', self._ranges(
-          self._actuator_actadr, [int(self._actuator_actnum[i]) for i in ids],
-          ids))
+      return _Address(
+          'data',
+          'act',
+          self._ranges(
+              self._actuator_actadr,
+              [int(self._actuator_actnum[i]) for i in ids],
+              ids,
+          ),
+      )
     index = _element_index(ids, is_seq)
     alias = _DATA_ALIASES.get(kind.name, {}).get(attr)
     per_element = _DATA_PER_ELEMENT.get(kind.name, ())
@@ -222,12 +290,16 @@ class ElementIndex:
       return _Address('data', attr, _element_index(mocap.tolist(), is_seq))
     raise AttributeError(
         f'A {kind.name} has no attribute {attr!r}. Valid attributes: '
-        f'{sorted(self.valid_attributes(kind))}.')
+        f'{sorted(self.valid_attributes(kind))}.'
+    )
 
   def valid_attributes(self, kind: _Kind) -> set[str]:
     names = set(_DATA_PER_ELEMENT.get(kind.name, ()))
-    names |= {f[len(kind.prefix) + 1:] for f in _MODEL_FIELDS
-              if f.startswith(kind.prefix + '_')}
+    names |= {
+        f[len(kind.prefix) + 1 :]
+        for f in _MODEL_FIELDS
+        if f.startswith(kind.prefix + '_')
+    }
     if kind.name == 'joint':
       names |= set(_QPOS_FIELDS['data'] + _QPOS_FIELDS['model'])
       names |= set(_DOF_DATA_FIELDS)
@@ -241,21 +313,27 @@ class ElementIndex:
   def named_address(self, source: str, field: str, key) -> _Address:
     """Address of `source.field[key]` where key is a name, names or index."""
     if isinstance(key, (int, np.integer, slice)) or (
-        isinstance(key, (list, tuple, np.ndarray)) and len(key) and
-        all(isinstance(k, (int, np.integer)) for k in key)):
-      return _Address(source, field, key if not isinstance(key, (list, tuple))
-                      else np.asarray(key))
+        isinstance(key, (list, tuple, np.ndarray))
+        and len(key)
+        and all(isinstance(k, (int, np.integer)) for k in key)
+    ):
+      return _Address(
+          source,
+          field,
+          key if not isinstance(key, (list, tuple)) else np.asarray(key),
+      )
     kind, attr = self._kind_of_field(source, field)
     names = list(key) if isinstance(key, (list, tuple)) else [key]
     ids = [self.element_id(kind, n) for n in names]
     address = self.address(kind, attr, ids, isinstance(key, (list, tuple)))
-    if address.field != field:   # e.g. 'qfrc_applied' on a body is not a thing
+    if address.field != field:  # e.g. 'qfrc_applied' on a body is not a thing
       raise KeyError(f'{source}.{field} cannot be indexed by name.')
     return address
 
   def _kind_of_field(self, source: str, field: str) -> tuple[_Kind, str]:
     if field in _QPOS_FIELDS[source] or (
-        source == 'data' and field in _DOF_DATA_FIELDS):
+        source == 'data' and field in _DOF_DATA_FIELDS
+    ):
       return KINDS_BY_NAME['joint'], field
     if source == 'model' and field.startswith('dof_'):
       return KINDS_BY_NAME['joint'], field[4:]
@@ -267,13 +345,16 @@ class ElementIndex:
       for kind_name, fields in _DATA_PER_ELEMENT.items():
         if field in fields:
           kind = KINDS_BY_NAME[kind_name]
-          short = field[len(kind.prefix) + 1:] if field.startswith(
-              kind.prefix + '_') else field
+          short = (
+              field[len(kind.prefix) + 1 :]
+              if field.startswith(kind.prefix + '_')
+              else field
+          )
           return kind, short
     else:
       for kind in KINDS_BY_NAME.values():
         if field.startswith(kind.prefix + '_'):
-          return kind, field[len(kind.prefix) + 1:]
+          return kind, field[len(kind.prefix) + 1 :]
     raise KeyError(f'{source}.{field} is not indexed by element names.')
 
   @staticmethod
@@ -281,7 +362,7 @@ class ElementIndex:
     starts = [int(adr[i]) for i in ids]
     flat = np.concatenate([np.arange(s, s + w) for s, w in zip(starts, widths)])
     if flat.size and np.all(np.diff(flat) == 1):
-      return slice(int(flat[0]), int(flat[-1]) + 1)   # a static slice, no gather
+      return slice(int(flat[0]), int(flat[-1]) + 1)  # a static slice, no gather
     return flat
 
 
@@ -325,6 +406,7 @@ class Physics:
       environment resamples the episode with a fresh key, up to
       `max_reset_attempts` times (composer's `EpisodeInitializationError`).
   """
+
   model: mjx.Model
   data: mjx.Data
   task_state: Any = None
@@ -357,9 +439,10 @@ class Physics:
     control = jnp.asarray(control, dtype=self.data.ctrl.dtype)
     if control.shape != self.data.ctrl.shape:
       raise ValueError(
-          f'Control of shape {control.shape} does not match the model\'s '
+          f"Control of shape {control.shape} does not match the model's "
           f'{self.data.ctrl.shape[0]} actuators: pass an array of shape '
-          f'{self.data.ctrl.shape}.')
+          f'{self.data.ctrl.shape}.'
+      )
     return self.replace(data=self.data.replace(ctrl=control))
 
   def forward(self) -> 'Physics':
@@ -381,13 +464,16 @@ class Physics:
       raise TypeError('update_task_state needs a dict task state.')
     unknown = set(values) - set(self.task_state)
     if unknown:
-      raise KeyError(f'Unknown task state entries {sorted(unknown)}; declare '
-                     'them in Task.initial_task_state().')
+      raise KeyError(
+          f'Unknown task state entries {sorted(unknown)}; declare '
+          'them in Task.initial_task_state().'
+      )
     new = dict(self.task_state)
     for k, v in values.items():
       old = new[k]
       new[k] = jnp.asarray(v, dtype=jnp.asarray(old).dtype).reshape(
-          jnp.shape(old))
+          jnp.shape(old)
+      )
     return self.replace(task_state=new)
 
   # -- state that outlives an episode, and initialization failures ---------
@@ -422,10 +508,16 @@ class Physics:
     `initialize_episode` hook) up to `max_reset_attempts` times and counts
     the failures in `metrics['init_failures']`.
     """
-    previous = (jnp.zeros((), bool) if self.initialization_failed is None
-                else self.initialization_failed)
-    return self.replace(initialization_failed=jnp.logical_or(
-        previous, jnp.asarray(failed, bool)))
+    previous = (
+        jnp.zeros((), bool)
+        if self.initialization_failed is None
+        else self.initialization_failed
+    )
+    return self.replace(
+        initialization_failed=jnp.logical_or(
+            previous, jnp.asarray(failed, bool)
+        )
+    )
 
   def read(self, address: _Address) -> jax.Array:
     source = self.data if address.source == 'data' else self.model
@@ -454,8 +546,9 @@ class Binding:
     self._is_seq = is_seq
 
   def _address(self, attr: str) -> _Address:
-    return self._physics.index.address(self._kind, attr, self._ids,
-                                       self._is_seq)
+    return self._physics.index.address(
+        self._kind, attr, self._ids, self._is_seq
+    )
 
   def __getattr__(self, attr: str) -> jax.Array:
     if attr.startswith('_'):
@@ -468,7 +561,8 @@ class Binding:
       return
     raise AttributeError(
         'Physics is immutable: use `physics = physics.bind(el).set('
-        f'{attr}=value)` instead of assigning to a binding.')
+        f'{attr}=value)` instead of assigning to a binding.'
+    )
 
   @property
   def element_ids(self) -> tuple:

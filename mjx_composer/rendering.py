@@ -37,17 +37,19 @@ import numpy as np
 _HEADLESS_BACKENDS = ('egl', 'osmesa')
 _INSTALL_HINT = (
     'Install a headless OpenGL: EGL (Debian/Ubuntu: apt-get install libegl1 '
-    'libgl1-mesa-dri; NVIDIA machines: the driver\'s libEGL) or OSMesa '
+    "libgl1-mesa-dri; NVIDIA machines: the driver's libEGL) or OSMesa "
     '(apt-get install libosmesa6), then set MUJOCO_GL=egl or MUJOCO_GL=osmesa '
-    'before importing mujoco.')
+    'before importing mujoco.'
+)
 _PROBE = (
     'import mujoco\n'
     'm = mujoco.MjModel.from_xml_string("<mujoco><worldbody><geom '
-    'size=\'.1\'/></worldbody></mujoco>")\n'
+    "size='.1'/></worldbody></mujoco>\")\n"
     'r = mujoco.Renderer(m, 8, 8)\n'
     'r.update_scene(mujoco.MjData(m))\n'
     'r.render()\n'
-    'r.close()\n')
+    'r.close()\n'
+)
 
 _LOG = logging.getLogger(__name__)
 _backend = None  # The backend chosen in this process.
@@ -65,8 +67,11 @@ def gl_backend() -> str:
   if _backend is not None:
     return _backend
   chosen = os.environ.get('MUJOCO_GL', '').lower().strip()
-  headless = (platform.system() == 'Linux' and not os.environ.get('DISPLAY')
-              and not os.environ.get('WAYLAND_DISPLAY'))
+  headless = (
+      platform.system() == 'Linux'
+      and not os.environ.get('DISPLAY')
+      and not os.environ.get('WAYLAND_DISPLAY')
+  )
   if chosen or not headless:
     # mujoco chose its context class from MUJOCO_GL when it was imported.
     _backend = chosen or 'default'
@@ -76,8 +81,13 @@ def gl_backend() -> str:
     env = dict(os.environ, MUJOCO_GL=backend)
     env.pop('PYOPENGL_PLATFORM', None)
     try:
-      result = subprocess.run([sys.executable, '-c', _PROBE], env=env,
-                              capture_output=True, text=True, timeout=120)
+      result = subprocess.run(
+          [sys.executable, '-c', _PROBE],
+          env=env,
+          capture_output=True,
+          text=True,
+          timeout=120,
+      )
     except subprocess.TimeoutExpired:
       errors[backend] = 'timed out'
       continue
@@ -88,13 +98,14 @@ def gl_backend() -> str:
     lines = (result.stderr or result.stdout).strip().splitlines()
     errors[backend] = lines[-1] if lines else f'exit {result.returncode}'
   tried = '; '.join(f'{k}: {v}' for k, v in errors.items())
-  raise RuntimeError(f'No headless OpenGL backend works here ({tried}). '
-                     f'{_INSTALL_HINT}')
+  raise RuntimeError(
+      f'No headless OpenGL backend works here ({tried}). ' f'{_INSTALL_HINT}'
+  )
 
 
 def _use_backend(backend: str):
   """Points mujoco.Renderer at `backend`'s GL context, as MUJOCO_GL would."""
-  os.environ['MUJOCO_GL'] = backend   # for subprocesses (e.g. kernels)
+  os.environ['MUJOCO_GL'] = backend  # for subprocesses (e.g. kernels)
   module = importlib.import_module(f'mujoco.{backend}')
   # mujoco binds its GLContext class when it is imported (from MUJOCO_GL);
   # mujoco was imported before we could choose, so rebind it here.
@@ -102,8 +113,9 @@ def _use_backend(backend: str):
   gl_context.GLContext = module.GLContext
 
 
-def make_renderer(model: mujoco.MjModel, height: int = 240,
-                  width: int = 320) -> mujoco.Renderer:
+def make_renderer(
+    model: mujoco.MjModel, height: int = 240, width: int = 320
+) -> mujoco.Renderer:
   """A `mujoco.Renderer` on a headless backend; close it when done."""
   gl_backend()
   vis = model.vis.global_
@@ -112,13 +124,20 @@ def make_renderer(model: mujoco.MjModel, height: int = 240,
   try:
     return mujoco.Renderer(model, height, width)
   except Exception as e:  # pylint: disable=broad-except
-    raise RuntimeError(f'Could not create an OpenGL context for rendering '
-                       f'(MUJOCO_GL={os.environ.get("MUJOCO_GL", "")!r}): {e}.'
-                       f' {_INSTALL_HINT}') from e
+    raise RuntimeError(
+        f'Could not create an OpenGL context for rendering '
+        f'(MUJOCO_GL={os.environ.get("MUJOCO_GL", "")!r}): {e}.'
+        f' {_INSTALL_HINT}'
+    ) from e
 
 
-def free_camera(model: mujoco.MjModel, distance=None, azimuth=None,
-                elevation=None, lookat=None) -> mujoco.MjvCamera:
+def free_camera(
+    model: mujoco.MjModel,
+    distance=None,
+    azimuth=None,
+    elevation=None,
+    lookat=None,
+) -> mujoco.MjvCamera:
   """The model's default free camera, with any of its parameters replaced."""
   camera = mujoco.MjvCamera()
   mujoco.mjv_defaultFreeCamera(model, camera)
@@ -177,14 +196,26 @@ def _set_model_field(model: mujoco.MjModel, name: str, value):
       return
   if name not in _logged_skips:
     _logged_skips.add(name)
-    _LOG.warning('rendering: per-world model field %r is not drawn (no '
-                    'matching MjModel array).', name)
+    _LOG.warning(
+        'rendering: per-world model field %r is not drawn (no '
+        'matching MjModel array).',
+        name,
+    )
 
 
-def render(env, state, worlds=None, *, height: int = 240, width: int = 320,
-           camera: Any = None, markers=None, marker_radius: float = 0.03,
-           marker_rgba=(0.9, 0.1, 0.1, 0.8),
-           scene_option: mujoco.MjvOption | None = None) -> np.ndarray:
+def render(
+    env,
+    state,
+    worlds=None,
+    *,
+    height: int = 240,
+    width: int = 320,
+    camera: Any = None,
+    markers=None,
+    marker_radius: float = 0.03,
+    marker_rgba=(0.9, 0.1, 0.1, 0.8),
+    scene_option: mujoco.MjvOption | None = None,
+) -> np.ndarray:
   """Renders chosen worlds of a `State` on the host.
 
   Args:
@@ -207,15 +238,23 @@ def render(env, state, worlds=None, *, height: int = 240, width: int = 320,
   """
   env = _environment(env)
   state = _composer_state(state)
-  host = jax.device_get({
-      'qpos': state.data.qpos, 'qvel': state.data.qvel,
-      'act': state.data.act, 'ctrl': state.data.ctrl,
-      'mocap_pos': state.data.mocap_pos, 'mocap_quat': state.data.mocap_quat,
-      'time': state.data.time, 'model_fields': state.model_fields})
+  host = jax.device_get(
+      {
+          'qpos': state.data.qpos,
+          'qvel': state.data.qvel,
+          'act': state.data.act,
+          'ctrl': state.data.ctrl,
+          'mocap_pos': state.data.mocap_pos,
+          'mocap_quat': state.data.mocap_quat,
+          'time': state.data.time,
+          'model_fields': state.model_fields,
+      }
+  )
   batched = np.ndim(host['time']) == 1
   num_worlds = np.shape(host['time'])[0] if batched else None
-  single = isinstance(worlds, (int, np.integer)) or (worlds is None
-                                                     and not batched)
+  single = isinstance(worlds, (int, np.integer)) or (
+      worlds is None and not batched
+  )
   indices = _world_indices(num_worlds, worlds)
   if markers is not None:
     markers = np.asarray(markers, np.float64)
@@ -264,17 +303,23 @@ def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
 def _add_sphere(scene: mujoco.MjvScene, position, radius, rgba):
   if scene.ngeom >= scene.maxgeom:
     return
-  mujoco.mjv_initGeom(scene.geoms[scene.ngeom],
-                      type=mujoco.mjtGeom.mjGEOM_SPHERE,
-                      size=np.array([radius, 0., 0.]),
-                      pos=np.asarray(position, np.float64),
-                      mat=np.eye(3).reshape(-1),
-                      rgba=np.asarray(rgba, np.float32))
+  mujoco.mjv_initGeom(
+      scene.geoms[scene.ngeom],
+      type=mujoco.mjtGeom.mjGEOM_SPHERE,
+      size=np.array([radius, 0.0, 0.0]),
+      pos=np.asarray(position, np.float64),
+      mat=np.eye(3).reshape(-1),
+      rgba=np.asarray(rgba, np.float32),
+  )
   scene.ngeom += 1
 
 
-def image_grid(images: Sequence[np.ndarray] | np.ndarray, columns=None,
-               padding: int = 2, fill: int = 255) -> np.ndarray:
+def image_grid(
+    images: Sequence[np.ndarray] | np.ndarray,
+    columns=None,
+    padding: int = 2,
+    fill: int = 255,
+) -> np.ndarray:
   """Tiles images `(N, H, W, C)` into one image, row by row.
 
   `columns` defaults to all in one row (a strip).
@@ -285,13 +330,21 @@ def image_grid(images: Sequence[np.ndarray] | np.ndarray, columns=None,
   n, h, w, c = images.shape
   columns = n if columns is None else max(1, min(int(columns), n))
   rows = -(-n // columns)
-  grid = np.full((rows * h + (rows - 1) * padding,
-                  columns * w + (columns - 1) * padding, c), fill,
-                 images.dtype)
+  grid = np.full(
+      (
+          rows * h + (rows - 1) * padding,
+          columns * w + (columns - 1) * padding,
+          c,
+      ),
+      fill,
+      images.dtype,
+  )
   for i, image in enumerate(images):
     r, col = divmod(i, columns)
-    grid[r * (h + padding):r * (h + padding) + h,
-         col * (w + padding):col * (w + padding) + w] = image
+    grid[
+        r * (h + padding) : r * (h + padding) + h,
+        col * (w + padding) : col * (w + padding) + w,
+    ] = image
   return grid
 
 
@@ -302,12 +355,13 @@ def save_image(path: str, image: np.ndarray):
     from PIL import Image  # pylint: disable=g-import-not-at-top
   except ImportError:
     import matplotlib.pyplot as plt  # pylint: disable=g-import-not-at-top
+
     plt.imsave(path, image)
     return
   Image.fromarray(image).save(path)
 
 
-def save_gif(path: str, frames: Iterable[np.ndarray], fps: float = 25.):
+def save_gif(path: str, frames: Iterable[np.ndarray], fps: float = 25.0):
   """Writes frames `(T, H, W, 3)` uint8 as a looping GIF (needs Pillow)."""
   try:
     from PIL import Image  # pylint: disable=g-import-not-at-top
@@ -316,5 +370,10 @@ def save_gif(path: str, frames: Iterable[np.ndarray], fps: float = 25.):
   frames = [Image.fromarray(np.asarray(f, np.uint8)) for f in frames]
   if not frames:
     raise ValueError('save_gif needs at least one frame.')
-  frames[0].save(path, save_all=True, append_images=frames[1:], loop=0,
-                 duration=max(1, int(round(1000 / fps))))
+  frames[0].save(
+      path,
+      save_all=True,
+      append_images=frames[1:],
+      loop=0,
+      duration=max(1, int(round(1000 / fps))),
+  )

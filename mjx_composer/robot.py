@@ -7,7 +7,7 @@ import numpy as np
 from mjx_composer import entity
 
 # The orientation that points a tool's z-axis at the floor (composer's).
-DOWN_QUATERNION = np.array([0., 0.70710678118, 0.70710678118, 0.])
+DOWN_QUATERNION = np.array([0.0, 0.70710678118, 0.70710678118, 0.0])
 
 
 class Robot(entity.Entity, metaclass=abc.ABCMeta):

@@ -28,7 +28,8 @@ def check_timesteps_divisible(control_timestep, physics_timestep) -> int:
   if abs(num_steps - rounded) > 1e-6 or rounded < 1:
     raise ValueError(
         'Control timestep should be an integer multiple of physics timestep: '
-        f'got {control_timestep!r} and {physics_timestep!r}.')
+        f'got {control_timestep!r} and {physics_timestep!r}.'
+    )
   return rounded
 
 
@@ -69,8 +70,10 @@ class Task(abc.ABC):
     try:
       return self.root_entity
     except Exception as e:  # pylint: disable=broad-except
-      raise RuntimeError('The task has no root entity yet: set it up before '
-                         'asking for timesteps.') from e
+      raise RuntimeError(
+          'The task has no root entity yet: set it up before '
+          'asking for timesteps.'
+      ) from e
 
   @property
   def physics_timestep(self) -> float:
@@ -104,8 +107,9 @@ class Task(abc.ABC):
 
   @property
   def physics_steps_per_control_step(self) -> int:
-    return check_timesteps_divisible(self.control_timestep,
-                                     self.physics_timestep)
+    return check_timesteps_divisible(
+        self.control_timestep, self.physics_timestep
+    )
 
   # -- specs ---------------------------------------------------------------
 
@@ -119,12 +123,17 @@ class Task(abc.ABC):
     ctrlrange = np.asarray(model.actuator_ctrlrange, float).reshape(-1, 2)
     minimum = np.where(limited, ctrlrange[:, 0], -_MJMAXVAL)
     maximum = np.where(limited, ctrlrange[:, 1], _MJMAXVAL)
-    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or str(i)
-             for i in range(model.nu)]
-    return specs.BoundedArray(shape=(model.nu,), dtype=np.float32,
-                              minimum=minimum.astype(np.float32),
-                              maximum=maximum.astype(np.float32),
-                              name='\t'.join(names))
+    names = [
+        mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_ACTUATOR, i) or str(i)
+        for i in range(model.nu)
+    ]
+    return specs.BoundedArray(
+        shape=(model.nu,),
+        dtype=np.float32,
+        minimum=minimum.astype(np.float32),
+        maximum=maximum.astype(np.float32),
+        name='\t'.join(names),
+    )
 
   def get_reward_spec(self):
     """An optional non-scalar reward spec; None means a float scalar."""

@@ -15,15 +15,28 @@ class Pendulum(composer.Robot):
     spec = mujoco.MjSpec()
     spec.modelname = name
     body = spec.worldbody.add_body(name='rod', pos=[0, 0, 1])
-    self.joint = body.add_joint(name='hinge', type=mujoco.mjtJoint.mjJNT_HINGE,
-                                axis=[0, 1, 0], damping=0.1)
-    body.add_geom(name='rod', type=mujoco.mjtGeom.mjGEOM_CAPSULE,
-                  size=[0.02, 0, 0], fromto=[0, 0, 0, 0, 0, -0.5],
-                  contype=0, conaffinity=0)
+    self.joint = body.add_joint(
+        name='hinge',
+        type=mujoco.mjtJoint.mjJNT_HINGE,
+        axis=[0, 1, 0],
+        damping=0.1,
+    )
+    body.add_geom(
+        name='rod',
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        size=[0.02, 0, 0],
+        fromto=[0, 0, 0, 0, 0, -0.5],
+        contype=0,
+        conaffinity=0,
+    )
     self.tip = body.add_site(name='tip', pos=[0, 0, -0.5])
     self.motor = spec.add_actuator(
-        name='motor', target='hinge', trntype=mujoco.mjtTrn.mjTRN_JOINT,
-        ctrlrange=[-1, 1], ctrllimited=True)
+        name='motor',
+        target='hinge',
+        trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        ctrlrange=[-1, 1],
+        ctrllimited=True,
+    )
     self._spec = spec
 
   @property
@@ -41,8 +54,11 @@ class Ball(composer.Entity):
     spec = mujoco.MjSpec()
     spec.modelname = name
     self.geom = spec.worldbody.add_body(name='body').add_geom(
-        name='geom', type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0],
-        mass=0.1)
+        name='geom',
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[0.05, 0, 0],
+        mass=0.1,
+    )
     self._spec = spec
 
   @property
@@ -60,7 +76,8 @@ class SwingTask(composer.Task):
   def __init__(self, terminate_above=None):
     self.arena = composer.Arena()
     self.arena.mjcf_model.worldbody.add_geom(
-        name='floor', type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1])
+        name='floor', type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1]
+    )
     self.pendulum = Pendulum()
     self.arena.attach(self.pendulum)
     self.ball = Ball()
@@ -75,7 +92,8 @@ class SwingTask(composer.Task):
   @property
   def task_observables(self):
     tip = composer.observation.observable.Generic(
-        lambda physics: physics.bind(self.pendulum.tip).xpos)
+        lambda physics: physics.bind(self.pendulum.tip).xpos
+    )
     tip.enabled = True
     return {'tip': tip}
 
@@ -85,15 +103,25 @@ class SwingTask(composer.Task):
   def initialize_episode(self, physics, key):
     angle_key, target_key, ball_key = jax.random.split(key, 3)
     physics = physics.bind(self.pendulum.joint).set(
-        qpos=jax.random.uniform(angle_key, (1,), minval=-1, maxval=1))
-    physics = self.ball.set_pose(physics, position=jnp.concatenate([
-        jax.random.uniform(ball_key, (2,), minval=-1, maxval=1),
-        jnp.array([0.3])]))
+        qpos=jax.random.uniform(angle_key, (1,), minval=-1, maxval=1)
+    )
+    physics = self.ball.set_pose(
+        physics,
+        position=jnp.concatenate(
+            [
+                jax.random.uniform(ball_key, (2,), minval=-1, maxval=1),
+                jnp.array([0.3]),
+            ]
+        ),
+    )
     return physics.update_task_state(
-        target=jax.random.uniform(target_key, (), minval=0.6, maxval=0.9))
+        target=jax.random.uniform(target_key, (), minval=0.6, maxval=0.9)
+    )
 
   def get_reward(self, physics):
-    return physics.bind(self.pendulum.tip).xpos[2] - physics.task_state['target']
+    return (
+        physics.bind(self.pendulum.tip).xpos[2] - physics.task_state['target']
+    )
 
   def should_terminate_episode(self, physics):
     if self.terminate_above is None:
@@ -101,7 +129,7 @@ class SwingTask(composer.Task):
     return physics.bind(self.pendulum.tip).xpos[2] > self.terminate_above
 
   def get_discount(self, physics):
-    return jnp.where(self.should_terminate_episode(physics), 0., 1.)
+    return jnp.where(self.should_terminate_episode(physics), 0.0, 1.0)
 
 
 def make_swing_env(**kwargs):

@@ -18,7 +18,7 @@ from mjx_composer.adapters import brax as brax_adapter
 from tests import conftest
 
 _N = 4
-_STEPS = 5   # time_limit 0.05 s at 0.01 s per control step
+_STEPS = 5  # time_limit 0.05 s at 0.01 s per control step
 
 
 @pytest.fixture(scope='module')
@@ -40,8 +40,9 @@ def fns(brax_env):
 def rollout(brax_env, fns):
   """Brax states of a batch over two episodes and a step, and the actions."""
   keys = jax.random.split(jax.random.PRNGKey(0), _N)
-  actions = jax.random.uniform(jax.random.PRNGKey(1), (2 * _STEPS + 1, _N, 1),
-                               minval=-1, maxval=1)
+  actions = jax.random.uniform(
+      jax.random.PRNGKey(1), (2 * _STEPS + 1, _N, 1), minval=-1, maxval=1
+  )
   states = [fns['reset'](keys)]
   for action in actions:
     states.append(fns['step'](states[-1], action))
@@ -56,14 +57,20 @@ def test_state_fields_and_shapes(brax_env, rollout):
   _, _, states = rollout
   for state in states[:2]:
     assert state.obs.shape == (_N, 3) and state.obs.dtype == np.float32
-    for value in (state.reward, state.done, state.info['steps'],
-                  state.info['truncation'], state.info['episode_done'],
-                  state.info['time_out']):
+    for value in (
+        state.reward,
+        state.done,
+        state.info['steps'],
+        state.info['truncation'],
+        state.info['episode_done'],
+        state.info['time_out'],
+    ):
       assert value.shape == (_N,) and value.dtype == np.float32
     assert {'sum_reward', 'length', 'diverged'} <= set(
-        state.info['episode_metrics'])
+        state.info['episode_metrics']
+    )
     assert 'diverged' in state.metrics
-    assert 'episode_return' not in state.metrics   # a running total
+    assert 'episode_return' not in state.metrics  # a running total
     # The composer state rides along, its key as raw data.
     assert state.pipeline_state.key.dtype == np.uint32
   first = states[0]
@@ -88,11 +95,13 @@ def test_brax_fields_mirror_the_composer_state(rollout):
     flat = lambda x: np.reshape(x, (_N, -1))
     np.testing.assert_array_equal(state.obs, flat(inner.observation['tip']))
     np.testing.assert_array_equal(state.reward, inner.reward)
-    np.testing.assert_array_equal(state.done,
-                                  inner.step_type == environment_lib.StepType.LAST)
+    np.testing.assert_array_equal(
+        state.done, inner.step_type == environment_lib.StepType.LAST
+    )
     np.testing.assert_array_equal(state.info['truncation'], inner.truncated)
-    np.testing.assert_array_equal(state.info['final_obs'],
-                                  flat(inner.final_observation['tip']))
+    np.testing.assert_array_equal(
+        state.info['final_obs'], flat(inner.final_observation['tip'])
+    )
 
 
 def test_time_limit_is_truncation_with_same_step_auto_reset(rollout):
@@ -106,10 +115,12 @@ def test_time_limit_is_truncation_with_same_step_auto_reset(rollout):
   np.testing.assert_array_equal(last.info['truncation'], 1)
   np.testing.assert_array_equal(last.info['time_out'], 1)
   np.testing.assert_array_equal(last.info['steps'], _STEPS)
-  np.testing.assert_array_equal(last.info['episode_metrics']['length'],
-                                _STEPS)
-  np.testing.assert_allclose(last.info['episode_metrics']['sum_reward'],
-                             rewards[1:_STEPS + 1].sum(0), rtol=1e-5)
+  np.testing.assert_array_equal(last.info['episode_metrics']['length'], _STEPS)
+  np.testing.assert_allclose(
+      last.info['episode_metrics']['sum_reward'],
+      rewards[1 : _STEPS + 1].sum(0),
+      rtol=1e-5,
+  )
   # The LAST step's obs already starts the next episode; the ended episode's
   # last observation is kept in info['final_obs'].
   assert not np.allclose(last.obs, last.info['final_obs'])
@@ -117,8 +128,9 @@ def test_time_limit_is_truncation_with_same_step_auto_reset(rollout):
   np.testing.assert_array_equal(nxt.done, 0)
   np.testing.assert_array_equal(nxt.info['truncation'], 0)
   np.testing.assert_array_equal(nxt.info['steps'], 1)
-  np.testing.assert_allclose(nxt.info['episode_metrics']['sum_reward'],
-                             nxt.reward, rtol=1e-6)
+  np.testing.assert_allclose(
+      nxt.info['episode_metrics']['sum_reward'], nxt.reward, rtol=1e-6
+  )
   # Brax's convention: done at every episode end, so 1 - done is the mask.
   np.testing.assert_array_equal(states[2 * _STEPS].done, 1)
 
@@ -139,9 +151,12 @@ def test_termination_is_not_truncation(brax_env, rollout):
   inner = brax_adapter.composer_state(states[2])
   terminated = inner.replace(
       step_type=jnp.full((_N,), environment_lib.StepType.LAST, jnp.int32),
-      terminated=jnp.ones((_N,), bool), truncated=jnp.zeros((_N,), bool))
+      terminated=jnp.ones((_N,), bool),
+      truncated=jnp.zeros((_N,), bool),
+  )
   wrapped = jax.vmap(functools.partial(brax_env._wrap, first=False))(  # pylint: disable=protected-access
-      terminated, previous=previous)
+      terminated, previous=previous
+  )
   np.testing.assert_array_equal(wrapped.done, 1)
   np.testing.assert_array_equal(wrapped.info['truncation'], 0)
 
@@ -154,7 +169,8 @@ def test_observation_selection(env):
   assert both.observation_size == 6
   with pytest.raises(ValueError, match='no observation'):
     brax_adapter.BraxEnv(env, obs_key='policy').select_observation(
-        state.observation)
+        state.observation
+    )
 
 
 def test_wrong_set_ups_are_refused(env, brax_env, rollout):
@@ -166,9 +182,17 @@ def test_wrong_set_ups_are_refused(env, brax_env, rollout):
     brax_adapter.wrap_for_training(brax_env, action_repeat=2)
   with pytest.raises(ValueError, match='episode_length'):
     brax_adapter.wrap_for_training(brax_env, episode_length=1000)
-  assert brax_adapter.wrap_for_training(
-      brax_env, **{k: v for k, v in brax_adapter.training_kwargs(
-          brax_env).items() if k != 'wrap_env_fn'}) is brax_env
+  assert (
+      brax_adapter.wrap_for_training(
+          brax_env,
+          **{
+              k: v
+              for k, v in brax_adapter.training_kwargs(brax_env).items()
+              if k != 'wrap_env_fn'
+          },
+      )
+      is brax_env
+  )
   # Brax's default wrappers (AutoResetWrapper) are caught at trace time.
   wrapped = brax_wrappers.training.wrap(brax_env, episode_length=_STEPS)
   keys, _, _ = rollout
@@ -184,12 +208,14 @@ def test_replicated_state_matches_what_pmapped_training_returns():
   # Brax's training epoch, pmapped over axis 'i', returns: any difference
   # makes every jitted function those arrays reach compile twice.
   devices = jax.local_devices()[:1]
-  tree = {'w': jnp.ones((2, 3)), 'scale': 2.}   # 2.: a weakly typed leaf
+  tree = {'w': jnp.ones((2, 3)), 'scale': 2.0}  # 2.: a weakly typed leaf
   replicated = jax.device_put_replicated(tree, devices)
-  trained = jax.pmap(lambda t: jax.tree.map(lambda v: v * 1, t),
-                     axis_name='i')(replicated)
-  for before, after in zip(jax.tree.leaves(replicated),
-                           jax.tree.leaves(trained)):
+  trained = jax.pmap(lambda t: jax.tree.map(lambda v: v * 1, t), axis_name='i')(
+      replicated
+  )
+  for before, after in zip(
+      jax.tree.leaves(replicated), jax.tree.leaves(trained)
+  ):
     assert before[0].sharding == after[0].sharding
     assert not before.weak_type and not after.weak_type
     assert before.dtype == after.dtype and before.shape == after.shape
@@ -206,24 +232,45 @@ def _reach_task():
 def test_ppo_improves_reach_through_the_adapter():
   """Brax's PPO, unchanged, on the bundled reach task: eval return rises."""
   env = environment_lib.Environment(
-      _reach_task(), time_limit=0.5, auto_reset='same_step',
-      observation_groups=reach.Reach.observation_groups())
+      _reach_task(),
+      time_limit=0.5,
+      auto_reset='same_step',
+      observation_groups=reach.Reach.observation_groups(),
+  )
   brax_env = brax_adapter.BraxEnv(env, obs_key='policy')
   network_factory = functools.partial(
-      ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=(32, 32),
-      value_hidden_layer_sizes=(64, 64), init_noise_std=0.5)
+      ppo_networks.make_ppo_networks,
+      policy_hidden_layer_sizes=(32, 32),
+      value_hidden_layer_sizes=(64, 64),
+      init_noise_std=0.5,
+  )
   evals = []
   num_eval_envs = 128
   _, params, metrics = ppo.train(
-      environment=brax_env, num_timesteps=500_000, num_envs=128,
-      batch_size=64, num_minibatches=8, unroll_length=10,
-      num_updates_per_batch=8, learning_rate=3e-3, entropy_cost=0.,
-      discounting=0.95, num_evals=2, num_eval_envs=num_eval_envs,
-      deterministic_eval=True, seed=0, network_factory=network_factory,
+      environment=brax_env,
+      num_timesteps=500_000,
+      num_envs=128,
+      batch_size=64,
+      num_minibatches=8,
+      unroll_length=10,
+      num_updates_per_batch=8,
+      learning_rate=3e-3,
+      entropy_cost=0.0,
+      discounting=0.95,
+      num_evals=2,
+      num_eval_envs=num_eval_envs,
+      deterministic_eval=True,
+      seed=0,
+      network_factory=network_factory,
       progress_fn=lambda step, m: evals.append(
-          (step, float(m['eval/episode_reward']),
-           float(m['eval/episode_reward_std']))),
-      **brax_adapter.training_kwargs(brax_env))
+          (
+              step,
+              float(m['eval/episode_reward']),
+              float(m['eval/episode_reward_std']),
+          )
+      ),
+      **brax_adapter.training_kwargs(brax_env),
+  )
   print('PPO evaluations (step, mean return, std):', evals)
   assert len(evals) == 2 and evals[0][0] == 0, evals
   (_, before, before_std), (_, after, after_std) = evals

@@ -4,8 +4,22 @@ from mjx_composer import cli
 
 
 def test_demo_runs_and_reports(capsys):
-  assert cli.main(['demo', '--worlds', '3', '--steps', '6', '--chunk', '3',
-                   '--time-limit', '0.06']) == 0
+  assert (
+      cli.main(
+          [
+              'demo',
+              '--worlds',
+              '3',
+              '--steps',
+              '6',
+              '--chunk',
+              '3',
+              '--time-limit',
+              '0.06',
+          ]
+      )
+      == 0
+  )
   out = capsys.readouterr().out
   assert 'physics steps/s' in out
   # 0.06 s episodes at 0.02 s per step: every world finishes 2 episodes.

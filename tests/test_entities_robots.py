@@ -25,16 +25,18 @@ def test_joint_ranges_are_radians(model):
 def test_no_contacts_at_rest(model):
   data = mujoco.MjData(model)
   mujoco.mj_forward(model, data)
-  pairs = [(model.geom(c.geom1).name, model.geom(c.geom2).name)
-           for c in data.contact[:data.ncon]]
+  pairs = [
+      (model.geom(c.geom1).name, model.geom(c.geom2).name)
+      for c in data.contact[: data.ncon]
+  ]
   assert not pairs, pairs
 
 
-@pytest.mark.parametrize('ctrl', [(1., 1., 1.), (-1., -1., -1.)])
+@pytest.mark.parametrize('ctrl', [(1.0, 1.0, 1.0), (-1.0, -1.0, -1.0)])
 def test_full_torque_swings_every_joint(model, ctrl):
   data = mujoco.MjData(model)
   data.ctrl[:] = ctrl
-  for _ in range(int(2. / model.opt.timestep)):
+  for _ in range(int(2.0 / model.opt.timestep)):
     mujoco.mj_step(model, data)
   shoulder = data.joint('arm/shoulder').qpos[0]
   elbow = data.joint('arm/elbow').qpos[0]

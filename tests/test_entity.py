@@ -16,8 +16,12 @@ class Part(composer.Entity):
     spec = mujoco.MjSpec()
     spec.modelname = name
     body = spec.worldbody.add_body(name='body')
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.1, 0, 0],
-                  contype=0, conaffinity=0)
+    body.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[0.1, 0, 0],
+        contype=0,
+        conaffinity=0,
+    )
     self.joint = body.add_joint(name='slide', type=mujoco.mjtJoint.mjJNT_SLIDE)
     # A site whose frame maps global y to local x (composer's frame test).
     self.site = spec.worldbody.add_site(name='mount', pos=[0.5, 0, 0])
@@ -52,8 +56,16 @@ def test_attach_parents_and_iteration_order():
   assert e2.full_identifier == 'e1/e2/'
   env, _ = _physics(e0)
   names = {env.mj_model.body(i).name for i in range(env.mj_model.nbody)}
-  assert {'e0/', 'body', 'e1/', 'e1/body', 'e1/e2/', 'e1/e2/body', 'e3/',
-          'e3/body'} <= names | {'e0/'}
+  assert {
+      'e0/',
+      'body',
+      'e1/',
+      'e1/body',
+      'e1/e2/',
+      'e1/e2/body',
+      'e3/',
+      'e3/body',
+  } <= names | {'e0/'}
   assert env.mj_model.joint('e1/e2/slide').id >= 0
 
 
@@ -100,13 +112,13 @@ def test_frames_rotate_vectors_into_the_attachment_frame():
   root.attach(child, attach_site=root.site)
   _, physics = _physics(root)
   f = lambda v: np.asarray(child.global_vector_to_local_frame(physics, v))
-  np.testing.assert_allclose(f([0., 1., 0.]), [1., 0., 0.], atol=1e-6)
-  np.testing.assert_allclose(f([-1., 0., 0.]), [0., 1., 0.], atol=1e-6)
-  np.testing.assert_allclose(f([0., 0., 1.]), [0., 0., 1.], atol=1e-6)
-  np.testing.assert_allclose(f([0., 1.]), [1., 0.], atol=1e-6)
-  np.testing.assert_allclose(f([-1., 0.]), [0., 1.], atol=1e-6)
+  np.testing.assert_allclose(f([0.0, 1.0, 0.0]), [1.0, 0.0, 0.0], atol=1e-6)
+  np.testing.assert_allclose(f([-1.0, 0.0, 0.0]), [0.0, 1.0, 0.0], atol=1e-6)
+  np.testing.assert_allclose(f([0.0, 0.0, 1.0]), [0.0, 0.0, 1.0], atol=1e-6)
+  np.testing.assert_allclose(f([0.0, 1.0]), [1.0, 0.0], atol=1e-6)
+  np.testing.assert_allclose(f([-1.0, 0.0]), [0.0, 1.0], atol=1e-6)
   with pytest.raises(ValueError, match='last dimension'):
-    child.global_vector_to_local_frame(physics, [1., 2., 3., 4.])
+    child.global_vector_to_local_frame(physics, [1.0, 2.0, 3.0, 4.0])
   xmat = np.eye(3)[[1, 2, 0]]
   local = np.asarray(child.global_xmat_to_local_frame(physics, xmat))
   flat = np.asarray(child.global_xmat_to_local_frame(physics, xmat.ravel()))
@@ -133,15 +145,17 @@ def test_set_pose_and_shift_pose(free):
   entity = loose if free else fixed
   env = composer.Environment(
       composer.NullTask(arena),
-      per_world_model_fields=() if free else ('body_pos', 'body_quat'))
+      per_world_model_fields=() if free else ('body_pos', 'body_quat'),
+  )
   base = env.physics(jax.jit(env.reset)(jax.random.key(0)))
-  for position in (None, [1., 0., -1.]):
+  for position in (None, [1.0, 0.0, -1.0]):
     for quat in _ROTATIONS:
-      physics = _forward(entity.set_pose(base, position=position,
-                                         quaternion=quat))
+      physics = _forward(
+          entity.set_pose(base, position=position, quaternion=quat)
+      )
       frame = physics.bind(entity.root_body)
-      want_pos = [0., 0., 0.] if position is None else position
-      want_quat = [1., 0., 0., 0.] if quat is None else quat
+      want_pos = [0.0, 0.0, 0.0] if position is None else position
+      want_quat = [1.0, 0.0, 0.0, 0.0] if quat is None else quat
       np.testing.assert_allclose(frame.xpos, want_pos, atol=1e-6)
       np.testing.assert_allclose(frame.xquat, want_quat, atol=1e-6)
       pos, q = entity.get_pose(physics)
@@ -150,11 +164,13 @@ def test_set_pose_and_shift_pose(free):
 
   # shift_pose: positions add; quaternions pre-multiply (new = shift ⊗ old).
   start_quat = _quat([1, 0, 0], 45)
-  physics = entity.set_pose(base, position=[0.1, 0.2, 0.3],
-                            quaternion=start_quat)
+  physics = entity.set_pose(
+      base, position=[0.1, 0.2, 0.3], quaternion=start_quat
+  )
   for shift in (_quat([0, 1, 0], 90), _quat([0, 0, 1], 90)):
-    shifted = _forward(entity.shift_pose(physics, position=[1., 0., 0.],
-                                         quaternion=shift))
+    shifted = _forward(
+        entity.shift_pose(physics, position=[1.0, 0.0, 0.0], quaternion=shift)
+    )
     expected = np.zeros(4)
     mujoco.mju_mulQuat(expected, shift, start_quat)
     frame = shifted.bind(entity.root_body)
@@ -166,7 +182,9 @@ def test_set_pose_and_shift_pose(free):
     assert not np.allclose(expected, wrong, atol=1e-3)
   np.testing.assert_allclose(
       [0.65328, 0.2706, 0.65328, -0.2706],
-      _shift_expected(_quat([1, 0, 0], 45), _quat([0, 1, 0], 90)), atol=1e-4)
+      _shift_expected(_quat([1, 0, 0], 45), _quat([0, 1, 0], 90)),
+      atol=1e-4,
+  )
 
 
 def _shift_expected(original, shift):
@@ -181,16 +199,18 @@ def test_shift_pose_rotates_velocity(rotate_velocity):
   ball = Part('ball')
   arena.add_free_entity(ball)
   env, physics = _physics(arena)
-  physics = ball.set_velocity(physics, velocity=[0., 1., 0.],
-                              angular_velocity=[0., 0., 0.])
-  physics = ball.shift_pose(physics, quaternion=[0., 0., 0., 1.],
-                            rotate_velocity=rotate_velocity)
+  physics = ball.set_velocity(
+      physics, velocity=[0.0, 1.0, 0.0], angular_velocity=[0.0, 0.0, 0.0]
+  )
+  physics = ball.shift_pose(
+      physics, quaternion=[0.0, 0.0, 0.0, 1.0], rotate_velocity=rotate_velocity
+  )
   physics = _forward(physics)
   linear, _ = ball.get_velocity(physics)
   if rotate_velocity:
-    np.testing.assert_allclose(linear, [0., -1., 0.], atol=1e-6)
+    np.testing.assert_allclose(linear, [0.0, -1.0, 0.0], atol=1e-6)
   else:
-    np.testing.assert_allclose(linear, [0., 1., 0.], atol=1e-6)
+    np.testing.assert_allclose(linear, [0.0, 1.0, 0.0], atol=1e-6)
 
 
 def test_pose_errors():
@@ -212,5 +232,5 @@ def test_model_wrapper_entity_from_xml_string():
   env, physics = _physics(arena)
   assert box.name == 'box'
   g = box.mjcf_model.geom('g')
-  np.testing.assert_allclose(physics.bind(g).size, [.1, .1, .1])
+  np.testing.assert_allclose(physics.bind(g).size, [0.1, 0.1, 0.1])
   assert env.mj_model.geom('box/g').id == physics.bind(g).element_ids[0]

@@ -14,11 +14,16 @@ from tests import conftest
 
 # -- hook scheduling (inventory 8.1) ------------------------------------------
 
-_DEVICE_HOOKS = ('initialize_episode', 'before_step', 'before_substep',
-                 'after_substep', 'after_step')
+_DEVICE_HOOKS = (
+    'initialize_episode',
+    'before_step',
+    'before_substep',
+    'after_substep',
+    'after_step',
+)
 _H = {name: i for i, name in enumerate(_DEVICE_HOOKS)}
 _PHYSICS_TIMESTEP = 0.002
-_CONTROL_TIMESTEP = 0.01   # 5 sub-steps
+_CONTROL_TIMESTEP = 0.01  # 5 sub-steps
 _N = 5
 
 
@@ -31,8 +36,12 @@ def _check_and_count(physics, row, hook):
   counts = physics.task_state['counts']
   mine = counts[row]
   checks = []
-  bs, bss, ass, as_ = (mine[_H['before_step']], mine[_H['before_substep']],
-                       mine[_H['after_substep']], mine[_H['after_step']])
+  bs, bss, ass, as_ = (
+      mine[_H['before_step']],
+      mine[_H['before_substep']],
+      mine[_H['after_substep']],
+      mine[_H['after_step']],
+  )
   if hook == 'before_step':
     checks += [as_ == bs, ass == bss]
   elif hook in ('before_substep', 'after_substep'):
@@ -50,7 +59,8 @@ def _check_and_count(physics, row, hook):
   if row > 0:
     checks.append(counts[row - 1, _H[hook]] == mine[_H[hook]] + 1)
   violations = physics.task_state['violations'] + sum(
-      jnp.logical_not(c).astype(jnp.int32) for c in checks)
+      jnp.logical_not(c).astype(jnp.int32) for c in checks
+  )
   counts = counts.at[row, _H[hook]].add(1)
   return physics.update_task_state(counts=counts, violations=violations)
 
@@ -62,13 +72,19 @@ class HookEntity(composer.Entity):
     spec = mujoco.MjSpec()
     spec.modelname = name
     body = spec.worldbody.add_body(name='body')
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.05, 0, 0],
-                  contype=0, conaffinity=0)
+    body.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[0.05, 0, 0],
+        contype=0,
+        conaffinity=0,
+    )
     for i in range(n_motors):
-      joint = body.add_joint(name=f'j{i}', type=mujoco.mjtJoint.mjJNT_SLIDE,
-                             axis=[1, 0, 0])
-      spec.add_actuator(name=f'm{i}', target=joint.name,
-                        trntype=mujoco.mjtTrn.mjTRN_JOINT)
+      joint = body.add_joint(
+          name=f'j{i}', type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0]
+      )
+      spec.add_actuator(
+          name=f'm{i}', target=joint.name, trntype=mujoco.mjtTrn.mjTRN_JOINT
+      )
     self._spec = spec
     self.row = row
     self.host_log = host_log
@@ -105,10 +121,16 @@ class HookTask(composer.Task):
   def __init__(self, host_log):
     self.host_log = host_log
     # The 9-entity tree 0->{1->{4->{8}, 5}, 2->{6, 7}, 3} of composer's test.
-    entities = [HookEntity(f'e{i}', 0, host_log, n_motors=4 if i == 0 else 0)
-                for i in range(9)]
-    for parent, children in ((0, (1, 2, 3)), (1, (4, 5)), (4, (8,)),
-                             (2, (6, 7))):
+    entities = [
+        HookEntity(f'e{i}', 0, host_log, n_motors=4 if i == 0 else 0)
+        for i in range(9)
+    ]
+    for parent, children in (
+        (0, (1, 2, 3)),
+        (1, (4, 5)),
+        (4, (8,)),
+        (2, (6, 7)),
+    ):
       for child in children:
         entities[parent].attach(entities[child])
     self.entities = entities
@@ -121,8 +143,10 @@ class HookTask(composer.Task):
     return self.entities[0]
 
   def initial_task_state(self):
-    return {'counts': jnp.zeros((11, len(_DEVICE_HOOKS)), jnp.int32),
-            'violations': jnp.zeros((), jnp.int32)}
+    return {
+        'counts': jnp.zeros((11, len(_DEVICE_HOOKS)), jnp.int32),
+        'violations': jnp.zeros((), jnp.int32),
+    }
 
   def initialize_episode_mjcf(self, random_state):
     self.host_log.append((0, 'initialize_episode_mjcf'))
@@ -147,27 +171,44 @@ class HookTask(composer.Task):
     return _check_and_count(physics, 0, 'after_step')
 
   def get_reward(self, physics):
-    return 0.
+    return 0.0
 
 
 def test_hook_scheduling_counts_order_and_time():
   host_log = []
   task = HookTask(host_log)
   env = composer.Environment(task, time_limit=math.inf)
-  for name in ('initialize_episode', 'before_step', 'before_substep',
-               'after_substep', 'after_step'):
+  for name in (
+      'initialize_episode',
+      'before_step',
+      'before_substep',
+      'after_substep',
+      'after_step',
+  ):
     takes_action = name in ('before_step', 'before_substep')
+
     def extra(physics, *args, _name=name):
       return _check_and_count(physics, 10, _name)
+
     env.add_extra_hook(name, extra)
   # Build-time hooks ran once each, task first, then entities in
   # depth-first attachment order.
   order = [row for row, hook in host_log if hook == 'initialize_episode_mjcf']
   assert order == list(range(10))
-  assert [h for _, h in host_log] == (['initialize_episode_mjcf'] * 10 +
-                                      ['after_compile'] * 10)
+  assert [h for _, h in host_log] == (
+      ['initialize_episode_mjcf'] * 10 + ['after_compile'] * 10
+  )
   assert [e.name for e in task.root_entity.iter_entities()] == [
-      'e0', 'e1', 'e4', 'e8', 'e5', 'e2', 'e6', 'e7', 'e3']
+      'e0',
+      'e1',
+      'e4',
+      'e8',
+      'e5',
+      'e2',
+      'e6',
+      'e7',
+      'e3',
+  ]
 
   reset, step = jax.jit(env.reset), jax.jit(env.step)
   num_steps = 7
@@ -177,12 +218,14 @@ def test_hook_scheduling_counts_order_and_time():
     for _ in range(num_steps):
       state = step(state, action)
     counts = np.asarray(state.task_state['counts'])
-    expected = np.array([1, num_steps, num_steps * _N, num_steps * _N,
-                         num_steps])
+    expected = np.array(
+        [1, num_steps, num_steps * _N, num_steps * _N, num_steps]
+    )
     np.testing.assert_array_equal(counts, np.tile(expected, (11, 1)))
     assert int(state.task_state['violations']) == 0
     assert float(state.data.time) == pytest.approx(
-        num_steps * _CONTROL_TIMESTEP, rel=1e-5)
+        num_steps * _CONTROL_TIMESTEP, rel=1e-5
+    )
     # The default Task.before_step copies the action into ctrl.
     np.testing.assert_allclose(np.asarray(state.data.ctrl), action)
 
@@ -216,8 +259,13 @@ def _leaf_values(x):
 def assert_trees_equal(a, b, select=lambda x: x, select_b=None):
   """Bitwise equality of two pytrees (PRNG keys compared by their data)."""
   select_b = select_b or select
-  jax.tree.map(lambda x, y: np.testing.assert_array_equal(
-      select(_leaf_values(x)), select_b(_leaf_values(y))), a, b)
+  jax.tree.map(
+      lambda x, y: np.testing.assert_array_equal(
+          select(_leaf_values(x)), select_b(_leaf_values(y))
+      ),
+      a,
+      b,
+  )
 
 
 def _rollout(step, state, actions):
@@ -231,14 +279,17 @@ def _rollout(step, state, actions):
 def test_observation_is_taken_at_end_of_control_step(swing_env, swing_fns):
   state = swing_fns['reset'](jax.random.key(3))
   physics = swing_env.physics(state)
-  np.testing.assert_allclose(state.observation['tip'][0],
-                             physics.bind(swing_env.task.pendulum.tip).xpos)
+  np.testing.assert_allclose(
+      state.observation['tip'][0],
+      physics.bind(swing_env.task.pendulum.tip).xpos,
+  )
   for _ in range(3):
     state = swing_fns['step'](state, jnp.array([0.5]))
     physics = swing_env.physics(state)
     np.testing.assert_array_equal(
         state.observation['tip'][0],
-        physics.bind(swing_env.task.pendulum.tip).xpos)
+        physics.bind(swing_env.task.pendulum.tip).xpos,
+    )
 
 
 def test_time_limit_truncates_with_task_discount(swing_env, swing_fns):
@@ -258,7 +309,7 @@ def test_time_limit_truncates_with_task_discount(swing_env, swing_fns):
 
 
 def test_termination_is_not_truncation():
-  env = conftest.make_swing_env(terminate_above=-10., time_limit=0.05)
+  env = conftest.make_swing_env(terminate_above=-10.0, time_limit=0.05)
   state = jax.jit(env.reset)(jax.random.key(0))
   state = jax.jit(env.step)(state, jnp.zeros(1))
   assert state.last()
@@ -278,10 +329,10 @@ def test_same_step_auto_reset():
   # The state already holds the new episode: time 0, fresh observation.
   assert float(last.data.time) == 0.0 and int(last.steps) == 0
   physics = env.physics(last)
-  np.testing.assert_array_equal(last.observation['tip'][0],
-                                physics.bind(env.task.pendulum.tip).xpos)
-  assert not np.allclose(last.final_observation['tip'],
-                         last.observation['tip'])
+  np.testing.assert_array_equal(
+      last.observation['tip'][0], physics.bind(env.task.pendulum.tip).xpos
+  )
+  assert not np.allclose(last.final_observation['tip'], last.observation['tip'])
   following = step(last, jnp.array([1.0]))
   assert following.mid() and int(following.steps) == 1
 
@@ -299,26 +350,26 @@ def test_same_key_same_episode(swing_fns):
     assert_trees_equal(a, b)
   other = swing_fns['reset'](jax.random.key(43))
   assert float(other.task_state['target']) != float(
-      swing_fns['reset'](jax.random.key(42)).task_state['target'])
+      swing_fns['reset'](jax.random.key(42)).task_state['target']
+  )
 
 
 def test_world_does_not_depend_on_batch_size(swing_fns):
   keys = jax.random.split(jax.random.key(7), 5)
-  actions = jax.random.uniform(jax.random.key(8), (6, 5, 1), minval=-1,
-                               maxval=1)
+  actions = jax.random.uniform(
+      jax.random.key(8), (6, 5, 1), minval=-1, maxval=1
+  )
   big = swing_fns['vreset'](keys)
   small = swing_fns['vreset'](keys[2:3])
   for t in range(6):
     big = swing_fns['vstep'](big, actions[t])
     small = swing_fns['vstep'](small, actions[t, 2:3])
-  assert_trees_equal(big, small, select=lambda x: x[2:3],
-                     select_b=lambda x: x)
+  assert_trees_equal(big, small, select=lambda x: x[2:3], select_b=lambda x: x)
   # And a single un-batched world agrees too.
   single = swing_fns['reset'](keys[2])
   for t in range(6):
     single = swing_fns['step'](single, actions[t, 2])
-  assert_trees_equal(small, single, select=lambda x: x[0],
-                     select_b=lambda x: x)
+  assert_trees_equal(small, single, select=lambda x: x[0], select_b=lambda x: x)
 
 
 def test_staggered_auto_resets_match_single_worlds(swing_fns):
@@ -326,20 +377,24 @@ def test_staggered_auto_resets_match_single_worlds(swing_fns):
   # (a batching rule); with staggered episodes that path and the skipped
   # one must both give each world exactly its single-world trajectory.
   keys = jax.random.split(jax.random.key(11), 3)
-  actions = jax.random.uniform(jax.random.key(12), (8, 3, 1), minval=-1,
-                               maxval=1)
+  actions = jax.random.uniform(
+      jax.random.key(12), (8, 3, 1), minval=-1, maxval=1
+  )
   singles = [swing_fns['reset'](k) for k in keys]
   singles[0] = swing_fns['step'](singles[0], jnp.zeros(1))  # one step ahead
   batch = jax.tree.map(lambda *xs: jnp.stack(xs), *singles)
   for t in range(8):
     batch = swing_fns['vstep'](batch, actions[t])
-    singles = [swing_fns['step'](s, actions[t, i])
-               for i, s in enumerate(singles)]
+    singles = [
+        swing_fns['step'](s, actions[t, i]) for i, s in enumerate(singles)
+    ]
   assert int(batch.metrics['episode_length'][0]) != int(
-      batch.metrics['episode_length'][1])
+      batch.metrics['episode_length'][1]
+  )
   for i, single in enumerate(singles):
-    assert_trees_equal(batch, single, select=lambda x, i=i: x[i],
-                       select_b=lambda x: x)
+    assert_trees_equal(
+        batch, single, select=lambda x, i=i: x[i], select_b=lambda x: x
+    )
 
 
 def test_divergence_is_isolated_and_reset(swing_fns):
@@ -347,9 +402,10 @@ def test_divergence_is_isolated_and_reset(swing_fns):
   states = swing_fns['vreset'](keys)
   reference = swing_fns['vstep'](states, jnp.zeros((4, 1)))
   poisoned = swing_fns['vstep'](
-      states, jnp.array([[0.], [jnp.nan], [0.], [0.]]))
+      states, jnp.array([[0.0], [jnp.nan], [0.0], [0.0]])
+  )
   diverged = np.asarray(poisoned.metrics['diverged'])
-  np.testing.assert_array_equal(diverged, [0., 1., 0., 0.])
+  np.testing.assert_array_equal(diverged, [0.0, 1.0, 0.0, 0.0])
   assert not np.isfinite(np.asarray(poisoned.data.qacc[1])).all()
   np.testing.assert_array_equal(np.asarray(poisoned.step_type), [1, 2, 1, 1])
   assert float(poisoned.reward[1]) == 0.0
@@ -371,8 +427,8 @@ def test_specs(swing_env):
   spec = swing_env.action_spec()
   assert spec.shape == (1,)
   assert spec.name == 'pendulum/motor'
-  np.testing.assert_array_equal(spec.minimum, [-1.])
-  np.testing.assert_array_equal(spec.maximum, [1.])
+  np.testing.assert_array_equal(spec.minimum, [-1.0])
+  np.testing.assert_array_equal(spec.maximum, [1.0])
   assert swing_env.reward_spec().shape == ()
   assert swing_env.discount_spec().maximum == 1.0
   assert swing_env.observation_spec()['tip'].shape == (1, 3)
@@ -405,8 +461,9 @@ def test_unknown_element_is_a_clear_error(swing_env):
 
 def test_hook_must_return_physics():
   class Forgetful(conftest.SwingTask):
+
     def after_step(self, physics, key):
-      physics.bind(self.pendulum.joint).set(qpos=0.)   # result dropped
+      physics.bind(self.pendulum.joint).set(qpos=0.0)  # result dropped
 
   env = composer.Environment(Forgetful())
   state = env.reset(jax.random.key(0))
@@ -416,17 +473,19 @@ def test_hook_must_return_physics():
 
 def test_undeclared_model_write_in_step_is_a_clear_error():
   class Recolor(conftest.SwingTask):
+
     def after_step(self, physics, key):
-      return physics.bind(self.ball.geom).set(rgba=[1., 0., 0., 1.])
+      return physics.bind(self.ball.geom).set(rgba=[1.0, 0.0, 0.0, 1.0])
 
   env = composer.Environment(Recolor())
   with pytest.raises(ValueError, match='per_world_model_fields'):
     env.step(env.reset(jax.random.key(0)), jnp.zeros(1))
-  declared = composer.Environment(Recolor(),
-                                  per_world_model_fields=('geom_rgba',))
+  declared = composer.Environment(
+      Recolor(), per_world_model_fields=('geom_rgba',)
+  )
   state = declared.step(declared.reset(jax.random.key(0)), jnp.zeros(1))
   ball = declared.physics(state).bind(declared.task.ball.geom)
-  np.testing.assert_array_equal(ball.rgba, [1., 0., 0., 1.])
+  np.testing.assert_array_equal(ball.rgba, [1.0, 0.0, 0.0, 1.0])
 
 
 def test_bad_constructor_arguments():
@@ -449,6 +508,7 @@ def test_reset_accepts_legacy_keys(swing_env):
 
 def test_step_types_match_dm_env():
   import dm_env  # pylint: disable=g-import-not-at-top
+
   for ours in environment_lib.StepType:
     assert int(ours) == int(dm_env.StepType[ours.name])
 
@@ -467,19 +527,21 @@ class _CountingTask(conftest.SwingTask):
     ball = physics.bind(self.ball.geom)
     new_red = jax.random.uniform(key)
     red = jnp.where(first, new_red, ball.rgba[0])
-    physics = ball.set(rgba=jnp.stack([red, 0., 0., 1.]))
+    physics = ball.set(rgba=jnp.stack([red, 0.0, 0.0, 1.0]))
     return physics.set_persistent('episodes', episodes + 1)
 
 
 @pytest.mark.parametrize('auto_reset', ['next_step', 'same_step'])
 def test_persistent_state_and_model_fields_survive_auto_reset(auto_reset):
-  env = composer.Environment(_CountingTask(), time_limit=0.02,
-                             auto_reset=auto_reset)
+  env = composer.Environment(
+      _CountingTask(), time_limit=0.02, auto_reset=auto_reset
+  )
   reset = jax.jit(jax.vmap(env.reset))
   step = jax.jit(jax.vmap(env.step))
   states = reset(jax.random.split(jax.random.key(3), 4))
   red_of = jax.vmap(
-      lambda state: env.physics(state).bind(env.task.ball.geom).rgba[0])
+      lambda state: env.physics(state).bind(env.task.ball.geom).rgba[0]
+  )
   first_red = np.asarray(red_of(states))
   assert len(np.unique(first_red)) == 4  # different worlds, different draws
   ends = 0
@@ -489,8 +551,9 @@ def test_persistent_state_and_model_fields_survive_auto_reset(auto_reset):
   # Episodes of 2 steps: one reset per LAST (same_step) or per step after a
   # LAST (next_step); the persistent counter saw every one of them.
   episodes = np.asarray(states.persistent['episodes'])
-  expected = 1 + (ends if auto_reset == 'same_step' else
-                  ends - int(states.last()[0]))
+  expected = 1 + (
+      ends if auto_reset == 'same_step' else ends - int(states.last()[0])
+  )
   np.testing.assert_array_equal(episodes, expected)
   assert expected >= 3
   # The once-per-world colour is still the first draw, per world.
@@ -518,7 +581,8 @@ def test_failed_initialization_is_retried_and_counted():
   worlds = 256
   env = composer.Environment(_FlakyTask(0.5), max_reset_attempts=20)
   states = jax.jit(jax.vmap(env.reset))(
-      jax.random.split(jax.random.key(0), worlds))
+      jax.random.split(jax.random.key(0), worlds)
+  )
   failures = np.asarray(states.metrics['init_failures'])
   # Attempts until success are geometric: failures before success has mean
   # p / (1 - p) = 1; with 20 attempts virtually every world succeeds.
@@ -528,32 +592,43 @@ def test_failed_initialization_is_retried_and_counted():
   # Worlds that succeeded at once are the same as without retries.
   single = composer.Environment(_FlakyTask(0.5))
   once = jax.jit(jax.vmap(single.reset))(
-      jax.random.split(jax.random.key(0), worlds))
+      jax.random.split(jax.random.key(0), worlds)
+  )
   ok = failures == 0
-  np.testing.assert_array_equal(np.asarray(once.data.qpos)[ok],
-                                np.asarray(states.data.qpos)[ok])
-  np.testing.assert_array_equal(np.asarray(once.metrics['init_failed']),
-                                np.asarray(once.metrics['init_failures']))
+  np.testing.assert_array_equal(
+      np.asarray(once.data.qpos)[ok], np.asarray(states.data.qpos)[ok]
+  )
+  np.testing.assert_array_equal(
+      np.asarray(once.metrics['init_failed']),
+      np.asarray(once.metrics['init_failures']),
+  )
   # Retried worlds are resampled, not repeated.
   retried = failures > 0
-  assert not np.any(np.all(np.asarray(once.data.qpos)[retried]
-                           == np.asarray(states.data.qpos)[retried], axis=-1))
+  assert not np.any(
+      np.all(
+          np.asarray(once.data.qpos)[retried]
+          == np.asarray(states.data.qpos)[retried],
+          axis=-1,
+      )
+  )
 
 
 def test_initialization_that_always_fails_is_bounded_and_flagged():
-  env = composer.Environment(_FlakyTask(1.1), max_reset_attempts=3,
-                             time_limit=0.02)
+  env = composer.Environment(
+      _FlakyTask(1.1), max_reset_attempts=3, time_limit=0.02
+  )
   state = jax.jit(env.reset)(jax.random.key(0))
-  assert float(state.metrics['init_failures']) == 3.
-  assert float(state.metrics['init_failed']) == 1.
+  assert float(state.metrics['init_failures']) == 3.0
+  assert float(state.metrics['init_failed']) == 1.0
   state = jax.jit(env.step)(state, jnp.zeros(1))
-  assert float(state.metrics['init_failed']) == 1.  # reported all episode
+  assert float(state.metrics['init_failed']) == 1.0  # reported all episode
   with pytest.raises(ValueError, match='max_reset_attempts'):
     composer.Environment(_FlakyTask(0.5), max_reset_attempts=0)
 
 
 def test_step_hooks_cannot_add_persistent_entries():
   class Adds(conftest.SwingTask):
+
     def after_step(self, physics, key):
       return physics.set_persistent('late', jnp.zeros(()))
 

@@ -21,7 +21,7 @@ from mjx_composer.variation import distributions
 from mjx_composer.variation import rotations
 
 _RADIUS = 0.05
-_CRATE = 0.1           # the crate's half-size
+_CRATE = 0.1  # the crate's half-size
 _SPHERE_LOW = np.array([-0.3, -0.3, 0.0])
 _SPHERE_HIGH = np.array([0.3, 0.3, 0.15])
 _CRATE_LOW = np.array([-0.2, -0.2, _CRATE + 0.001])
@@ -33,7 +33,8 @@ _TOLERANCE = 1e-6
 def _floor_arena():
   arena = composer.Arena()
   arena.mjcf_model.worldbody.add_geom(
-      name='floor', type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1, 1, 0.1])
+      name='floor', type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1, 1, 0.1]
+  )
   return arena
 
 
@@ -44,19 +45,26 @@ class PlacementTask(composer.Task):
     self.arena = _floor_arena()
     self.crate = props.Box(half_lengths=(_CRATE,) * 3, name='crate')
     self.arena.attach(self.crate)
-    self.spheres = [props.Sphere(radius=_RADIUS, name=f'sphere_{i}')
-                    for i in range(4)]
+    self.spheres = [
+        props.Sphere(radius=_RADIUS, name=f'sphere_{i}') for i in range(4)
+    ]
     for sphere in self.spheres:
       self.arena.add_free_entity(sphere)
     self.crate_placer = initializers.PropPlacer(
-        [self.crate], position=distributions.Uniform(_CRATE_LOW, _CRATE_HIGH),
+        [self.crate],
+        position=distributions.Uniform(_CRATE_LOW, _CRATE_HIGH),
         quaternion=rotations.QuaternionFromAxisAngle(
-            axis=(0., 0., 1.), angle=distributions.Uniform(-np.pi, np.pi)))
+            axis=(0.0, 0.0, 1.0), angle=distributions.Uniform(-np.pi, np.pi)
+        ),
+    )
     self.sphere_kwargs = dict(
         position=distributions.Uniform(_SPHERE_LOW, _SPHERE_HIGH),
-        max_attempts_per_prop=30, **(sphere_kwargs or {}))
-    self.sphere_placer = initializers.PropPlacer(self.spheres,
-                                                 **self.sphere_kwargs)
+        max_attempts_per_prop=30,
+        **(sphere_kwargs or {}),
+    )
+    self.sphere_placer = initializers.PropPlacer(
+        self.spheres, **self.sphere_kwargs
+    )
 
   @property
   def root_entity(self):
@@ -66,12 +74,13 @@ class PlacementTask(composer.Task):
     crate_key, sphere_key = jax.random.split(key)
     # The spheres still sit where they were built: composer's documented use
     # of `ignore_contacts_with_entities`.
-    physics = self.crate_placer(physics, crate_key,
-                                ignore_contacts_with_entities=self.spheres)
+    physics = self.crate_placer(
+        physics, crate_key, ignore_contacts_with_entities=self.spheres
+    )
     return self.sphere_placer(physics, sphere_key)
 
   def get_reward(self, physics):
-    return 0.
+    return 0.0
 
 
 def _world(states, i):
@@ -85,8 +94,9 @@ def _physics(env, states, i):
 
 def _on_host(states):
   """The states as numpy arrays: indexing worlds is then cheap."""
-  return jax.tree.map(np.asarray,
-                      states.replace(key=jax.random.key_data(states.key)))
+  return jax.tree.map(
+      np.asarray, states.replace(key=jax.random.key_data(states.key))
+  )
 
 
 def _host_data(env, state):
@@ -102,10 +112,11 @@ def _host_data(env, state):
 
 def _penetrating(model, data, geom_ids):
   """Host contacts with dist < -tolerance that involve one of `geom_ids`."""
-  return [(model.geom(c.geom1).name, model.geom(c.geom2).name, c.dist)
-          for c in data.contact[:data.ncon]
-          if (c.geom1 in geom_ids or c.geom2 in geom_ids)
-          and c.dist < -_TOLERANCE]
+  return [
+      (model.geom(c.geom1).name, model.geom(c.geom2).name, c.dist)
+      for c in data.contact[: data.ncon]
+      if (c.geom1 in geom_ids or c.geom2 in geom_ids) and c.dist < -_TOLERANCE
+  ]
 
 
 def _geom_ids(model, names):
@@ -118,17 +129,20 @@ def placement():
   task = PlacementTask()
   env = composer.Environment(task)
   states = jax.jit(jax.vmap(env.reset))(
-      jax.random.split(jax.random.key(0), 1000))
+      jax.random.split(jax.random.key(0), 1000)
+  )
   return task, env, _on_host(states)
 
 
 def _sphere_positions(env, task, states):
   """(worlds, spheres, 3) freejoint positions."""
   model = env.mj_model
-  adrs = [model.jnt_qposadr[model.body(f'{s.name}/').jntadr[0]]
-          for s in task.spheres]
+  adrs = [
+      model.jnt_qposadr[model.body(f'{s.name}/').jntadr[0]]
+      for s in task.spheres
+  ]
   qpos = np.asarray(states.data.qpos)
-  return np.stack([qpos[:, a:a + 3] for a in adrs], axis=1)
+  return np.stack([qpos[:, a : a + 3] for a in adrs], axis=1)
 
 
 def test_every_world_is_placed_without_interpenetration(placement):
@@ -136,7 +150,7 @@ def test_every_world_is_placed_without_interpenetration(placement):
   assert not np.any(np.asarray(states.metrics['init_failed']))
   assert not np.any(np.asarray(states.metrics['init_failures']))
   names = ['crate/geom'] + [f'{s.name}/geom' for s in task.spheres]
-  for world in range(0, 1000, 20):     # 50 worlds, checked by MuJoCo
+  for world in range(0, 1000, 20):  # 50 worlds, checked by MuJoCo
     model, data = _host_data(env, _world(states, world))
     assert not _penetrating(model, data, _geom_ids(model, names)), world
 
@@ -151,14 +165,19 @@ def test_positions_cover_the_requested_distribution(placement):
   # ... and otherwise left the distribution uniform: every quarter of x and
   # y holds a fair share of the 4,000 spheres, and z spans its free range.
   for axis in (0, 1):
-    counts, _ = np.histogram(positions[:, axis], bins=4,
-                             range=(_SPHERE_LOW[axis], _SPHERE_HIGH[axis]))
+    counts, _ = np.histogram(
+        positions[:, axis],
+        bins=4,
+        range=(_SPHERE_LOW[axis], _SPHERE_HIGH[axis]),
+    )
     assert counts.min() > 0.15 * len(positions), counts
   counts, _ = np.histogram(positions[:, 2], bins=4, range=(_RADIUS, 0.15))
   assert counts.min() > 0.15 * len(positions), counts
   # Spheres never overlap each other.
-  gaps = np.linalg.norm(positions.reshape(1000, 4, 1, 3)
-                        - positions.reshape(1000, 1, 4, 3), axis=-1)
+  gaps = np.linalg.norm(
+      positions.reshape(1000, 4, 1, 3) - positions.reshape(1000, 1, 4, 3),
+      axis=-1,
+  )
   gaps += np.eye(4) * 10
   assert gaps.min() > 2 * _RADIUS
 
@@ -169,11 +188,11 @@ def test_fixed_props_are_placed_through_per_world_model_fields(placement):
   pos = np.asarray(states.model_fields['body_pos'])[:, frame]
   quat = np.asarray(states.model_fields['body_quat'])[:, frame]
   assert np.all(pos >= _CRATE_LOW - 1e-6) and np.all(pos <= _CRATE_HIGH + 1e-6)
-  assert np.std(pos[:, 0]) > 0.05     # differs per world
-  np.testing.assert_allclose(np.linalg.norm(quat, axis=-1), 1., atol=1e-5)
-  np.testing.assert_allclose(quat[:, 1:3], 0., atol=1e-6)   # a yaw
+  assert np.std(pos[:, 0]) > 0.05  # differs per world
+  np.testing.assert_allclose(np.linalg.norm(quat, axis=-1), 1.0, atol=1e-5)
+  np.testing.assert_allclose(quat[:, 1:3], 0.0, atol=1e-6)  # a yaw
   # The compiled model is untouched.
-  np.testing.assert_allclose(env.mj_model.body_pos[frame], 0.)
+  np.testing.assert_allclose(env.mj_model.body_pos[frame], 0.0)
 
 
 def test_pairs_checked_follow_composer(placement):
@@ -191,21 +210,28 @@ def test_pairs_checked_follow_composer(placement):
   # Sphere 1 sees the floor, the crate and sphere 0, not spheres 2 and 3
   # (not placed yet).
   assert partners(task.sphere_placer, 1) == {
-      'floor', 'crate/geom', 'sphere_0/geom', 'sphere_1/geom'}
+      'floor',
+      'crate/geom',
+      'sphere_0/geom',
+      'sphere_1/geom',
+  }
   # Ignored entities do not count. (The crate is fixed to the world, so,
   # as in MuJoCo, it never collides with the floor.)
   assert not partners(task.crate_placer, 0, task.spheres)
-  assert partners(task.crate_placer, 0) == {
-      'crate/geom'} | {f'{s.name}/geom' for s in task.spheres}
+  assert partners(task.crate_placer, 0) == {'crate/geom'} | {
+      f'{s.name}/geom' for s in task.spheres
+  }
 
 
 def test_ignore_collisions_takes_the_first_sample(placement):
   task, env, states = placement
-  placer = initializers.PropPlacer(task.spheres, ignore_collisions=True,
-                                   **task.sphere_kwargs)
+  placer = initializers.PropPlacer(
+      task.spheres, ignore_collisions=True, **task.sphere_kwargs
+  )
   physics = _physics(env, states, 0)
   qpos = jax.jit(jax.vmap(lambda k: placer(physics, k).data.qpos))(
-      jax.random.split(jax.random.key(1), 1000))
+      jax.random.split(jax.random.key(1), 1000)
+  )
   placed = states.replace(data=states.data.replace(qpos=np.asarray(qpos)))
   positions = _sphere_positions(env, task, placed).reshape(-1, 3)
   # Unchecked samples follow the raw distribution, floor included ...
@@ -220,8 +246,11 @@ def test_ignore_collisions_takes_the_first_sample(placement):
 
 
 def _set_free_pose(physics, entity, position):
-  return entity.set_pose(physics, jnp.asarray(position, jnp.float32),
-                         jnp.array([1., 0., 0., 0.]))
+  return entity.set_pose(
+      physics,
+      jnp.asarray(position, jnp.float32),
+      jnp.array([1.0, 0.0, 0.0, 0.0]),
+  )
 
 
 def _free_position(physics, entity):
@@ -237,31 +266,39 @@ def test_ignore_contacts_with_entities_as_composer(placement):
   physics = _set_free_pose(physics, sphere_0, [-0.5, -0.5, 0.3])
   physics = _set_free_pose(physics, task.spheres[2], [-0.5, 0.5, 0.3])
   physics = _set_free_pose(physics, task.spheres[3], [0.5, -0.5, 0.3])
-  place_0 = initializers.PropPlacer([sphere_0], position=spot,
-                                    max_attempts_per_prop=2)
+  place_0 = initializers.PropPlacer(
+      [sphere_0], position=spot, max_attempts_per_prop=2
+  )
   place_1 = initializers.PropPlacer(
-      [sphere_1], position=distributions.Uniform((0.3, 0.3, 0.2),
-                                                 (0.7, 0.7, 0.4)))
+      [sphere_1],
+      position=distributions.Uniform((0.3, 0.3, 0.2), (0.7, 0.7, 0.4)),
+  )
 
   @jax.jit
   def run(physics, key):
     blocked = place_0(physics, key)
     ignored = place_0(physics, key, ignore_contacts_with_entities=[sphere_1])
     after = place_1(ignored, key)
-    return (blocked.initialization_failed, ignored.initialization_failed,
-            after.initialization_failed, _free_position(ignored, sphere_0),
-            after)
+    return (
+        blocked.initialization_failed,
+        ignored.initialization_failed,
+        after.initialization_failed,
+        _free_position(ignored, sphere_0),
+        after,
+    )
 
-  blocked, ignored, after_failed, position, after = run(physics,
-                                                        jax.random.key(3))
-  assert bool(blocked)          # sphere 1 is in the way
-  assert not bool(ignored)      # ... unless its contacts are ignored
+  blocked, ignored, after_failed, position, after = run(
+      physics, jax.random.key(3)
+  )
+  assert bool(blocked)  # sphere 1 is in the way
+  assert not bool(ignored)  # ... unless its contacts are ignored
   np.testing.assert_allclose(position, spot)
   assert not bool(after_failed)  # placing sphere 1 then avoids sphere 0
   state = _world(states, 0).replace(data=after.data)
   model, data = _host_data(env, state)
-  assert not _penetrating(model, data, _geom_ids(
-      model, ['sphere_0/geom', 'sphere_1/geom']))
+  assert not _penetrating(
+      model, data, _geom_ids(model, ['sphere_0/geom', 'sphere_1/geom'])
+  )
 
 
 def test_props_are_placed_in_order_and_failures_are_flagged(placement):
@@ -269,8 +306,9 @@ def test_props_are_placed_in_order_and_failures_are_flagged(placement):
   physics = _physics(env, states, 0)
   # Both spheres get the same fixed spot: the first fits, the second cannot.
   spot = jnp.array([0.5, 0.5, 0.3])
-  placer = initializers.PropPlacer(task.spheres[:2], position=spot,
-                                   max_attempts_per_prop=2)
+  placer = initializers.PropPlacer(
+      task.spheres[:2], position=spot, max_attempts_per_prop=2
+  )
   result = jax.jit(placer)(physics, jax.random.key(0))
   assert bool(result.initialization_failed)
   np.testing.assert_allclose(_free_position(result, task.spheres[0]), spot)
@@ -279,32 +317,47 @@ def test_props_are_placed_in_order_and_failures_are_flagged(placement):
 def test_a_sequence_of_positions_persists_per_world(placement):
   task, env, states = placement
   physics = _physics(env, states, 0)
-  spots = np.array([[-0.4, -0.4, 0.3], [0.4, -0.4, 0.3], [-0.4, 0.4, 0.3],
-                    [0.4, 0.4, 0.3], [0., 0.5, 0.3], [0.5, 0., 0.3]])
-  placer = initializers.PropPlacer(task.spheres[:2],
-                                   position=deterministic.Sequence(spots))
+  spots = np.array(
+      [
+          [-0.4, -0.4, 0.3],
+          [0.4, -0.4, 0.3],
+          [-0.4, 0.4, 0.3],
+          [0.4, 0.4, 0.3],
+          [0.0, 0.5, 0.3],
+          [0.5, 0.0, 0.3],
+      ]
+  )
+  placer = initializers.PropPlacer(
+      task.spheres[:2], position=deterministic.Sequence(spots)
+  )
 
   @jax.jit
   def three_episodes(physics, key):
     out = []
     for _ in range(3):
       physics = placer(physics, key)
-      out.append(jnp.stack([_free_position(physics, s)
-                            for s in task.spheres[:2]]))
+      out.append(
+          jnp.stack([_free_position(physics, s) for s in task.spheres[:2]])
+      )
     return jnp.stack(out)
 
-  np.testing.assert_allclose(three_episodes(physics, jax.random.key(0)),
-                             spots.reshape(3, 2, 3), atol=1e-6)
+  np.testing.assert_allclose(
+      three_episodes(physics, jax.random.key(0)),
+      spots.reshape(3, 2, 3),
+      atol=1e-6,
+  )
 
 
 def test_invalid_arguments():
   sphere = props.Sphere()
   with pytest.raises(ValueError, match='max_settle_physics_attempts'):
-    initializers.PropPlacer([sphere], position=(0, 0, 0),
-                            max_settle_physics_attempts=0)
+    initializers.PropPlacer(
+        [sphere], position=(0, 0, 0), max_settle_physics_attempts=0
+    )
   with pytest.raises(ValueError, match='max_attempts_per_prop'):
-    initializers.PropPlacer([sphere], position=(0, 0, 0),
-                            max_attempts_per_prop=0)
+    initializers.PropPlacer(
+        [sphere], position=(0, 0, 0), max_attempts_per_prop=0
+    )
   with pytest.raises(ValueError, match='at least one prop'):
     initializers.PropPlacer([], position=(0, 0, 0))
 
@@ -318,11 +371,17 @@ class Hinge(composer.Entity):
   def _build(self):
     spec = mujoco.MjSpec()
     spec.modelname = 'hinge'
-    body = spec.worldbody.add_body(name='rod', pos=[0.6, 0., 0.5])
-    self.joint = body.add_joint(name='hinge', type=mujoco.mjtJoint.mjJNT_HINGE,
-                                axis=[0, 1, 0])
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[0.02, 0, 0],
-                  fromto=[0, 0, 0, 0.2, 0, 0], contype=0, conaffinity=0)
+    body = spec.worldbody.add_body(name='rod', pos=[0.6, 0.0, 0.5])
+    self.joint = body.add_joint(
+        name='hinge', type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 1, 0]
+    )
+    body.add_geom(
+        type=mujoco.mjtGeom.mjGEOM_CAPSULE,
+        size=[0.02, 0, 0],
+        fromto=[0, 0, 0, 0.2, 0, 0],
+        contype=0,
+        conaffinity=0,
+    )
     self._spec = spec
 
   @property
@@ -336,18 +395,23 @@ class RetryTask(composer.Task):
   def __init__(self):
     self.arena = _floor_arena()
     self.arena.mjcf_model.worldbody.add_geom(
-        name='block', type=mujoco.mjtGeom.mjGEOM_BOX, pos=[-0.15, 0, 0.2],
-        size=[0.15, 0.3, 0.2])
+        name='block',
+        type=mujoco.mjtGeom.mjGEOM_BOX,
+        pos=[-0.15, 0, 0.2],
+        size=[0.15, 0.3, 0.2],
+    )
     self.hinge = Hinge()
     self.arena.attach(self.hinge)
-    self.spheres = [props.Sphere(radius=_RADIUS, name=f'ball_{i}')
-                    for i in range(2)]
+    self.spheres = [
+        props.Sphere(radius=_RADIUS, name=f'ball_{i}') for i in range(2)
+    ]
     for i, sphere in enumerate(self.spheres):
       self.arena.add_free_entity(sphere).pos = [0.8, -0.5 + i, 0.3]
     self.placer = initializers.PropPlacer(
-        self.spheres[:1], position=distributions.Uniform((-0.2, 0., 0.1),
-                                                         (0.2, 0., 0.1)),
-        max_attempts_per_prop=1)
+        self.spheres[:1],
+        position=distributions.Uniform((-0.2, 0.0, 0.1), (0.2, 0.0, 0.1)),
+        max_attempts_per_prop=1,
+    )
 
   @property
   def root_entity(self):
@@ -357,7 +421,7 @@ class RetryTask(composer.Task):
     return self.placer(physics, key)
 
   def get_reward(self, physics):
-    return 0.
+    return 0.0
 
 
 _ATTEMPTS = 4
@@ -368,7 +432,8 @@ def retries():
   task = RetryTask()
   env = composer.Environment(task, max_reset_attempts=_ATTEMPTS)
   states = jax.jit(jax.vmap(env.reset))(
-      jax.random.split(jax.random.key(0), 256))
+      jax.random.split(jax.random.key(0), 256)
+  )
   return task, env, _on_host(states)
 
 
@@ -378,7 +443,7 @@ def test_failed_initializations_are_resampled_and_counted(retries):
   failed = np.asarray(states.metrics['init_failed'])
   # A world whose last attempt failed failed every attempt; nothing raised.
   np.testing.assert_array_equal(failures[failed == 1], _ATTEMPTS)
-  assert 10 < np.sum(failed) < 80            # ~ (5/8)^4 of 256 worlds
+  assert 10 < np.sum(failed) < 80  # ~ (5/8)^4 of 256 worlds
   # Others succeeded on some attempt, often after failing.
   recovered = (failed == 0) & (failures > 0)
   assert np.sum(recovered) > 50
@@ -395,18 +460,22 @@ def test_failed_initializations_are_resampled_and_counted(retries):
 def test_settling(retries):
   task, env, states = retries
   physics = _physics(env, states, 0)
-  physics = physics.replace(data=physics.data.replace(time=jnp.float32(1337.)))
+  physics = physics.replace(data=physics.data.replace(time=jnp.float32(1337.0)))
   physics = physics.bind(task.hinge.joint).set(qpos=0.4)
   ball, other = task.spheres
-  start = jnp.array([0.2, 0., 0.3])
+  start = jnp.array([0.2, 0.0, 0.3])
   settle = initializers.PropPlacer([ball], position=start, settle_physics=True)
   no_settle = initializers.PropPlacer([ball], position=start)
   # Forced failure: settling cannot finish in 2 steps; every round moves the
   # ball 1 m along y from where it is, as composer's test does.
   retry = initializers.PropPlacer(
-      [ball], position=deterministic.Identity() + np.array([0., 1., 0.]),
-      settle_physics=True, max_settle_physics_time=0.008,
-      max_settle_physics_attempts=3, raise_exception_on_settle_failure=True)
+      [ball],
+      position=deterministic.Identity() + np.array([0.0, 1.0, 0.0]),
+      settle_physics=True,
+      max_settle_physics_time=0.008,
+      max_settle_physics_attempts=3,
+      raise_exception_on_settle_failure=True,
+  )
 
   @jax.jit
   def run(physics, key):
@@ -415,19 +484,20 @@ def test_settling(retries):
   settled, unsettled, retried = run(physics, jax.random.key(0))
   ball_joint = ball.attachment_frame.joints[0]
   # The settled ball rests on the floor, still; the other one never moved.
-  np.testing.assert_allclose(settled.bind(ball_joint).qpos[2], _RADIUS,
-                             atol=2e-3)
+  np.testing.assert_allclose(
+      settled.bind(ball_joint).qpos[2], _RADIUS, atol=2e-3
+  )
   assert float(jnp.max(jnp.abs(settled.bind(ball_joint).qvel))) < 1e-3
   assert not bool(settled.initialization_failed)
   other_joint = other.attachment_frame.joints[0]
-  np.testing.assert_array_equal(settled.bind(other_joint).qpos,
-                                physics.bind(other_joint).qpos)
+  np.testing.assert_array_equal(
+      settled.bind(other_joint).qpos, physics.bind(other_joint).qpos
+  )
   np.testing.assert_allclose(settled.bind(task.hinge.joint).qpos, 0.4)
-  np.testing.assert_allclose(float(settled.data.time), 1337.)
+  np.testing.assert_allclose(float(settled.data.time), 1337.0)
   # Without settling the ball stays where it was put.
   np.testing.assert_allclose(unsettled.bind(ball_joint).qpos[:3], start)
   # Every failed round resampled from the current pose, then it gave up.
   assert bool(retried.initialization_failed)
-  np.testing.assert_allclose(retried.bind(ball_joint).qpos[1], 3.,
-                             atol=1e-2)
-  np.testing.assert_allclose(float(retried.data.time), 1337.)
+  np.testing.assert_allclose(retried.bind(ball_joint).qpos[1], 3.0, atol=1e-2)
+  np.testing.assert_allclose(float(retried.data.time), 1337.0)

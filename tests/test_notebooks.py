@@ -75,22 +75,28 @@ def _text(nb) -> str:
 
 
 def _images(nb) -> list:
-  return [output.data['image/png'] for cell in _code_cells(nb)
-          for output in cell.outputs
-          if output.output_type in ('display_data', 'execute_result')
-          and 'image/png' in output.data]
+  return [
+      output.data['image/png']
+      for cell in _code_cells(nb)
+      for output in cell.outputs
+      if output.output_type in ('display_data', 'execute_result')
+      and 'image/png' in output.data
+  ]
 
 
 def _check_outputs(nb, name):
   """Checks what both the saved and the freshly executed notebook show."""
-  errors = [output for cell in _code_cells(nb) for output in cell.outputs
-            if output.output_type == 'error']
+  errors = [
+      output
+      for cell in _code_cells(nb)
+      for output in cell.outputs
+      if output.output_type == 'error'
+  ]
   assert not errors, f'{name}: error outputs {errors}'
   assert _images(nb), f'{name}: no image/png output'
   text = _text(nb)
   for pattern in _EXPECTED_TEXT[name]:
-    assert re.search(pattern, text), (
-        f'{name}: no output matches {pattern!r}')
+    assert re.search(pattern, text), f'{name}: no output matches {pattern!r}'
   if name == 'getting_started.ipynb':
     # Domain randomization: the variator scales the ball's 0.06 m radius by
     # U(0.5, 2) per world, so the shown worlds differ within those bounds.
@@ -108,7 +114,8 @@ def test_saved_notebook_was_executed(name):
   assert cells
   # Executed in one pass, top to bottom: execution counts 1, 2, 3, ...
   assert [cell.execution_count for cell in cells] == list(
-      range(1, len(cells) + 1)), f'{name} was not saved executed in order'
+      range(1, len(cells) + 1)
+  ), f'{name} was not saved executed in order'
   for i, cell in enumerate(cells):
     assert cell.outputs, f'{name}: code cell {i} has no saved output'
   _check_outputs(nb, name)
@@ -128,8 +135,11 @@ def test_notebook_executes(name, tmp_path, monkeypatch):
     cell.outputs = []
     cell.execution_count = None
   client = nbclient.NotebookClient(
-      nb, timeout=_CELL_TIMEOUT_S, kernel_name='python3',
-      resources={'metadata': {'path': str(tmp_path)}})
+      nb,
+      timeout=_CELL_TIMEOUT_S,
+      kernel_name='python3',
+      resources={'metadata': {'path': str(tmp_path)}},
+  )
   start = time.monotonic()
   try:
     client.execute()

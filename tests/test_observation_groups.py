@@ -32,30 +32,34 @@ class _Bounded(base.Generic):
 
   @property
   def array_spec(self):
-    return specs.BoundedArray((2,), np.float32, minimum=[-1., -2.],
-                              maximum=[1., 2.])
+    return specs.BoundedArray(
+        (2,), np.float32, minimum=[-1.0, -2.0], maximum=[1.0, 2.0]
+    )
 
 
 def _shift(value, key):
   del key
-  return value + 100.
+  return value + 100.0
 
 
 def _observables():
   fns = {
-      'joints': _Counting(lambda p: jnp.stack([p.time(), -p.time()]).astype(
-          jnp.float32)),
+      'joints': _Counting(
+          lambda p: jnp.stack([p.time(), -p.time()]).astype(jnp.float32)
+      ),
       'touch': _Counting(lambda p: p.time().astype(jnp.float32)),
       'target': _Counting(lambda p: jnp.full((2,), 0.5, jnp.float32)),
       'unused': _Counting(lambda p: p.time()),
   }
   observables = collections.OrderedDict(
       joints=base.Generic(fns['joints'], corruptor=_shift, buffer_size=2),
-      touch=base.Generic(fns['touch'], corruptor=_shift, buffer_size=2,
-                         aggregator='sum'),
+      touch=base.Generic(
+          fns['touch'], corruptor=_shift, buffer_size=2, aggregator='sum'
+      ),
       target=_Bounded(fns['target']),
       unused=base.Generic(fns['unused']),
-      disabled=base.Generic(lambda p: p.time()))
+      disabled=base.Generic(lambda p: p.time()),
+  )
   for key, obs in observables.items():
     obs.enabled = key != 'disabled'
   return observables, fns
@@ -63,8 +67,9 @@ def _observables():
 
 _GROUPS = {
     'policy': ObservationGroup(keys=['joints', 'touch']),
-    'critic': ObservationGroup(keys=['target', 'joints', 'touch'],
-                               corrupted=False),
+    'critic': ObservationGroup(
+        keys=['target', 'joints', 'touch'], corrupted=False
+    ),
 }
 
 
@@ -87,14 +92,15 @@ def test_policy_sees_corrupted_and_critic_clean_values():
   assert list(observation['policy']) == ['joints', 'touch']
   assert list(observation['critic']) == ['target', 'joints', 'touch']
   # t = 4: buffers hold samples 3 and 4.
-  clean_joints = np.array([[3., -3.], [4., -4.]])
+  clean_joints = np.array([[3.0, -3.0], [4.0, -4.0]])
   np.testing.assert_allclose(observation['critic']['joints'], clean_joints)
-  np.testing.assert_allclose(observation['policy']['joints'],
-                             clean_joints + 100.)
-  np.testing.assert_allclose(observation['critic']['touch'], 7.)
-  np.testing.assert_allclose(observation['policy']['touch'], 207.)
-  np.testing.assert_allclose(observation['critic']['target'], [[.5, .5]])
-  assert fns['unused'].calls == 0   # In no group: never evaluated.
+  np.testing.assert_allclose(
+      observation['policy']['joints'], clean_joints + 100.0
+  )
+  np.testing.assert_allclose(observation['critic']['touch'], 7.0)
+  np.testing.assert_allclose(observation['policy']['touch'], 207.0)
+  np.testing.assert_allclose(observation['critic']['target'], [[0.5, 0.5]])
+  assert fns['unused'].calls == 0  # In no group: never evaluated.
 
 
 def test_raw_value_evaluated_once_per_sample_for_both_groups():
@@ -105,7 +111,8 @@ def test_raw_value_evaluated_once_per_sample_for_both_groups():
   for fn in fns.values():
     fn.calls = 0
   jax.make_jaxpr(lambda s: updater.update(s, physics, jax.random.key(0), 2))(
-      state)
+      state
+  )
   assert fns['joints'].calls == 1 and fns['touch'].calls == 1
 
 
@@ -114,16 +121,24 @@ def test_clean_values_buffered_only_when_needed():
   both = updater_lib.Updater(observables, 2, groups=_GROUPS)
   state = both.reset(fake_physics.FakePhysics.create(), jax.random.key(0))
   streams = {k: sorted(b.values) for k, b in zip(both.keys, state.buffers)}
-  assert streams == {'joints': ['clean', 'value'], 'touch': ['clean', 'value'],
-                     'target': ['value']}   # target has no corruptor.
+  assert streams == {
+      'joints': ['clean', 'value'],
+      'touch': ['clean', 'value'],
+      'target': ['value'],
+  }  # target has no corruptor.
   only_policy = updater_lib.Updater(
-      observables, 2, groups={'policy': ObservationGroup(keys=['joints'])})
-  state = only_policy.reset(fake_physics.FakePhysics.create(),
-                            jax.random.key(0))
+      observables, 2, groups={'policy': ObservationGroup(keys=['joints'])}
+  )
+  state = only_policy.reset(
+      fake_physics.FakePhysics.create(), jax.random.key(0)
+  )
   assert only_policy.keys == ('joints',)
   assert sorted(state.buffers[0].values) == ['value']
-  only_critic = updater_lib.Updater(observables, 2, groups={
-      'critic': ObservationGroup(keys=['joints'], corrupted=False)})
+  only_critic = updater_lib.Updater(
+      observables,
+      2,
+      groups={'critic': ObservationGroup(keys=['joints'], corrupted=False)},
+  )
   state = only_critic.reset(fake_physics.FakePhysics.create())  # No key.
   assert sorted(state.buffers[0].values) == ['clean']
 
@@ -145,8 +160,9 @@ def test_group_specs_match_observations():
 
 def test_default_group_holds_every_enabled_observable():
   observables, _ = _observables()
-  updater = updater_lib.Updater(observables, 1,
-                                groups={'all': ObservationGroup()})
+  updater = updater_lib.Updater(
+      observables, 1, groups={'all': ObservationGroup()}
+  )
   spec = updater.observation_spec(fake_physics.FakePhysics.create())
   assert list(spec['all']) == ['joints', 'touch', 'target', 'unused']
 
@@ -155,23 +171,25 @@ def test_flattened_groups():
   observables, _ = _observables()
   groups = {
       'state': ObservationGroup(keys=['joints', 'touch'], flatten=True),
-      'privileged_state': ObservationGroup(keys=['touch', 'target'],
-                                           corrupted=False, flatten=True),
+      'privileged_state': ObservationGroup(
+          keys=['touch', 'target'], corrupted=False, flatten=True
+      ),
   }
   updater = updater_lib.Updater(observables, 2, groups=groups)
   state = _step(updater)
   observation = jax.jit(updater.get_observation)(state)
-  np.testing.assert_allclose(observation['state'],
-                             [103., 97., 104., 96., 207.])
-  np.testing.assert_allclose(observation['privileged_state'], [7., .5, .5])
+  np.testing.assert_allclose(
+      observation['state'], [103.0, 97.0, 104.0, 96.0, 207.0]
+  )
+  np.testing.assert_allclose(observation['privileged_state'], [7.0, 0.5, 0.5])
   assert observation['state'].dtype == jnp.float32
   spec = updater.observation_spec()
   assert type(spec['state']) is specs.Array
   assert spec['state'].shape == (5,) and spec['state'].name == 'state'
   privileged = spec['privileged_state']
   assert type(privileged) is specs.BoundedArray
-  np.testing.assert_array_equal(privileged.minimum, [-np.inf, -1., -2.])
-  np.testing.assert_array_equal(privileged.maximum, [np.inf, 1., 2.])
+  np.testing.assert_array_equal(privileged.minimum, [-np.inf, -1.0, -2.0])
+  np.testing.assert_array_equal(privileged.maximum, [np.inf, 1.0, 2.0])
   for key, value in observation.items():
     spec[key].validate(np.asarray(value))
 
@@ -179,14 +197,18 @@ def test_flattened_groups():
 def test_group_errors():
   observables, _ = _observables()
   with pytest.raises(KeyError, match="'critic' refers to 'nope'"):
-    updater_lib.Updater(observables, groups={
-        'critic': ObservationGroup(keys=['nope'])})
+    updater_lib.Updater(
+        observables, groups={'critic': ObservationGroup(keys=['nope'])}
+    )
   with pytest.raises(ValueError, match="'disabled', which is not enabled"):
-    updater_lib.Updater(observables, groups={
-        'critic': ObservationGroup(keys=['disabled'])})
+    updater_lib.Updater(
+        observables, groups={'critic': ObservationGroup(keys=['disabled'])}
+    )
   with pytest.raises(ValueError, match='lists a key twice'):
-    updater_lib.Updater(observables, groups={
-        'critic': ObservationGroup(keys=['touch', 'touch'])})
+    updater_lib.Updater(
+        observables,
+        groups={'critic': ObservationGroup(keys=['touch', 'touch'])},
+    )
   with pytest.raises(ValueError, match='need a dict of observables'):
     updater_lib.Updater([observables], groups={'a': ObservationGroup()})
   with pytest.raises(TypeError, match='must be an ObservationGroup'):
@@ -195,18 +217,23 @@ def test_group_errors():
 
 def test_flattener_round_trip_and_batches():
   spec_dict = collections.OrderedDict(
-      b=specs.Array((2, 3), np.float32), a=specs.Array((), np.int32),
-      c=specs.BoundedArray((2,), np.float32, minimum=0., maximum=[1., 2.]))
+      b=specs.Array((2, 3), np.float32),
+      a=specs.Array((), np.int32),
+      c=specs.BoundedArray((2,), np.float32, minimum=0.0, maximum=[1.0, 2.0]),
+  )
   flattener = flatten.Flattener(spec_dict, name='flat')
-  assert flattener.keys == ('b', 'a', 'c')   # The dict's order, not sorted.
+  assert flattener.keys == ('b', 'a', 'c')  # The dict's order, not sorted.
   assert flattener.spec.shape == (9,)
   assert flattener.slices['a'] == slice(6, 7)
-  np.testing.assert_array_equal(flattener.spec.minimum[6:], [-np.inf, 0., 0.])
-  np.testing.assert_array_equal(flattener.spec.maximum[6:], [np.inf, 1., 2.])
-  observation = {'a': jnp.int32(7), 'b': jnp.arange(6.).reshape(2, 3),
-                 'c': jnp.array([.5, 1.5])}
+  np.testing.assert_array_equal(flattener.spec.minimum[6:], [-np.inf, 0.0, 0.0])
+  np.testing.assert_array_equal(flattener.spec.maximum[6:], [np.inf, 1.0, 2.0])
+  observation = {
+      'a': jnp.int32(7),
+      'b': jnp.arange(6.0).reshape(2, 3),
+      'c': jnp.array([0.5, 1.5]),
+  }
   vector = flattener(observation)
-  np.testing.assert_allclose(vector, [0, 1, 2, 3, 4, 5, 7, .5, 1.5])
+  np.testing.assert_allclose(vector, [0, 1, 2, 3, 4, 5, 7, 0.5, 1.5])
   back = flattener.unflatten(vector)
   for key in spec_dict:
     np.testing.assert_allclose(back[key], observation[key])
@@ -215,7 +242,8 @@ def test_flattener_round_trip_and_batches():
   assert flat.shape == (2, 9)
   np.testing.assert_allclose(flat[1], vector + 1)
   assert flatten.flatten_spec({'x': specs.Array((3,), np.float64)}).shape == (
-      3,)
+      3,
+  )
   with pytest.raises(ValueError, match="'b' has shape"):
     flattener({**observation, 'b': jnp.zeros(6)})
   with pytest.raises(KeyError, match='missing keys'):

@@ -26,12 +26,18 @@ def test_generic_returns_the_callable_output():
 
 
 def test_properties_round_trip():
-  obs = base.Generic(lambda p: 0, update_interval=2, buffer_size=3, delay=4,
-                     aggregator='max', corruptor=_add_twelve)
+  obs = base.Generic(
+      lambda p: 0,
+      update_interval=2,
+      buffer_size=3,
+      delay=4,
+      aggregator='max',
+      corruptor=_add_twelve,
+  )
   assert (obs.update_interval, obs.buffer_size, obs.delay) == (2, 3, 4)
   assert obs.aggregator is base.AGGREGATORS['max']
   assert obs.corruptor is _add_twelve
-  assert obs.enabled is False   # Observables start disabled.
+  assert obs.enabled is False  # Observables start disabled.
   obs.update_interval, obs.buffer_size, obs.delay = 5, 6, 7
   obs.aggregator = 'sum'
   obs.enabled = True
@@ -54,8 +60,7 @@ def test_defaults_match_composer():
 def test_corruptor():
   obs = base.Generic(lambda p: jnp.zeros(2), corruptor=_add_twelve)
   physics = fake_physics.FakePhysics.create()
-  np.testing.assert_array_equal(obs(physics, key=jax.random.key(0)),
-                                [12, 12])
+  np.testing.assert_array_equal(obs(physics, key=jax.random.key(0)), [12, 12])
   with pytest.raises(ValueError, match='needs a PRNG key'):
     obs(physics)
 
@@ -63,7 +68,8 @@ def test_corruptor():
 def test_corruptor_receives_a_key():
   obs = base.Generic(
       lambda p: jnp.zeros(3),
-      corruptor=lambda v, key: v + jax.random.normal(key, v.shape))
+      corruptor=lambda v, key: v + jax.random.normal(key, v.shape),
+  )
   physics = fake_physics.FakePhysics.create()
   first = obs(physics, key=jax.random.key(0))
   np.testing.assert_array_equal(first, obs(physics, key=jax.random.key(0)))
@@ -79,19 +85,29 @@ def test_invalid_aggregator_name():
 
 
 def test_builtin_aggregators_reduce_axis_zero():
-  values = jnp.array([[1., 5.], [3., -1.], [2., 2.]])
-  expected = {'min': [1., -1.], 'max': [3., 5.], 'mean': [2., 2.],
-              'median': [2., 2.], 'sum': [6., 6.]}
+  values = jnp.array([[1.0, 5.0], [3.0, -1.0], [2.0, 2.0]])
+  expected = {
+      'min': [1.0, -1.0],
+      'max': [3.0, 5.0],
+      'mean': [2.0, 2.0],
+      'median': [2.0, 2.0],
+      'sum': [6.0, 6.0],
+  }
   for name, value in expected.items():
     np.testing.assert_allclose(base.AGGREGATORS[name](values), value)
   assert [n for n, a in base.AGGREGATORS.items() if a.preserves_bounds] == [
-      'min', 'max', 'mean', 'median']
+      'min',
+      'max',
+      'mean',
+      'median',
+  ]
 
 
 def test_configure_rejects_unknown_options():
   obs = base.Generic(lambda p: 0)
-  with pytest.raises(AttributeError,
-                     match='Cannot add attribute asdf in configure.'):
+  with pytest.raises(
+      AttributeError, match='Cannot add attribute asdf in configure.'
+  ):
     obs.configure(asdf=1)
   with pytest.raises(AttributeError, match='Cannot add attribute configure'):
     obs.configure(configure=None)
@@ -139,35 +155,45 @@ def _make(cls, identifier=''):
 def test_declared_observables_in_alphabetical_order():
   entity = _Entity()
   observables = _EntityObservables(entity)
-  assert entity.evaluations == 1   # Evaluated at construction, once.
+  assert entity.evaluations == 1  # Evaluated at construction, once.
   assert list(observables.as_dict()) == ['observable0', 'observable1']
   assert observables.observable1 is observables.as_dict()['observable1']
   assert entity.evaluations == 1
   assert not observables.observable0.enabled
 
 
-@pytest.mark.parametrize('identifier,prefix', [
-    ('', ''), ('subentity/', 'subentity/'), ('arm/hand/', 'arm/hand/'),
-    ('arm', 'arm/')])
+@pytest.mark.parametrize(
+    'identifier,prefix',
+    [
+        ('', ''),
+        ('subentity/', 'subentity/'),
+        ('arm/hand/', 'arm/hand/'),
+        ('arm', 'arm/'),
+    ],
+)
 def test_keys_are_fully_qualified(identifier, prefix):
   observables = _make(_EntityObservables, identifier)
-  assert list(observables.as_dict()) == [prefix + 'observable0',
-                                         prefix + 'observable1']
+  assert list(observables.as_dict()) == [
+      prefix + 'observable0',
+      prefix + 'observable1',
+  ]
   assert list(observables.as_dict(fully_qualified=False)) == [
-      'observable0', 'observable1']
+      'observable0',
+      'observable1',
+  ]
   assert observables.dict_keys.observable0 == prefix + 'observable0'
   assert 'observable0' in dir(observables.dict_keys)
   with pytest.raises(AttributeError):
-    observables.dict_keys.unknown   # pylint: disable=pointless-statement
+    observables.dict_keys.unknown  # pylint: disable=pointless-statement
   assert observables.get_observable('observable1') is observables.observable1
   assert observables.get_observable(
-      prefix + 'observable1', name_fully_qualified=True) is (
-          observables.observable1)
+      prefix + 'observable1', name_fully_qualified=True
+  ) is (observables.observable1)
 
 
 def test_unreadable_identifier_raises_value_error():
   observables = _make(_EntityObservables)
-  del observables._entity.full_identifier   # pylint: disable=protected-access
+  del observables._entity.full_identifier  # pylint: disable=protected-access
   with pytest.raises(ValueError, match='full identifier'):
     observables.as_dict()
 
@@ -184,8 +210,14 @@ def test_enable_and_disable_all():
 
 def test_set_options_flat_applies_to_all():
   observables = _make(_EntityObservables)
-  options = dict(update_interval=2, buffer_size=10, delay=1, aggregator='max',
-                 corruptor=_add_twelve, enabled=True)
+  options = dict(
+      update_interval=2,
+      buffer_size=10,
+      delay=1,
+      aggregator='max',
+      corruptor=_add_twelve,
+      enabled=True,
+  )
   observables.set_options(options)
   for obs in observables.as_dict().values():
     assert (obs.update_interval, obs.buffer_size, obs.delay) == (2, 10, 1)
@@ -200,14 +232,17 @@ def test_set_options_partial_flat_leaves_the_rest():
     assert obs.update_interval == 3 and obs.enabled
     assert obs.delay is None and obs.buffer_size is None
     assert obs.aggregator is None and obs.corruptor is None
-  observables.set_options(None)   # None means no options.
+  observables.set_options(None)  # None means no options.
 
 
 def test_set_options_per_observable():
   observables = _make(_EntityObservables)
-  observables.set_options({'observable0': {'update_interval': 4,
-                                           'enabled': True},
-                           'observable1': {'delay': 2}})
+  observables.set_options(
+      {
+          'observable0': {'update_interval': 4, 'enabled': True},
+          'observable1': {'delay': 2},
+      }
+  )
   assert observables.observable0.update_interval == 4
   assert observables.observable0.enabled
   assert observables.observable1.delay == 2
@@ -219,8 +254,9 @@ def test_set_options_errors():
   observables = _make(_EntityObservables)
   with pytest.raises(KeyError, match="No observable with name 'asdf'"):
     observables.set_options({'asdf': {'enabled': True}})
-  with pytest.raises(AttributeError,
-                     match='Cannot add attribute asdf in configure.'):
+  with pytest.raises(
+      AttributeError, match='Cannot add attribute asdf in configure.'
+  ):
     observables.set_options({'observable0': {'asdf': 1}})
 
 
@@ -235,11 +271,12 @@ def test_add_observable_is_enabled_by_default():
   hidden = base.Generic(lambda p: 3)
   observables.add_observable('hidden', hidden, enabled=False)
   assert not hidden.enabled
-  assert not hasattr(observables, 'extra')   # Not an attribute.
+  assert not hasattr(observables, 'extra')  # Not an attribute.
 
 
-class _PropObservables(collection.Observables,
-                       collection.FreePropObservableMixin):
+class _PropObservables(
+    collection.Observables, collection.FreePropObservableMixin
+):
 
   @define.observable
   def position(self):
@@ -247,7 +284,7 @@ class _PropObservables(collection.Observables,
 
   @define.observable
   def orientation(self):
-    return base.Generic(lambda p: jnp.array([1., 0., 0., 0.]))
+    return base.Generic(lambda p: jnp.array([1.0, 0.0, 0.0, 0.0]))
 
   @define.observable
   def linear_velocity(self):
@@ -261,8 +298,7 @@ class _PropObservables(collection.Observables,
 def test_free_prop_observable_mixin():
   assert isinstance(collection.FreePropObservableMixin, abc.ABCMeta)
 
-  class Incomplete(collection.Observables,
-                   collection.FreePropObservableMixin):
+  class Incomplete(collection.Observables, collection.FreePropObservableMixin):
 
     @define.observable
     def position(self):
@@ -272,8 +308,11 @@ def test_free_prop_observable_mixin():
     Incomplete(_Entity())
   observables = _make(_PropObservables, 'ball/')
   assert list(observables.as_dict()) == [
-      'ball/angular_velocity', 'ball/linear_velocity', 'ball/orientation',
-      'ball/position']
+      'ball/angular_velocity',
+      'ball/linear_velocity',
+      'ball/orientation',
+      'ball/position',
+  ]
   assert isinstance(observables, collection.FreePropObservableMixin)
 
 
@@ -288,6 +327,7 @@ def test_observables_hold_a_weak_reference_to_the_entity():
 
 def test_package_exports():
   from mjx_composer import observation  # pylint: disable=g-import-not-at-top
+
   assert observation.Observables is collection.Observables
   assert observation.observable.Observables is collection.Observables
   assert observation.ObservationPadding.INITIAL_VALUE.value == -1

@@ -72,8 +72,9 @@ class _BoundedGeneric(base.Generic):
 
   def __init__(self, fn, shape, **kwargs):
     super().__init__(fn, **kwargs)
-    self._spec = specs.BoundedArray(shape, np.float32, minimum=-1.,
-                                    maximum=1.)
+    self._spec = specs.BoundedArray(
+        shape, np.float32, minimum=-1.0, maximum=1.0
+    )
 
   @property
   def array_spec(self):
@@ -133,8 +134,10 @@ class _Reference:
     if delay == 0:
       self._arrived.append((timestamp, value))
     else:
-      bisect.insort(self._pending,
-                    (timestamp + delay, next(self._count), timestamp, value))
+      bisect.insort(
+          self._pending,
+          (timestamp + delay, next(self._count), timestamp, value),
+      )
 
   def substep(self, t):
     """Called after sub-step `t` (sub-steps since reset)."""
@@ -144,8 +147,10 @@ class _Reference:
 
   def read(self, t):
     self._move(t)
-    return (np.array([ts for ts, _ in self._arrived]),
-            np.stack([v for _, v in self._arrived]))
+    return (
+        np.array([ts for ts, _ in self._arrived]),
+        np.stack([v for _, v in self._arrived]),
+    )
 
 
 def _constant(value):
@@ -171,8 +176,11 @@ def _timing_observables():
   observables['matrix'].delay = 1
   observables['matrix'].buffer_size = 4
   observables['sqrt_plus_one'] = base.Generic(
-      fake_physics.FakePhysics.sqrt_plus_one, update_interval=7,
-      buffer_size=3, delay=2)
+      fake_physics.FakePhysics.sqrt_plus_one,
+      update_interval=7,
+      buffer_size=3,
+      delay=2,
+  )
   for obs in observables.values():
     obs.enabled = True
   return observables
@@ -196,36 +204,43 @@ def _run(updater, num_steps, key=jax.random.key(0), style='static'):
     if style == 'static':
       for j in range(1, n + 1):
         physics = physics.step()
-        state = updater.update(state, physics, jax.random.fold_in(step_key, j),
-                               j)
+        state = updater.update(
+            state, physics, jax.random.fold_in(step_key, j), j
+        )
     else:
+
       def substep(carry, i):
         physics, state = carry
         physics = physics.step()
         state = jax.lax.cond(
             i < n - 1,
-            lambda s: updater.update(s, physics,
-                                     jax.random.fold_in(step_key, i + 1),
-                                     i + 1),
-            lambda s: s, state)
+            lambda s: updater.update(
+                s, physics, jax.random.fold_in(step_key, i + 1), i + 1
+            ),
+            lambda s: s,
+            state,
+        )
         return (physics, state), None
-      (physics, state), _ = jax.lax.scan(substep, (physics, state),
-                                         jnp.arange(n - 1, dtype=jnp.int32))
+
+      (physics, state), _ = jax.lax.scan(
+          substep, (physics, state), jnp.arange(n - 1, dtype=jnp.int32)
+      )
       physics = physics.step()
-      state = updater.update(state, physics, jax.random.fold_in(step_key, n),
-                             n)
-    return (physics, state), (updater.get_observation(state),
-                              updater.buffer_timestamps(state))
+      state = updater.update(state, physics, jax.random.fold_in(step_key, n), n)
+    return (physics, state), (
+        updater.get_observation(state),
+        updater.buffer_timestamps(state),
+    )
 
   def run(key):
     physics = fake_physics.FakePhysics.create()
     reset_key, key = jax.random.split(key)
     state = updater.reset(physics, reset_key)
     first = (updater.get_observation(state), updater.buffer_timestamps(state))
-    _, rest = jax.lax.scan(control_step, (physics, state),
-                           jax.random.split(key, num_steps))
-    return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first,
-                        rest)
+    _, rest = jax.lax.scan(
+        control_step, (physics, state), jax.random.split(key, num_steps)
+    )
+    return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
 
   cache_key = (id(updater), num_steps, style)
   if cache_key not in _COMPILED:
@@ -248,7 +263,8 @@ def _nested_observables():
   bounded = lambda **kw: _BoundedGeneric(physics_fn, (2,), **kw)
   first = {'a': make(), 'b': make(aggregator='sum'), 'disabled': make()}
   second = collections.OrderedDict(
-      [('c', bounded()), ('d', bounded(aggregator='sum'))])
+      [('c', bounded()), ('d', bounded(aggregator='sum'))]
+  )
   for d in (first, second):
     for key, obs in d.items():
       obs.enabled = key != 'disabled'
@@ -273,10 +289,13 @@ def test_nested_structures_keep_container_types(container):
   assert type(spec[0]['a']) is specs.Array
   assert type(spec[1]['c']) is specs.BoundedArray
   assert spec[1]['c'].shape == (1, 2)
-  assert type(spec[1]['d']) is specs.Array   # sum does not keep bounds
-  jax.tree.map(lambda s, o: s.validate(np.asarray(o)),
-               spec, observation,
-               is_leaf=lambda x: isinstance(x, specs.Array))
+  assert type(spec[1]['d']) is specs.Array  # sum does not keep bounds
+  jax.tree.map(
+      lambda s, o: s.validate(np.asarray(o)),
+      spec,
+      observation,
+      is_leaf=lambda x: isinstance(x, specs.Array),
+  )
 
 
 def test_observables_must_be_dicts():
@@ -290,8 +309,9 @@ def test_spec_inference_by_tracing():
   observables = fake_physics.FakePhysics.observables()
   observables['repeated'].buffer_size = 5
   observables['matrix'].buffer_size = 4
-  observables['sqrt'] = base.Generic(fake_physics.FakePhysics.sqrt,
-                                     buffer_size=3)
+  observables['sqrt'] = base.Generic(
+      fake_physics.FakePhysics.sqrt, buffer_size=3
+  )
   for obs in observables.values():
     obs.enabled = True
   updater = updater_lib.Updater(observables, N_SUB_STEPS)
@@ -316,7 +336,7 @@ def test_spec_inference_by_tracing():
 def test_custom_spec_type_passed_through():
   obs = _CustomSpecGeneric(lambda p: jnp.zeros(2), buffer_size=3)
   updater = updater_lib.Updater(_enabled(custom=obs))
-  spec = updater.observation_spec()   # No physics needed: array_spec given.
+  spec = updater.observation_spec()  # No physics needed: array_spec given.
   assert type(spec['custom']) is _CustomSpec
   assert spec['custom'].shape == (3, 2)
   assert spec['custom'].name == 'custom'
@@ -325,18 +345,23 @@ def test_custom_spec_type_passed_through():
 @pytest.mark.parametrize('aggregator', ['min', 'max', 'mean', 'median'])
 def test_bounds_kept_by_bounds_preserving_aggregators(aggregator):
   # composer's `bounds_reserving` typo drops these bounds; we keep them.
-  obs = _BoundedGeneric(lambda p: jnp.zeros(2), (2,), buffer_size=4,
-                        aggregator=aggregator)
+  obs = _BoundedGeneric(
+      lambda p: jnp.zeros(2), (2,), buffer_size=4, aggregator=aggregator
+  )
   spec = updater_lib.Updater(_enabled(x=obs)).observation_spec()['x']
   assert type(spec) is specs.BoundedArray
   assert spec.shape == (2,)
-  np.testing.assert_array_equal(spec.minimum, -1.)
-  np.testing.assert_array_equal(spec.maximum, 1.)
+  np.testing.assert_array_equal(spec.minimum, -1.0)
+  np.testing.assert_array_equal(spec.maximum, 1.0)
 
 
 def test_custom_aggregator_shape_and_unknown_bounds():
-  obs = _BoundedGeneric(lambda p: jnp.zeros(2), (2,), buffer_size=4,
-                        aggregator=lambda x: x[-1:] - x[:1])
+  obs = _BoundedGeneric(
+      lambda p: jnp.zeros(2),
+      (2,),
+      buffer_size=4,
+      aggregator=lambda x: x[-1:] - x[:1],
+  )
   spec = updater_lib.Updater(_enabled(x=obs)).observation_spec()['x']
   assert type(spec) is specs.Array
   assert spec.shape == (1, 2)
@@ -345,9 +370,10 @@ def test_custom_aggregator_shape_and_unknown_bounds():
 def test_strip_singleton_buffer_dim():
   observables = _enabled(
       single=base.Generic(lambda p: jnp.ones((3, 3))),
-      scalar=base.Generic(lambda p: jnp.float32(2.)),
+      scalar=base.Generic(lambda p: jnp.float32(2.0)),
       several=base.Generic(lambda p: jnp.ones(2), buffer_size=2),
-      mean=base.Generic(lambda p: jnp.arange(3.), aggregator='mean'))
+      mean=base.Generic(lambda p: jnp.arange(3.0), aggregator='mean'),
+  )
   updater = updater_lib.Updater(observables, strip_singleton_buffer_dim=True)
   physics = fake_physics.FakePhysics.create()
   observation = updater.get_observation(updater.reset(physics))
@@ -358,7 +384,7 @@ def test_strip_singleton_buffer_dim():
   # Deviation from composer: the aggregator reduces the buffer axis, not the
   # observation's own first axis.
   assert observation['mean'].shape == spec['mean'].shape == (3,)
-  np.testing.assert_array_equal(observation['mean'], [0., 1., 2.])
+  np.testing.assert_array_equal(observation['mean'], [0.0, 1.0, 2.0])
 
 
 # ---------------------------------------------------------------------------
@@ -370,8 +396,9 @@ def test_strip_singleton_buffer_dim():
 @pytest.mark.parametrize('style', ['static', 'scan'])
 def test_observation_timing_matches_composer(pad_initial, style):
   observables = _timing_observables()
-  updater = updater_lib.Updater(observables, N_SUB_STEPS,
-                                pad_with_initial_value=pad_initial)
+  updater = updater_lib.Updater(
+      observables, N_SUB_STEPS, pad_with_initial_value=pad_initial
+  )
   observations, timestamps = _run(updater, NUM_CONTROL_STEPS, style=style)
   for key, obs in observables.items():
     u, d, b = obs.update_interval, obs.delay or 0, obs.buffer_size or 1
@@ -387,20 +414,27 @@ def test_observation_timing_matches_composer(pad_initial, style):
       # first, negative timestamps are padding.
       end = u * ((t - d) // u)
       formula = end + u * np.arange(-(b - 1), 1)
-      np.testing.assert_array_equal(expected_ts, np.where(formula < 0, -1,
-                                                          formula))
-      np.testing.assert_array_equal(timestamps[key][step], expected_ts,
-                                    err_msg=f'{key} at t={t}')
+      np.testing.assert_array_equal(
+          expected_ts, np.where(formula < 0, -1, formula)
+      )
+      np.testing.assert_array_equal(
+          timestamps[key][step], expected_ts, err_msg=f'{key} at t={t}'
+      )
       # rtol: the GPU's float32 sqrt may differ from numpy's by an ulp.
-      np.testing.assert_allclose(observations[key][step], expected,
-                                 rtol=1e-6, err_msg=f'{key} at t={t}')
+      np.testing.assert_allclose(
+          observations[key][step],
+          expected,
+          rtol=1e-6,
+          err_msg=f'{key} at t={t}',
+      )
 
 
 def _schedule_observables(configs):
   observables = collections.OrderedDict()
   for u, d, b in configs:
     observables[f'u{u}_d{d}_b{b}'] = base.Generic(
-        lambda p: p.time(), update_interval=u, delay=d, buffer_size=b)
+        lambda p: p.time(), update_interval=u, delay=d, buffer_size=b
+    )
   for obs in observables.values():
     obs.enabled = True
   return observables
@@ -408,8 +442,7 @@ def _schedule_observables(configs):
 
 @pytest.mark.parametrize('n', [1, 3, 4, 6])
 def test_constant_schedules_match_reference(n):
-  configs = [(u, d, b) for u in (1, 2, 3, 7) for d in (0, 1, 5)
-             for b in (1, 3)]
+  configs = [(u, d, b) for u in (1, 2, 3, 7) for d in (0, 1, 5) for b in (1, 3)]
   observables = _schedule_observables(configs)
   updater = updater_lib.Updater(observables, n)
   num_steps = 30
@@ -421,31 +454,39 @@ def test_constant_schedules_match_reference(n):
       for s in range(t - n + 1, t + 1) if step else ():
         reference.substep(s)
       expected, _ = reference.read(t)
-      np.testing.assert_array_equal(timestamps[key][step], expected,
-                                    err_msg=f'{key} at t={t}')
+      np.testing.assert_array_equal(
+          timestamps[key][step], expected, err_msg=f'{key} at t={t}'
+      )
 
 
 def _library_sequence(values):
   from mjx_composer.variation import deterministic  # pylint: disable=g-import-not-at-top
+
   return deterministic.Sequence(values)
 
 
-@pytest.mark.parametrize('sequence', [_Sequence, _library_sequence],
-                         ids=['local', 'library'])
+@pytest.mark.parametrize(
+    'sequence', [_Sequence, _library_sequence], ids=['local', 'library']
+)
 def test_variable_rates_and_delays(sequence):
   # composer's testVariableRatesAndDelays: sample #11 is pushed out by #8's
   # later arrival, so buffers follow arrival order.
-  obs = base.Generic(lambda p: p.time(), buffer_size=3,
-                     update_interval=sequence([3, 2, 3, 3, 4, 1, 4]),
-                     delay=sequence([3, 5, 2, 5, 1, 2, 4]))
+  obs = base.Generic(
+      lambda p: p.time(),
+      buffer_size=3,
+      update_interval=sequence([3, 2, 3, 3, 4, 1, 4]),
+      delay=sequence([3, 5, 2, 5, 1, 2, 4]),
+  )
   updater = updater_lib.Updater(_enabled(time=obs), 10)
-  assert updater.capacity('time') == 3 + 5   # B + ceil(max delay / min int)
+  assert updater.capacity('time') == 3 + 5  # B + ceil(max delay / min int)
   observations, _ = _run(updater, 10)
   for i in range(5):
-    np.testing.assert_array_equal(observations['time'][2 * i + 1],
-                                  20 * i + np.array([0, 5, 3]))
-    np.testing.assert_array_equal(observations['time'][2 * i + 2],
-                                  20 * i + np.array([8, 15, 16]))
+    np.testing.assert_array_equal(
+        observations['time'][2 * i + 1], 20 * i + np.array([0, 5, 3])
+    )
+    np.testing.assert_array_equal(
+        observations['time'][2 * i + 2], 20 * i + np.array([8, 15, 16])
+    )
 
 
 def _variable_run(updater, key, n, num_steps):
@@ -457,14 +498,15 @@ def _variable_run(updater, key, n, num_steps):
     inserted = []
     for j in range(1, n + 1):
       physics = physics.step()
-      state = updater.update(state, physics, jax.random.fold_in(step_key, j),
-                             j)
+      state = updater.update(state, physics, jax.random.fold_in(step_key, j), j)
       # The sample taken now (if any) is the slot stamped with t.
       row = {}
       for index, buffer in enumerate(state.buffers):
         hit = buffer.timestamps == state.t
-        row[entry_keys[index]] = (jnp.any(hit),
-                                  jnp.sum(jnp.where(hit, buffer.arrivals, 0)))
+        row[entry_keys[index]] = (
+            jnp.any(hit),
+            jnp.sum(jnp.where(hit, buffer.arrivals, 0)),
+        )
       inserted.append(row)
     return (physics, state), (updater.buffer_timestamps(state), inserted)
 
@@ -473,8 +515,9 @@ def _variable_run(updater, key, n, num_steps):
     physics = fake_physics.FakePhysics.create()
     state = updater.reset(physics, key)
     first = {k: b.arrivals[0] for k, b in zip(entry_keys, state.buffers)}
-    _, rest = jax.lax.scan(control_step, (physics, state),
-                           jax.random.split(key, num_steps))
+    _, rest = jax.lax.scan(
+        control_step, (physics, state), jax.random.split(key, num_steps)
+    )
     return first, rest
 
   first, (timestamps, inserted) = jax.device_get(run(key))
@@ -500,8 +543,9 @@ def test_variable_rates_random_against_reference():
   }
   observables = collections.OrderedDict()
   for name, (u, d, b) in configs.items():
-    observables[name] = base.Generic(lambda p: p.time(), update_interval=u,
-                                     delay=d, buffer_size=b)
+    observables[name] = base.Generic(
+        lambda p: p.time(), update_interval=u, delay=d, buffer_size=b
+    )
     observables[name].enabled = True
   updater = updater_lib.Updater(observables, n)
   results = _variable_run(updater, jax.random.key(3), n, num_steps)
@@ -519,8 +563,9 @@ def test_variable_rates_random_against_reference():
     ref = _ReplayReference(b, times, draws)
     for step in range(1, num_steps + 1):
       t = step * n
-      np.testing.assert_array_equal(timestamps[step - 1], ref.read(t),
-                                    err_msg=f'{name} at t={t}')
+      np.testing.assert_array_equal(
+          timestamps[step - 1], ref.read(t), err_msg=f'{name} at t={t}'
+      )
 
 
 class _ReplayReference:
@@ -541,8 +586,9 @@ class _ReplayReference:
       if self._delays[s] == 0:
         self._arrived.append(s)
       else:
-        bisect.insort(self._pending,
-                      (s + self._delays[s], next(self._count), s))
+        bisect.insort(
+            self._pending, (s + self._delays[s], next(self._count), s)
+        )
       self._index += 1
     self._move(t)
     return np.array(self._arrived)
@@ -557,8 +603,12 @@ def test_adversarial_delays_respect_capacity():
   # arrival while many newer samples are in flight. A ring indexed by sample
   # number would need 2*ceil(D/u) + B slots; arrival slots need B + D/u.
   delays = [4, 0, 0, 0, 4, 4, 4, 4, 1, 3, 0, 2]
-  obs = base.Generic(lambda p: p.time(), buffer_size=1, update_interval=1,
-                     delay=_Sequence(delays))
+  obs = base.Generic(
+      lambda p: p.time(),
+      buffer_size=1,
+      update_interval=1,
+      delay=_Sequence(delays),
+  )
   updater = updater_lib.Updater(_enabled(x=obs), 1)
   assert updater.capacity('x') == 5
   _, timestamps = _run(updater, 40)
@@ -566,8 +616,9 @@ def test_adversarial_delays_respect_capacity():
   draws = {s: next(cycle) for s in range(41)}
   ref = _ReplayReference(1, range(41), draws)
   for t in range(41):
-    np.testing.assert_array_equal(timestamps['x'][t], ref.read(t),
-                                  err_msg=f't={t}')
+    np.testing.assert_array_equal(
+        timestamps['x'][t], ref.read(t), err_msg=f't={t}'
+    )
 
 
 def test_variation_without_bounds_is_rejected():
@@ -580,8 +631,9 @@ def test_invalid_options_are_rejected():
   with pytest.raises(ValueError, match="'x': delay must be an integer >= 0"):
     updater_lib.Updater(_enabled(x=base.Generic(lambda p: 0, delay=-1)))
   with pytest.raises(ValueError, match="'x': buffer_size must be"):
-    updater_lib.Updater(_enabled(x=base.Generic(
-        lambda p: 0, buffer_size=_Sequence([1, 2]))))
+    updater_lib.Updater(
+        _enabled(x=base.Generic(lambda p: 0, buffer_size=_Sequence([1, 2])))
+    )
   updater = updater_lib.Updater(_enabled(x=base.Generic(lambda p: 0)), 2)
   state = updater.reset(fake_physics.FakePhysics.create())
   with pytest.raises(ValueError, match='substep must be in 1..2'):
@@ -595,19 +647,28 @@ def test_invalid_options_are_rejected():
 
 def test_aggregators_reduce_the_buffer_axis():
   fn = lambda p: jnp.stack([p.time(), -p.time()]).astype(jnp.float32)
-  observables = _enabled(**{
-      name: base.Generic(fn, buffer_size=N_SUB_STEPS, aggregator=name)
-      for name in base.AGGREGATORS})
-  observables['custom'] = base.Generic(fn, buffer_size=N_SUB_STEPS,
-                                       aggregator=lambda x: x[-1] - x[0])
+  observables = _enabled(
+      **{
+          name: base.Generic(fn, buffer_size=N_SUB_STEPS, aggregator=name)
+          for name in base.AGGREGATORS
+      }
+  )
+  observables['custom'] = base.Generic(
+      fn, buffer_size=N_SUB_STEPS, aggregator=lambda x: x[-1] - x[0]
+  )
   observables['custom'].enabled = True
   updater = updater_lib.Updater(observables, N_SUB_STEPS)
   observations, _ = _run(updater, 3)
-  window = np.arange(6, 11, dtype=np.float32)   # t = 10: samples 6..10
+  window = np.arange(6, 11, dtype=np.float32)  # t = 10: samples 6..10
   buffered = np.stack([window, -window], axis=1)
-  expected = {'min': buffered.min(0), 'max': buffered.max(0),
-              'mean': buffered.mean(0), 'median': np.median(buffered, 0),
-              'sum': buffered.sum(0), 'custom': buffered[-1] - buffered[0]}
+  expected = {
+      'min': buffered.min(0),
+      'max': buffered.max(0),
+      'mean': buffered.mean(0),
+      'median': np.median(buffered, 0),
+      'sum': buffered.sum(0),
+      'custom': buffered[-1] - buffered[0],
+  }
   for name, value in expected.items():
     np.testing.assert_allclose(observations[name][2], value, err_msg=name)
 
@@ -615,20 +676,28 @@ def test_aggregators_reduce_the_buffer_axis():
 def _noisy_observables():
   return _enabled(
       noisy=base.Generic(
-          lambda p: jnp.zeros(3), buffer_size=2,
-          corruptor=lambda v, key: v + jax.random.normal(key, v.shape)),
-      clean=base.Generic(lambda p: p.time()))
+          lambda p: jnp.zeros(3),
+          buffer_size=2,
+          corruptor=lambda v, key: v + jax.random.normal(key, v.shape),
+      ),
+      clean=base.Generic(lambda p: p.time()),
+  )
 
 
 def test_corruptor_applied_per_sample_before_buffering():
-  observables = _enabled(x=base.Generic(
-      lambda p: p.time().astype(jnp.float32), buffer_size=3,
-      aggregator='sum', corruptor=lambda v, key: v + 12.))
+  observables = _enabled(
+      x=base.Generic(
+          lambda p: p.time().astype(jnp.float32),
+          buffer_size=3,
+          aggregator='sum',
+          corruptor=lambda v, key: v + 12.0,
+      )
+  )
   updater = updater_lib.Updater(observables, 1)
   observations, _ = _run(updater, 4)
   # Three samples, each shifted by 12, summed (zero padding uncorrupted).
-  np.testing.assert_allclose(observations['x'][4], (2 + 3 + 4) + 3 * 12.)
-  np.testing.assert_allclose(observations['x'][0], 0 + 12.)
+  np.testing.assert_allclose(observations['x'][4], (2 + 3 + 4) + 3 * 12.0)
+  np.testing.assert_allclose(observations['x'][0], 0 + 12.0)
 
 
 def test_corruption_noise_per_world_step_and_key():
@@ -636,7 +705,7 @@ def test_corruption_noise_per_world_step_and_key():
   num_steps = 5
   single = _run(updater, num_steps, key=jax.random.key(7))[0]['noisy']
   again = _run(updater, num_steps, key=jax.random.key(7))[0]['noisy']
-  np.testing.assert_array_equal(single, again)   # Reproducible from the key.
+  np.testing.assert_array_equal(single, again)  # Reproducible from the key.
   # Noise differs across steps and across the two buffered samples.
   assert len(np.unique(single[1:, -1, 0])) == num_steps
   assert not np.allclose(single[3, 0], single[3, 1])
@@ -653,21 +722,21 @@ def test_corruption_noise_per_world_step_and_key():
     outputs = [updater.get_observation(state)['noisy']]
     for step_key in jax.random.split(key, num_steps):
       physics = physics.step()
-      state = updater.update(state, physics, jax.random.fold_in(step_key, 1),
-                             1)
+      state = updater.update(state, physics, jax.random.fold_in(step_key, 1), 1)
       outputs.append(updater.get_observation(state)['noisy'])
     return jnp.stack(outputs)
 
   batched = jax.device_get(jax.jit(jax.vmap(run_world))(keys))
-  np.testing.assert_array_equal(batched[1], single)   # Same key, same world.
-  assert not np.allclose(batched[0], batched[2])      # Worlds differ.
+  np.testing.assert_array_equal(batched[1], single)  # Same key, same world.
+  assert not np.allclose(batched[0], batched[2])  # Worlds differ.
 
 
 def test_noise_independent_of_other_observables():
   observables = _noisy_observables()
   reference = _run(updater_lib.Updater(observables, 2), 3)[0]['noisy']
   observables['extra'] = base.Generic(
-      lambda p: jnp.ones(2), corruptor=lambda v, key: v * 2)
+      lambda p: jnp.ones(2), corruptor=lambda v, key: v * 2
+  )
   observables['extra'].enabled = True
   observables.move_to_end('extra', last=False)
   del observables['clean']
@@ -678,20 +747,24 @@ def test_noise_independent_of_other_observables():
 def test_same_observations_in_a_batch_as_in_one_world():
   observables = _timing_observables()
   observables['delayed'] = base.Generic(
-      lambda p: p.time(), buffer_size=2,
-      delay=_Sequence([1, 4, 2]), update_interval=_Sequence([2, 1, 3]))
+      lambda p: p.time(),
+      buffer_size=2,
+      delay=_Sequence([1, 4, 2]),
+      update_interval=_Sequence([2, 1, 3]),
+  )
   observables['delayed'].enabled = True
-  updater = updater_lib.Updater(observables, N_SUB_STEPS,
-                                pad_with_initial_value=True)
+  updater = updater_lib.Updater(
+      observables, N_SUB_STEPS, pad_with_initial_value=True
+  )
   num_steps = 3
   single = _run(updater, num_steps, key=jax.random.key(5))[0]
 
   batched = jax.jit(jax.vmap(lambda k: _run_traced(updater, num_steps, k)))(
-      jnp.stack([jax.random.key(5)] * 3))
+      jnp.stack([jax.random.key(5)] * 3)
+  )
   for key in observables:
     for world in range(3):
-      np.testing.assert_allclose(batched[key][world], single[key],
-                                 err_msg=key)
+      np.testing.assert_allclose(batched[key][world], single[key], err_msg=key)
 
 
 def _run_traced(updater, num_steps, key):
@@ -702,16 +775,16 @@ def _run_traced(updater, num_steps, key):
     physics, state = carry
     for j in range(1, n + 1):
       physics = physics.step()
-      state = updater.update(state, physics, jax.random.fold_in(step_key, j),
-                             j)
+      state = updater.update(state, physics, jax.random.fold_in(step_key, j), j)
     return (physics, state), updater.get_observation(state)
 
   physics = fake_physics.FakePhysics.create()
   reset_key, key = jax.random.split(key)
   state = updater.reset(physics, reset_key)
   first = updater.get_observation(state)
-  _, rest = jax.lax.scan(control_step, (physics, state),
-                         jax.random.split(key, num_steps))
+  _, rest = jax.lax.scan(
+      control_step, (physics, state), jax.random.split(key, num_steps)
+  )
   return jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, rest)
 
 
@@ -734,20 +807,26 @@ class _Counting:
 def test_update_evaluates_only_samples_that_can_be_seen():
   n = 10
   fns = collections.OrderedDict(
-      every=_Counting(), slow=_Counting(), averaged=_Counting(),
-      delayed=_Counting(), odd=_Counting(), disabled=_Counting())
+      every=_Counting(),
+      slow=_Counting(),
+      averaged=_Counting(),
+      delayed=_Counting(),
+      odd=_Counting(),
+      disabled=_Counting(),
+  )
   observables = collections.OrderedDict(
       every=base.Generic(fns['every']),
       slow=base.Generic(fns['slow'], update_interval=5),
       averaged=base.Generic(fns['averaged'], buffer_size=3),
       delayed=base.Generic(fns['delayed'], delay=3, update_interval=2),
       odd=base.Generic(fns['odd'], update_interval=3),
-      disabled=base.Generic(fns['disabled']))
+      disabled=base.Generic(fns['disabled']),
+  )
   for key, obs in observables.items():
     obs.enabled = key != 'disabled'
   updater = updater_lib.Updater(observables, n)
   assert updater.active_substeps('every') == (10,)
-  assert updater.active_substeps('slow') == (10,)   # 5 is never seen.
+  assert updater.active_substeps('slow') == (10,)  # 5 is never seen.
   assert updater.active_substeps('averaged') == (8, 9, 10)
   # Reads at 10k see the sample taken at 10k - 4 only.
   assert updater.active_substeps('delayed') == (6,)
@@ -770,16 +849,20 @@ def test_update_evaluates_only_samples_that_can_be_seen():
   for fn in fns.values():
     fn.calls = 0
   only_last = updater_lib.Updater(
-      collections.OrderedDict(every=observables['every']), n)
-  jaxpr = jax.make_jaxpr(lambda s, j: only_last.update(
-      s, physics, None, j, substep_bounds=(1, n - 1)))(
-          only_last.reset(physics), jnp.int32(1))
-  assert fns['every'].calls == 1   # Only by the reset above.
+      collections.OrderedDict(every=observables['every']), n
+  )
+  jaxpr = jax.make_jaxpr(
+      lambda s, j: only_last.update(
+          s, physics, None, j, substep_bounds=(1, n - 1)
+      )
+  )(only_last.reset(physics), jnp.int32(1))
+  assert fns['every'].calls == 1  # Only by the reset above.
   assert 'cond' not in str(jaxpr)
   # Without the hint, the last sub-step's branch exists but is the only one
   # evaluating the observable.
   jaxpr = jax.make_jaxpr(lambda s, j: only_last.update(s, physics, None, j))(
-      only_last.reset(physics), jnp.int32(1))
+      only_last.reset(physics), jnp.int32(1)
+  )
   assert 'cond' in str(jaxpr)
 
 

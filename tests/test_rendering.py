@@ -21,8 +21,12 @@ class _Bead(composer.Entity):
     spec = mujoco.MjSpec()
     spec.modelname = name
     self.geom = spec.worldbody.add_body(name='body').add_geom(
-        name='geom', type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.3, 0, 0],
-        contype=0, conaffinity=0)
+        name='geom',
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[0.3, 0, 0],
+        contype=0,
+        conaffinity=0,
+    )
     self._spec = spec
 
   @property
@@ -36,8 +40,13 @@ class _ColourTask(composer.Task):
   def __init__(self):
     self.arena = composer.Arena()
     self.arena.mjcf_model.worldbody.add_geom(
-        name='floor', type=mujoco.mjtGeom.mjGEOM_PLANE, size=[2, 2, 0.1],
-        rgba=[0.5, 0.5, 0.5, 1], contype=0, conaffinity=0)
+        name='floor',
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[2, 2, 0.1],
+        rgba=[0.5, 0.5, 0.5, 1],
+        contype=0,
+        conaffinity=0,
+    )
     self.bead = _Bead()
     self.arena.add_free_entity(self.bead)
 
@@ -52,10 +61,12 @@ class _ColourTask(composer.Task):
     colour_key, height_key = jax.random.split(key)
     colour = jax.random.randint(colour_key, (), 0, 3)
     physics = physics.bind(self.bead.geom).set(
-        rgba=jnp.asarray(_COLOURS)[colour])
+        rgba=jnp.asarray(_COLOURS)[colour]
+    )
     height = jax.random.uniform(height_key, (), minval=0.5, maxval=1.5)
-    physics = self.bead.set_pose(physics,
-                                 position=jnp.array([0., 0., 1.]) * height)
+    physics = self.bead.set_pose(
+        physics, position=jnp.array([0.0, 0.0, 1.0]) * height
+    )
     return physics.update_task_state(colour=colour)
 
   def get_reward(self, physics):
@@ -63,8 +74,9 @@ class _ColourTask(composer.Task):
 
 
 # Look straight down at the bead from above.
-_TOP_VIEW = dict(distance=4.0, azimuth=90.0, elevation=-90.0,
-                 lookat=[0., 0., 0.])
+_TOP_VIEW = dict(
+    distance=4.0, azimuth=90.0, elevation=-90.0, lookat=[0.0, 0.0, 0.0]
+)
 
 
 @pytest.fixture(scope='module')
@@ -84,19 +96,23 @@ def test_render_shapes_and_world_selection(env, states):
   assert one.shape == (48, 64, 3)
   np.testing.assert_array_equal(one, images[1])
   assert rendering.render(env, states, height=24, width=32).shape == (
-      6, 24, 32, 3)
+      6,
+      24,
+      32,
+      3,
+  )
   single = jax.tree.map(lambda x: x[2], states)
   np.testing.assert_array_equal(
-      rendering.render(env, single, height=48, width=64), one)
+      rendering.render(env, single, height=48, width=64), one
+  )
   with pytest.raises(IndexError, match='out of range'):
     rendering.render(env, states, worlds=[6])
 
 
 def test_each_world_is_drawn_with_its_own_model_fields(env, states):
-  assert 'geom_rgba' in states.model_fields   # varied per world
+  assert 'geom_rgba' in states.model_fields  # varied per world
   rgba_before = env.mj_model.geom_rgba.copy()
-  images = rendering.render(env, states, height=64, width=64,
-                            camera=_TOP_VIEW)
+  images = rendering.render(env, states, height=64, width=64, camera=_TOP_VIEW)
   colours = np.asarray(states.task_state['colour'])
   assert len(set(colours.tolist())) > 1, 'pick a seed with several colours'
   centre = images[:, 28:36, 28:36].reshape(len(colours), -1, 3).mean(axis=1)
@@ -118,12 +134,20 @@ def test_each_world_is_drawn_at_its_own_pose(env, states):
 
 
 def test_markers_are_drawn(env, states):
-  plain = rendering.render(env, states, worlds=0, height=64, width=64,
-                           camera=_TOP_VIEW)
+  plain = rendering.render(
+      env, states, worlds=0, height=64, width=64, camera=_TOP_VIEW
+  )
   marked = rendering.render(
-      env, states, worlds=0, height=64, width=64, camera=_TOP_VIEW,
-      markers=np.tile([[1.0, 0.0, 0.1]], (6, 1)), marker_radius=0.2,
-      marker_rgba=(1, 1, 0, 1))
+      env,
+      states,
+      worlds=0,
+      height=64,
+      width=64,
+      camera=_TOP_VIEW,
+      markers=np.tile([[1.0, 0.0, 0.1]], (6, 1)),
+      marker_radius=0.2,
+      marker_rgba=(1, 1, 0, 1),
+  )
   changed = np.any(plain != marked, axis=-1)
   assert 0 < changed.sum() < changed.size / 4
   yellow = marked[changed].astype(int)
@@ -132,18 +156,18 @@ def test_markers_are_drawn(env, states):
 
 def test_grid_png_and_gif(env, states, tmp_path):
   from PIL import Image  # pylint: disable=g-import-not-at-top
-  images = rendering.render(env, states, worlds=[0, 1, 2], height=20,
-                            width=30)
+
+  images = rendering.render(env, states, worlds=[0, 1, 2], height=20, width=30)
   grid = rendering.image_grid(images, columns=2, padding=1)
   assert grid.shape == (2 * 20 + 1, 2 * 30 + 1, 3)
-  np.testing.assert_array_equal(grid[21:, 31:], 255)   # the empty cell
-  np.testing.assert_array_equal(rendering.image_grid(images)[:, :30],
-                                images[0])
+  np.testing.assert_array_equal(grid[21:, 31:], 255)  # the empty cell
+  np.testing.assert_array_equal(rendering.image_grid(images)[:, :30], images[0])
   rendering.save_image(str(tmp_path / 'grid.png'), grid)
   np.testing.assert_array_equal(
-      np.asarray(Image.open(tmp_path / 'grid.png').convert('RGB')), grid)
+      np.asarray(Image.open(tmp_path / 'grid.png').convert('RGB')), grid
+  )
   frames = np.zeros((3, 20, 30, 3), np.uint8)
-  frames[np.arange(3), :, :, np.arange(3)] = 255   # red, green, blue
+  frames[np.arange(3), :, :, np.arange(3)] = 255  # red, green, blue
   rendering.save_gif(str(tmp_path / 'clip.gif'), frames, fps=10)
   with Image.open(tmp_path / 'clip.gif') as gif:
     assert gif.n_frames == 3 and gif.size == (30, 20)
@@ -164,12 +188,15 @@ def test_per_world_statistics_are_drawn(caplog):
   # Varying a geom size makes `stat` per world (the variator re-derives the
   # extent and centre); the render must take it, not warn and drop it.
   from mujoco import mjx  # pylint: disable=g-import-not-at-top
+
   model = mujoco.MjModel.from_xml_string(
-      '<mujoco><worldbody><geom size=".1"/></worldbody></mujoco>')
+      '<mujoco><worldbody><geom size=".1"/></worldbody></mujoco>'
+  )
   stat = mjx.put_model(model).stat.replace(
-      extent=np.float32(7.), center=np.array([1., 2., 3.], np.float32))
+      extent=np.float32(7.0), center=np.array([1.0, 2.0, 3.0], np.float32)
+  )
   with caplog.at_level('WARNING'):
     rendering._set_model_field(model, 'stat', stat)  # pylint: disable=protected-access
   assert not caplog.records
-  assert model.stat.extent == 7.
-  np.testing.assert_array_equal(model.stat.center, [1., 2., 3.])
+  assert model.stat.extent == 7.0
+  np.testing.assert_array_equal(model.stat.center, [1.0, 2.0, 3.0])

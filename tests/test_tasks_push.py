@@ -28,10 +28,21 @@ def _fresh_physics(env):
   state = composer.State(
       data=mjx.make_data(env.mjx_model),
       task_state=env.task.initial_task_state(),
-      model_fields={}, obs_state=None, observation=None, reward=zero,
-      discount=zero, step_type=zero, terminated=zero, truncated=zero,
-      final_observation=None, metrics={}, key=None, steps=zero,
-      episode_return=zero, persistent={})
+      model_fields={},
+      obs_state=None,
+      observation=None,
+      reward=zero,
+      discount=zero,
+      step_type=zero,
+      terminated=zero,
+      truncated=zero,
+      final_observation=None,
+      metrics={},
+      key=None,
+      steps=zero,
+      episode_return=zero,
+      persistent={},
+  )
   return env.physics(state)
 
 
@@ -45,22 +56,38 @@ def pushed():
   def start(keys):
     def one(key):
       placed = task.initialize_episode(physics, key)
-      return (placed.data.qpos, placed.model.site_pos,
-              placed.initialization_failed, task.get_metrics(placed),
-              task.get_reward(placed))
+      return (
+          placed.data.qpos,
+          placed.model.site_pos,
+          placed.initialization_failed,
+          task.get_metrics(placed),
+          task.get_reward(placed),
+      )
+
     return jax.vmap(one)(keys)
 
   qpos, site_pos, failed, metrics, reward = jax.tree.map(
-      np.asarray, start(jax.random.split(jax.random.key(0), _WORLDS)))
-  return task, env, dict(qpos=qpos, site_pos=site_pos, failed=failed,
-                         metrics=metrics, reward=reward)
+      np.asarray, start(jax.random.split(jax.random.key(0), _WORLDS))
+  )
+  return (
+      task,
+      env,
+      dict(
+          qpos=qpos,
+          site_pos=site_pos,
+          failed=failed,
+          metrics=metrics,
+          reward=reward,
+      ),
+  )
 
 
 def _box_positions(env, task, qpos):
   model = env.mj_model
-  adrs = [model.jnt_qposadr[model.body(f'{b.name}/').jntadr[0]]
-          for b in task.boxes]
-  return np.stack([qpos[:, a:a + 3] for a in adrs], axis=1)
+  adrs = [
+      model.jnt_qposadr[model.body(f'{b.name}/').jntadr[0]] for b in task.boxes
+  ]
+  return np.stack([qpos[:, a : a + 3] for a in adrs], axis=1)
 
 
 def test_boxes_never_start_in_collision(pushed):
@@ -69,14 +96,16 @@ def test_boxes_never_start_in_collision(pushed):
   assert not out['failed'].any()
   model = copy.deepcopy(env.mj_model)
   boxes = {model.geom(f'{b.name}/geom').id for b in task.boxes}
-  for world in range(_WORLDS):   # every world, checked by MuJoCo
+  for world in range(_WORLDS):  # every world, checked by MuJoCo
     model.site_pos[:] = out['site_pos'][world]
     data = mujoco.MjData(model)
     data.qpos[:] = out['qpos'][world]
     mujoco.mj_forward(model, data)
-    bad = [(model.geom(c.geom1).name, model.geom(c.geom2).name, c.dist)
-           for c in data.contact[:data.ncon]
-           if ({c.geom1, c.geom2} & boxes) and c.dist < -1e-6]
+    bad = [
+        (model.geom(c.geom1).name, model.geom(c.geom2).name, c.dist)
+        for c in data.contact[: data.ncon]
+        if ({c.geom1, c.geom2} & boxes) and c.dist < -1e-6
+    ]
     assert not bad, (world, bad)
   positions = _box_positions(env, task, out['qpos'])
   assert np.all(np.abs(positions[..., :2]) < 0.5)
@@ -93,14 +122,14 @@ def test_zone_moves_per_world_and_metrics_match(pushed):
   assert np.all((radii >= 0.25 - 1e-6) & (radii <= 0.4 + 1e-6))
   positions = _box_positions(env, task, out['qpos'])[..., :2]
   inside = np.all(np.abs(positions - centres[:, None]) < 0.1, axis=-1)
-  np.testing.assert_array_equal(out['metrics']['boxes_in_zone'],
-                                inside.sum(-1))
+  np.testing.assert_array_equal(out['metrics']['boxes_in_zone'], inside.sum(-1))
   assert inside.any()
   np.testing.assert_allclose(
       out['metrics']['distance'],
       np.linalg.norm(positions - centres[:, None], axis=-1).mean(-1),
-      rtol=1e-5)
-  assert np.all((out['reward'] >= 0.) & (out['reward'] <= 1.))
+      rtol=1e-5,
+  )
+  assert np.all((out['reward'] >= 0.0) & (out['reward'] <= 1.0))
 
 
 def test_baseline_placements():
@@ -113,11 +142,13 @@ def test_baseline_placements():
   ring = push.Push(placement='ring', num_boxes=3)
   env = composer.Environment(ring)
   physics = _fresh_physics(env)
-  qpos = jax.jit(jax.vmap(lambda k: ring.initialize_episode(physics, k)
-                          .data.qpos))(jax.random.split(jax.random.key(0), 4))
+  qpos = jax.jit(
+      jax.vmap(lambda k: ring.initialize_episode(physics, k).data.qpos)
+  )(jax.random.split(jax.random.key(0), 4))
   positions = _box_positions(env, ring, np.asarray(qpos))
-  np.testing.assert_allclose(np.linalg.norm(positions[..., :2], axis=-1), 0.3,
-                             atol=1e-5)
+  np.testing.assert_allclose(
+      np.linalg.norm(positions[..., :2], axis=-1), 0.3, atol=1e-5
+  )
   assert np.std(positions[:, 0, 0]) > 0.05
   with pytest.raises(ValueError, match='placement must be one of'):
     push.Push(placement='random')

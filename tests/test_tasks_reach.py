@@ -14,10 +14,12 @@ def reach_env():
 
 
 def test_every_world_draws_its_own_colours_masses_sizes_friction_and_gears(
-    reach_env):
+    reach_env,
+):
   worlds = 8
   states = jax.jit(jax.vmap(reach_env.reset))(
-      jax.random.split(jax.random.key(0), worlds))
+      jax.random.split(jax.random.key(0), worlds)
+  )
   model = reach_env.mj_model
   fields = states.model_fields
   ball = model.geom('ball/geom').id
@@ -36,18 +38,23 @@ def test_every_world_draws_its_own_colours_masses_sizes_friction_and_gears(
     values = np.asarray(values).reshape(worlds, -1)
     assert len(np.unique(values[:, 0])) == worlds, name
   # Multiplicative ranges around the compiled values.
-  np.testing.assert_array_less(np.abs(gears / model.actuator_gear[:, 0] - 1),
-                               0.2 + 1e-6)
+  np.testing.assert_array_less(
+      np.abs(gears / model.actuator_gear[:, 0] - 1), 0.2 + 1e-6
+  )
   radius = np.asarray(fields['geom_size'][:, ball, 0])
-  assert np.all((radius > 0.7 * model.geom_size[ball, 0] - 1e-6)
-                & (radius < 1.3 * model.geom_size[ball, 0] + 1e-6))
+  assert np.all(
+      (radius > 0.7 * model.geom_size[ball, 0] - 1e-6)
+      & (radius < 1.3 * model.geom_size[ball, 0] + 1e-6)
+  )
   # The ball is placed resting on the floor at its own (varied) radius.
   ball_body = model.body('ball/').id
   z = np.asarray(states.data.xpos[:, ball_body, 2])
   np.testing.assert_allclose(z, radius, rtol=1e-5)
   # Masses follow the varied densities through the compiler's geom inertia.
   upper_mass = np.asarray(fields['body_mass'][:, links[0]])
-  assert np.all(np.abs(upper_mass / model.body_mass[links[0]] - 1) <= 0.3 + 1e-5)
+  assert np.all(
+      np.abs(upper_mass / model.body_mass[links[0]] - 1) <= 0.3 + 1e-5
+  )
 
 
 def test_without_randomization_nothing_model_related_is_per_world():

@@ -26,7 +26,7 @@ from mjx_composer.variation import noises
 _J = mujoco.mjtJoint
 _G = mujoco.mjtGeom
 _COLORS = [[1, 0, 0, 1], [0, 1, 0, 1], [0, 0, 1, 1]]
-_K = 2   # the every-k schedule's interval
+_K = 2  # the every-k schedule's interval
 
 
 class Hinge(composer.Robot):
@@ -35,17 +35,31 @@ class Hinge(composer.Robot):
     spec = mujoco.MjSpec()
     spec.modelname = name
     body = spec.worldbody.add_body(name='rod', pos=[0, 0, 1])
-    self.joint = body.add_joint(name='hinge', type=_J.mjJNT_HINGE,
-                                axis=[0, 1, 0], damping=0.5, range=[-90, 90],
-                                frictionloss=0.01)
-    self.geom = body.add_geom(name='rod', type=_G.mjGEOM_CAPSULE,
-                              size=[0.02, 0, 0], fromto=[0, 0, 0, 0, 0, -0.5],
-                              contype=0, conaffinity=0)
-    self.motor = spec.add_actuator(name='motor', target='hinge',
-                                   trntype=mujoco.mjtTrn.mjTRN_JOINT,
-                                   ctrlrange=[-1, 1])
-    self.unlimited = body.add_joint(name='free_spin', type=_J.mjJNT_HINGE,
-                                    axis=[1, 0, 0])
+    self.joint = body.add_joint(
+        name='hinge',
+        type=_J.mjJNT_HINGE,
+        axis=[0, 1, 0],
+        damping=0.5,
+        range=[-90, 90],
+        frictionloss=0.01,
+    )
+    self.geom = body.add_geom(
+        name='rod',
+        type=_G.mjGEOM_CAPSULE,
+        size=[0.02, 0, 0],
+        fromto=[0, 0, 0, 0, 0, -0.5],
+        contype=0,
+        conaffinity=0,
+    )
+    self.motor = spec.add_actuator(
+        name='motor',
+        target='hinge',
+        trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        ctrlrange=[-1, 1],
+    )
+    self.unlimited = body.add_joint(
+        name='free_spin', type=_J.mjJNT_HINGE, axis=[1, 0, 0]
+    )
     self._spec = spec
 
   @property
@@ -63,8 +77,9 @@ class Ball(composer.Entity):
     spec = mujoco.MjSpec()
     spec.modelname = name
     self.body = spec.worldbody.add_body(name='body')
-    self.geom = self.body.add_geom(name='geom', type=_G.mjGEOM_SPHERE,
-                                   size=[0.05, 0, 0], density=400)
+    self.geom = self.body.add_geom(
+        name='geom', type=_G.mjGEOM_SPHERE, size=[0.05, 0, 0], density=400
+    )
     self._spec = spec
 
   @property
@@ -90,19 +105,25 @@ class VariedTask(composer.Task):
     # Per episode: a stateful Sequence of colours and a derived size.
     self.per_episode = variation.MJCFVariator()
     self.per_episode.bind_attributes(
-        self.ball.geom, rgba=deterministic.Sequence(_COLORS),
-        size=distributions.Uniform([0.03, 0, 0], [0.08, 0, 0]))
+        self.ball.geom,
+        rgba=deterministic.Sequence(_COLORS),
+        size=distributions.Uniform([0.03, 0, 0], [0.08, 0, 0]),
+    )
     # Once per world: friction.
     self.once = variation.MJCFVariator(
-        schedule=variation.Schedule.once_per_world())
+        schedule=variation.Schedule.once_per_world()
+    )
     self.once.bind_attributes(
-        self.ball.geom, friction=distributions.Uniform([0.5, 0.001, 1e-4],
-                                                       [1.5, 0.01, 1e-3]))
+        self.ball.geom,
+        friction=distributions.Uniform([0.5, 0.001, 1e-4], [1.5, 0.01, 1e-3]),
+    )
     # Every k steps: cumulative damping, doubled at each draw.
     self.every = variation.MJCFVariator(
-        schedule=variation.Schedule.every_steps(_K))
+        schedule=variation.Schedule.every_steps(_K)
+    )
     self.every.bind_attributes(
-        self.hinge.joint, damping=noises.Multiplicative(2.0, cumulative=True))
+        self.hinge.joint, damping=noises.Multiplicative(2.0, cumulative=True)
+    )
 
   @property
   def root_entity(self):
@@ -131,8 +152,9 @@ _EPISODE_STEPS = 3
 def rollout():
   """Two worlds, 3-step episodes with same-step auto-reset, 8 steps."""
   task = VariedTask()
-  env = composer.Environment(task, time_limit=_EPISODE_STEPS * 0.01,
-                             auto_reset='same_step')
+  env = composer.Environment(
+      task, time_limit=_EPISODE_STEPS * 0.01, auto_reset='same_step'
+  )
   keys = jax.random.split(jax.random.key(0), _N_WORLDS)
 
   @jax.jit
@@ -158,11 +180,27 @@ def _field(state, name, index):
 def _check_only_varied_fields_are_per_world(rollout):
   fields = set(rollout['first'].model_fields)
   # rgba, friction, damping, and what a sphere's size derives.
-  assert {'geom_rgba', 'geom_friction', 'dof_damping', 'geom_size',
-          'geom_rbound', 'geom_aabb', 'body_mass', 'body_inertia',
-          'body_subtreemass', 'dof_invweight0'} <= fields
-  assert not fields & {'geom_pos', 'geom_solref', 'jnt_range', 'body_pos',
-                       'actuator_gear', 'opt', 'cam_pos0'}
+  assert {
+      'geom_rgba',
+      'geom_friction',
+      'dof_damping',
+      'geom_size',
+      'geom_rbound',
+      'geom_aabb',
+      'body_mass',
+      'body_inertia',
+      'body_subtreemass',
+      'dof_invweight0',
+  } <= fields
+  assert not fields & {
+      'geom_pos',
+      'geom_solref',
+      'jnt_range',
+      'body_pos',
+      'actuator_gear',
+      'opt',
+      'cam_pos0',
+  }
 
 
 def _check_per_episode_sequence_advances_at_every_auto_reset(rollout):
@@ -171,10 +209,11 @@ def _check_per_episode_sequence_advances_at_every_auto_reset(rollout):
   geom = env.mj_model.geom('ball/geom').id
   # Episode e of every world shows colour e (mod 3): the Sequence state
   # lives in the world's persistent entry, so auto-resets advance it.
-  np.testing.assert_array_equal(_field(first, 'geom_rgba', geom),
-                                [_COLORS[0]] * _N_WORLDS)
+  np.testing.assert_array_equal(
+      _field(first, 'geom_rgba', geom), [_COLORS[0]] * _N_WORLDS
+  )
   episodes = (np.arange(1, _STEPS + 1)) // _EPISODE_STEPS
-  rgba = _field(trajectory, 'geom_rgba', geom)          # (T, worlds, 4)
+  rgba = _field(trajectory, 'geom_rgba', geom)  # (T, worlds, 4)
   for t, episode in enumerate(episodes):
     np.testing.assert_array_equal(rgba[t], [_COLORS[episode % 3]] * _N_WORLDS)
   # Sizes are fresh each episode and stay within the distribution.
@@ -189,8 +228,8 @@ def _check_derived_fields_follow_the_size_and_match_a_recompile(rollout):
   body = env.mj_model.body('ball/body').id
   radius = _field(first, 'geom_size', geom)[:, 0]
   np.testing.assert_allclose(
-      np.asarray(first.model_fields['geom_rbound'])[:, geom], radius,
-      rtol=1e-6)
+      np.asarray(first.model_fields['geom_rbound'])[:, geom], radius, rtol=1e-6
+  )
   mass = np.asarray(first.model_fields['body_mass'])[:, body]
   np.testing.assert_allclose(mass, 400 * 4 / 3 * np.pi * radius**3, rtol=1e-5)
   # World 0 against the spec recompiled with its sampled attribute values.
@@ -206,22 +245,25 @@ def _check_derived_fields_follow_the_size_and_match_a_recompile(rollout):
     geom_handle.rgba, geom_handle.size = saved
   for name, value in first.model_fields.items():
     if name in ('geom_friction', 'dof_damping'):
-      continue   # varied by the other variators
-    for mine, theirs in zip(jax.tree.leaves(value),
-                            jax.tree.leaves(getattr(reference, name))):
-      np.testing.assert_allclose(np.asarray(mine)[0], theirs, rtol=1e-5,
-                                 atol=1e-6, err_msg=name)
+      continue  # varied by the other variators
+    for mine, theirs in zip(
+        jax.tree.leaves(value), jax.tree.leaves(getattr(reference, name))
+    ):
+      np.testing.assert_allclose(
+          np.asarray(mine)[0], theirs, rtol=1e-5, atol=1e-6, err_msg=name
+      )
 
 
 def _check_once_per_world_keeps_values_across_auto_resets(rollout):
   env, first = rollout['env'], rollout['first']
   trajectory = rollout['trajectory']
   geom = env.mj_model.geom('ball/geom').id
-  friction0 = _field(first, 'geom_friction', geom)       # (worlds, 3)
-  friction = _field(trajectory, 'geom_friction', geom)   # (T, worlds, 3)
-  np.testing.assert_array_equal(friction, np.broadcast_to(friction0,
-                                                          friction.shape))
-  assert not np.allclose(friction0[0], friction0[1])     # per world
+  friction0 = _field(first, 'geom_friction', geom)  # (worlds, 3)
+  friction = _field(trajectory, 'geom_friction', geom)  # (T, worlds, 3)
+  np.testing.assert_array_equal(
+      friction, np.broadcast_to(friction0, friction.shape)
+  )
+  assert not np.allclose(friction0[0], friction0[1])  # per world
   assert not np.allclose(friction0[0], [1, 0.005, 1e-4])  # really drawn
 
 
@@ -240,15 +282,18 @@ def _check_every_k_steps_draws_and_reset_restarts_the_count(rollout):
     if in_episode > 0 and in_episode % _K == 0:
       value *= 2
     in_episode += 1
-    if in_episode == _EPISODE_STEPS:      # same-step auto-reset draws
+    if in_episode == _EPISODE_STEPS:  # same-step auto-reset draws
       value *= 2
       in_episode = 0
     expected.append(value)
   np.testing.assert_allclose(damping, expected)
-  counts = np.asarray(trajectory.persistent[
-      rollout['task'].every.persistent_name]['count'])[:, 0]
-  assert counts.tolist() == [0 if (t + 1) % _EPISODE_STEPS == 0 else
-                             (t + 1) % _EPISODE_STEPS for t in range(_STEPS)]
+  counts = np.asarray(
+      trajectory.persistent[rollout['task'].every.persistent_name]['count']
+  )[:, 0]
+  assert counts.tolist() == [
+      0 if (t + 1) % _EPISODE_STEPS == 0 else (t + 1) % _EPISODE_STEPS
+      for t in range(_STEPS)
+  ]
 
 
 def test_schedules_state_and_derived_fields_across_auto_resets(rollout):
@@ -294,7 +339,8 @@ def test_structural_attributes_are_refused_with_reasons():
   mesh_spec = mujoco.MjSpec()
   mesh_spec.add_mesh(name='m', uservert=[0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1])
   mesh_geom = mesh_spec.worldbody.add_body().add_geom(
-      type=_G.mjGEOM_MESH, meshname='m')
+      type=_G.mjGEOM_MESH, meshname='m'
+  )
   with pytest.raises(ValueError, match='re-meshing'):
     variator.bind_attributes(mesh_geom, size=[1, 1, 1])
   assert not variator.bindings
@@ -305,15 +351,19 @@ def test_shape_mismatch_at_bind_time():
   variator = variation.MJCFVariator()
   with pytest.raises(ValueError, match=r'shape \(2,\).*shape \(3,\)'):
     variator.bind_attributes(ball.geom, size=[0.1, 0.2])
-  with pytest.raises(ValueError, match=r'rgba cannot give a value for an '
-                     r'attribute of shape \(4,\)'):
-    variator.bind_attributes(ball.geom,
-                             rgba=distributions.Uniform(np.zeros(5), 1))
+  with pytest.raises(
+      ValueError,
+      match=r'rgba cannot give a value for an ' r'attribute of shape \(4,\)',
+  ):
+    variator.bind_attributes(
+        ball.geom, rgba=distributions.Uniform(np.zeros(5), 1)
+    )
   with pytest.raises(ValueError, match=r'rgba gives values of shape \(3,\)'):
     variator.bind_attributes(
-        ball.geom, rgba=lambda initial, current, key: jnp.ones(3))
+        ball.geom, rgba=lambda initial, current, key: jnp.ones(3)
+    )
   # Scalars broadcast, like composer's attribute assignment.
-  variator.bind_attributes(ball.geom, friction=distributions.Uniform(0.5, 1.))
+  variator.bind_attributes(ball.geom, friction=distributions.Uniform(0.5, 1.0))
   # `None` unbinds.
   variator.bind_attributes(ball.geom, friction=None)
   assert not variator.bindings
@@ -328,7 +378,8 @@ class _OneVariatorTask(composer.Task):
   def __init__(self, bind, schedule=None):
     self.arena = composer.Arena()
     self.arena.mjcf_model.worldbody.add_geom(
-        name='floor', type=_G.mjGEOM_PLANE, size=[2, 2, 0.1])
+        name='floor', type=_G.mjGEOM_PLANE, size=[2, 2, 0.1]
+    )
     self.hinge = Hinge()
     self.arena.attach(self.hinge)
     self.ball = Ball()
@@ -356,18 +407,26 @@ def _trace_reset(task, in_step=False):
   env = composer.Environment(task)
   model = env.mjx_model
   physics = physics_lib.Physics(
-      model=model, data=mjx.make_data(model), task_state={},
-      index=env._index, persistent={})  # pylint: disable=protected-access
+      model=model,
+      data=mjx.make_data(model),
+      task_state={},
+      index=env._index,
+      persistent={},
+  )  # pylint: disable=protected-access
   apply = functools.partial(task.variator.apply_variations, in_step=in_step)
   return jax.eval_shape(apply, physics, jax.random.key(0))
 
 
 def test_element_not_in_the_composed_model_names_it_and_says_attach():
   stray = Ball(name='stray')
-  task = _OneVariatorTask(lambda t, v: v.bind_attributes(
-      stray.geom, rgba=[1, 0, 0, 1]))
-  with pytest.raises(ValueError, match=r"MjsGeom\('geom'\).*not part of the "
-                     r'compiled model.*attach its entity'):
+  task = _OneVariatorTask(
+      lambda t, v: v.bind_attributes(stray.geom, rgba=[1, 0, 0, 1])
+  )
+  with pytest.raises(
+      ValueError,
+      match=r"MjsGeom\('geom'\).*not part of the "
+      r'compiled model.*attach its entity',
+  ):
     _trace_reset(task)
 
 
@@ -377,9 +436,11 @@ def test_simple_body_refuses_moving_its_inertial_frame():
   def bind(task, variator):
     body = task.arena.mjcf_model.worldbody.add_body(name='cart')
     body.add_joint(name='x', type=_J.mjJNT_SLIDE, axis=[1, 0, 0])
-    task.cart_geom = body.add_geom(name='cart', type=_G.mjGEOM_BOX,
-                                   size=[0.1, 0.1, 0.1])
+    task.cart_geom = body.add_geom(
+        name='cart', type=_G.mjGEOM_BOX, size=[0.1, 0.1, 0.1]
+    )
     variator.bind_attributes(task.cart_geom, pos=[0.1, 0, 0])
+
   task = _OneVariatorTask(bind)
   with pytest.raises(ValueError, match='simple.*`simple = 0`'):
     _trace_reset(task)
@@ -397,19 +458,22 @@ def test_option_not_of_the_root_spec_is_refused():
   def bind(task, variator):
     del task
     variator.bind_attributes(stray.option, gravity=[0, 0, -5])
+
   with pytest.raises(ValueError, match="root entity's `mjcf_model.option`"):
     _trace_reset(_OneVariatorTask(bind))
 
 
 def test_in_step_call_needs_the_every_steps_schedule():
   task = _OneVariatorTask(
-      lambda t, v: v.bind_attributes(t.ball.geom, rgba=[1, 0, 0, 1]))
+      lambda t, v: v.bind_attributes(t.ball.geom, rgba=[1, 0, 0, 1])
+  )
   with pytest.raises(ValueError, match='only applies to Schedule.every_steps'):
     _trace_reset(task, in_step=True)
   # The in-step call of an every-k variator needs the reset call's counter.
   task = _OneVariatorTask(
       lambda t, v: v.bind_attributes(t.ball.geom, rgba=[1, 0, 0, 1]),
-      schedule=variation.Schedule.every_steps(2))
+      schedule=variation.Schedule.every_steps(2),
+  )
   with pytest.raises(ValueError, match='from initialize_episode as well'):
     _trace_reset(task, in_step=True)
 

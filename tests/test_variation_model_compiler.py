@@ -44,58 +44,109 @@ class Arm(composer.Robot):
     spec.modelname = 'arm'
     base = spec.worldbody.add_body(name='base', pos=[0, 0, 0.1])
     self.shoulder = base.add_joint(
-        name='shoulder', type=_J.mjJNT_HINGE, axis=[0, 1, 0], range=[-60, 60],
-        damping=0.5, armature=0.01, frictionloss=0.05)
-    self.rod = base.add_geom(name='rod', type=_G.mjGEOM_CAPSULE,
-                             size=[0.03, 0, 0], fromto=[0, 0, 0, 0.3, 0, 0],
-                             contype=0, conaffinity=0)
-    self.box = base.add_geom(name='box', type=_G.mjGEOM_BOX,
-                             size=[0.05, 0.04, 0.03], pos=[0, 0, 0.05],
-                             quat=[0.9, 0.1, 0.2, 0.3], contype=0,
-                             conaffinity=0)
+        name='shoulder',
+        type=_J.mjJNT_HINGE,
+        axis=[0, 1, 0],
+        range=[-60, 60],
+        damping=0.5,
+        armature=0.01,
+        frictionloss=0.05,
+    )
+    self.rod = base.add_geom(
+        name='rod',
+        type=_G.mjGEOM_CAPSULE,
+        size=[0.03, 0, 0],
+        fromto=[0, 0, 0, 0.3, 0, 0],
+        contype=0,
+        conaffinity=0,
+    )
+    self.box = base.add_geom(
+        name='box',
+        type=_G.mjGEOM_BOX,
+        size=[0.05, 0.04, 0.03],
+        pos=[0, 0, 0.05],
+        quat=[0.9, 0.1, 0.2, 0.3],
+        contype=0,
+        conaffinity=0,
+    )
     self.base_site = base.add_site(name='base_site', pos=[0.05, 0, 0.02])
     base.add_light(name='lamp', pos=[0, 0, 1], dir=[0, 0.3, -1])
-    upper = base.add_body(name='upper', pos=[0.3, 0, 0],
-                          quat=[0.95, 0, 0.3, 0.1])
+    upper = base.add_body(
+        name='upper', pos=[0.3, 0, 0], quat=[0.95, 0, 0.3, 0.1]
+    )
     self.upper = upper
-    self.slide = upper.add_joint(name='slide', type=_J.mjJNT_SLIDE,
-                                 axis=[1, 0, 0], range=[-0.1, 0.1],
-                                 stiffness=2.0, damping=0.2)
-    self.knob = upper.add_geom(name='knob', type=_G.mjGEOM_SPHERE,
-                               size=[0.04, 0, 0], density=500, contype=0,
-                               conaffinity=0)
+    self.slide = upper.add_joint(
+        name='slide',
+        type=_J.mjJNT_SLIDE,
+        axis=[1, 0, 0],
+        range=[-0.1, 0.1],
+        stiffness=2.0,
+        damping=0.2,
+    )
+    self.knob = upper.add_geom(
+        name='knob',
+        type=_G.mjGEOM_SPHERE,
+        size=[0.04, 0, 0],
+        density=500,
+        contype=0,
+        conaffinity=0,
+    )
     frame = upper.add_frame(pos=[0.1, 0, 0.02], quat=[0.7, 0.7, 0, 0])
-    self.cyl = frame.add_geom(name='cyl', type=_G.mjGEOM_CYLINDER,
-                              size=[0.02, 0.06, 0], pos=[0.02, 0, 0],
-                              mass=0.3, contype=0, conaffinity=0)
+    self.cyl = frame.add_geom(
+        name='cyl',
+        type=_G.mjGEOM_CYLINDER,
+        size=[0.02, 0.06, 0],
+        pos=[0.02, 0, 0],
+        mass=0.3,
+        contype=0,
+        conaffinity=0,
+    )
     self.upper_site = upper.add_site(name='upper_site', pos=[0.1, 0.02, 0])
     upper.add_camera(name='cam', pos=[0.2, 0, 0.3])
     wrist = upper.add_body(name='wrist', pos=[0.2, 0, 0])
     self.wrist = wrist
-    self.ball_joint = wrist.add_joint(name='wristball', type=_J.mjJNT_BALL,
-                                      range=[0, 45], damping=0.1,
-                                      armature=0.002)
+    self.ball_joint = wrist.add_joint(
+        name='wristball',
+        type=_J.mjJNT_BALL,
+        range=[0, 45],
+        damping=0.1,
+        armature=0.002,
+    )
     wrist.mass = 0.4
     wrist.ipos = [0.01, 0.0, 0.02]
     wrist.inertia = [0.003, 0.0025, 0.002]
     wrist.iquat = [1, 0.2, 0, 0]
     wrist.explicitinertial = True
-    self.ell = wrist.add_geom(name='ell', type=_G.mjGEOM_ELLIPSOID,
-                              size=[0.03, 0.02, 0.05], contype=0,
-                              conaffinity=0)
-    self.servo = spec.add_actuator(name='servo', target='shoulder',
-                                   trntype=mujoco.mjtTrn.mjTRN_JOINT)
+    self.ell = wrist.add_geom(
+        name='ell',
+        type=_G.mjGEOM_ELLIPSOID,
+        size=[0.03, 0.02, 0.05],
+        contype=0,
+        conaffinity=0,
+    )
+    self.servo = spec.add_actuator(
+        name='servo', target='shoulder', trntype=mujoco.mjtTrn.mjTRN_JOINT
+    )
     self.servo.set_to_position(kp=20, dampratio=1.0)
     self.servo.ctrlrange = [-1, 1]
     self.motor = spec.add_actuator(
-        name='motor', target='slide', trntype=mujoco.mjtTrn.mjTRN_JOINT,
-        gear=[2, 0, 0, 0, 0, 0], ctrlrange=[-1, 1], forcerange=[-5, 5])
+        name='motor',
+        target='slide',
+        trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        gear=[2, 0, 0, 0, 0, 0],
+        ctrlrange=[-1, 1],
+        forcerange=[-5, 5],
+    )
     self.site_servo = spec.add_actuator(
-        name='site_servo', target='upper_site',
-        trntype=mujoco.mjtTrn.mjTRN_SITE, gear=[0, 0, 1, 0, 0, 0])
+        name='site_servo',
+        target='upper_site',
+        trntype=mujoco.mjtTrn.mjTRN_SITE,
+        gear=[0, 0, 1, 0, 0, 0],
+    )
     self.site_servo.set_to_position(kp=3, kv=0.2)
-    tendon = spec.add_tendon(name='tendon', stiffness=1.0,
-                             springlength=[-1, -1])
+    tendon = spec.add_tendon(
+        name='tendon', stiffness=1.0, springlength=[-1, -1]
+    )
     tendon.wrap_site('base_site')
     tendon.wrap_site('upper_site')
     self._spec = spec
@@ -117,11 +168,21 @@ class Prop(composer.Entity):
     spec.modelname = 'prop'
     body = spec.worldbody.add_body(name='body')
     self.body = body
-    self.sphere = body.add_geom(name='sphere', type=_G.mjGEOM_SPHERE,
-                                size=[0.05, 0, 0], mass=0.2, **_FLOOR_ONLY)
-    self.cube = body.add_geom(name='cube', type=_G.mjGEOM_BOX,
-                              size=[0.03, 0.03, 0.03], pos=[0.06, 0.01, 0],
-                              density=800, **_FLOOR_ONLY)
+    self.sphere = body.add_geom(
+        name='sphere',
+        type=_G.mjGEOM_SPHERE,
+        size=[0.05, 0, 0],
+        mass=0.2,
+        **_FLOOR_ONLY,
+    )
+    self.cube = body.add_geom(
+        name='cube',
+        type=_G.mjGEOM_BOX,
+        size=[0.03, 0.03, 0.03],
+        pos=[0.06, 0.01, 0],
+        density=800,
+        **_FLOOR_ONLY,
+    )
     self._spec = spec
 
   @property
@@ -137,14 +198,19 @@ class Slider(composer.Entity):
     spec = mujoco.MjSpec()
     spec.modelname = 'slider'
     # In the entity's worldbody: compiled into its attachment frame body.
-    self.rail = spec.worldbody.add_geom(name='rail', type=_G.mjGEOM_BOX,
-                                        size=[0.5, 0.02, 0.01],
-                                        pos=[0, 0.5, 0.15], **_FLOOR_ONLY)
+    self.rail = spec.worldbody.add_geom(
+        name='rail',
+        type=_G.mjGEOM_BOX,
+        size=[0.5, 0.02, 0.01],
+        pos=[0, 0.5, 0.15],
+        **_FLOOR_ONLY,
+    )
     body = spec.worldbody.add_body(name='carriage', pos=[0, 0.5, 0.2])
     body.add_joint(name='x', type=_J.mjJNT_SLIDE, axis=[1, 0, 0])
     self.body = body
-    self.puck = body.add_geom(name='puck', type=_G.mjGEOM_BOX,
-                              size=[0.05, 0.05, 0.02], **_FLOOR_ONLY)
+    self.puck = body.add_geom(
+        name='puck', type=_G.mjGEOM_BOX, size=[0.05, 0.05, 0.02], **_FLOOR_ONLY
+    )
     self._spec = spec
 
   @property
@@ -163,14 +229,19 @@ class SceneTask(composer.Task):
     spec.option.viscosity = 2e-5
     spec.option.wind = [0.1, 0, 0]
     world = spec.worldbody
-    self.floor = world.add_geom(name='floor', type=_G.mjGEOM_PLANE,
-                                size=[2, 2, 0.1])
+    self.floor = world.add_geom(
+        name='floor', type=_G.mjGEOM_PLANE, size=[2, 2, 0.1]
+    )
     world.add_camera(name='overview', pos=[0, -2, 1], quat=[0.8, 0.6, 0, 0])
-    world.add_camera(name='tracker', pos=[1, 0, 1],
-                     mode=mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODYCOM,
-                     targetbody='prop/body')
-    mount = world.add_site(name='mount', pos=[0.1, -0.2, 0.3],
-                           quat=[0.9, 0, 0, 0.43])
+    world.add_camera(
+        name='tracker',
+        pos=[1, 0, 1],
+        mode=mujoco.mjtCamLight.mjCAMLIGHT_TARGETBODYCOM,
+        targetbody='prop/body',
+    )
+    mount = world.add_site(
+        name='mount', pos=[0.1, -0.2, 0.3], quat=[0.9, 0, 0, 0.43]
+    )
     self.arm = Arm()
     arena.attach(self.arm, mount)
     self.prop = Prop()
@@ -178,12 +249,21 @@ class SceneTask(composer.Task):
     self.prop.attachment_frame.pos = [0.5, 0.3, 0.2]
     self.slider = Slider()
     arena.attach(self.slider)
-    spec.add_equality(type=mujoco.mjtEq.mjEQ_CONNECT, name1='arm/wrist',
-                      name2='prop/body', objtype=mujoco.mjtObj.mjOBJ_BODY,
-                      data=[0.01, 0, 0] + [0] * 9, active=False)
-    spec.add_equality(type=mujoco.mjtEq.mjEQ_WELD, name1='arm/upper',
-                      name2='slider/carriage',
-                      objtype=mujoco.mjtObj.mjOBJ_BODY, active=False)
+    spec.add_equality(
+        type=mujoco.mjtEq.mjEQ_CONNECT,
+        name1='arm/wrist',
+        name2='prop/body',
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        data=[0.01, 0, 0] + [0] * 9,
+        active=False,
+    )
+    spec.add_equality(
+        type=mujoco.mjtEq.mjEQ_WELD,
+        name1='arm/upper',
+        name2='slider/carriage',
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        active=False,
+    )
 
   @property
   def root_entity(self):
@@ -198,35 +278,80 @@ def _groups(task):
   arm, prop, slider = task.arm, task.prop, task.slider
   option = task.arena.mjcf_model.option
   return {
-      'geom_size': [(arm.box, 'size'), (arm.rod, 'size'), (arm.cyl, 'size'),
-                    (arm.knob, 'size'), (arm.ell, 'size'),
-                    (prop.sphere, 'size'), (slider.puck, 'size'),
-                    (slider.rail, 'size'), (task.floor, 'size')],
-      'geom_mass': [(arm.cyl, 'mass'), (arm.knob, 'density'),
-                    (prop.cube, 'density'), (prop.sphere, 'mass')],
-      'geom_pose': [(prop.cube, 'pos'), (prop.cube, 'quat'), (arm.box, 'pos'),
-                    (arm.box, 'quat'), (slider.rail, 'pos')],
-      'geom_contact': [(prop.sphere, 'rgba'), (prop.sphere, 'friction'),
-                       (prop.sphere, 'solref'), (prop.sphere, 'solimp'),
-                       (arm.box, 'rgba')],
-      'body_inertial': [(arm.wrist, 'mass'), (arm.wrist, 'inertia'),
-                        (arm.wrist, 'ipos'), (arm.wrist, 'iquat')],
-      'body_pose': [(arm.upper, 'pos'), (arm.upper, 'quat'),
-                    (prop.attachment_frame, 'pos'),
-                    (prop.attachment_frame, 'quat'),
-                    (slider.attachment_frame, 'pos'),
-                    (slider.attachment_frame, 'quat')],
-      'site_pose': [(arm.upper_site, 'pos'), (arm.upper_site, 'quat'),
-                    (arm.base_site, 'pos')],
-      'joint': [(arm.shoulder, 'damping'), (arm.slide, 'stiffness'),
-                (arm.shoulder, 'armature'), (arm.ball_joint, 'armature'),
-                (arm.shoulder, 'frictionloss'), (arm.shoulder, 'range'),
-                (arm.ball_joint, 'range'), (arm.slide, 'range')],
-      'actuator': [(arm.motor, 'gear'), (arm.site_servo, 'gear'),
-                   (arm.motor, 'ctrlrange'), (arm.motor, 'forcerange'),
-                   (arm.servo, 'kp'), (arm.site_servo, 'kv')],
-      'option': [(option, 'gravity'), (option, 'wind'), (option, 'density'),
-                 (option, 'viscosity')],
+      'geom_size': [
+          (arm.box, 'size'),
+          (arm.rod, 'size'),
+          (arm.cyl, 'size'),
+          (arm.knob, 'size'),
+          (arm.ell, 'size'),
+          (prop.sphere, 'size'),
+          (slider.puck, 'size'),
+          (slider.rail, 'size'),
+          (task.floor, 'size'),
+      ],
+      'geom_mass': [
+          (arm.cyl, 'mass'),
+          (arm.knob, 'density'),
+          (prop.cube, 'density'),
+          (prop.sphere, 'mass'),
+      ],
+      'geom_pose': [
+          (prop.cube, 'pos'),
+          (prop.cube, 'quat'),
+          (arm.box, 'pos'),
+          (arm.box, 'quat'),
+          (slider.rail, 'pos'),
+      ],
+      'geom_contact': [
+          (prop.sphere, 'rgba'),
+          (prop.sphere, 'friction'),
+          (prop.sphere, 'solref'),
+          (prop.sphere, 'solimp'),
+          (arm.box, 'rgba'),
+      ],
+      'body_inertial': [
+          (arm.wrist, 'mass'),
+          (arm.wrist, 'inertia'),
+          (arm.wrist, 'ipos'),
+          (arm.wrist, 'iquat'),
+      ],
+      'body_pose': [
+          (arm.upper, 'pos'),
+          (arm.upper, 'quat'),
+          (prop.attachment_frame, 'pos'),
+          (prop.attachment_frame, 'quat'),
+          (slider.attachment_frame, 'pos'),
+          (slider.attachment_frame, 'quat'),
+      ],
+      'site_pose': [
+          (arm.upper_site, 'pos'),
+          (arm.upper_site, 'quat'),
+          (arm.base_site, 'pos'),
+      ],
+      'joint': [
+          (arm.shoulder, 'damping'),
+          (arm.slide, 'stiffness'),
+          (arm.shoulder, 'armature'),
+          (arm.ball_joint, 'armature'),
+          (arm.shoulder, 'frictionloss'),
+          (arm.shoulder, 'range'),
+          (arm.ball_joint, 'range'),
+          (arm.slide, 'range'),
+      ],
+      'actuator': [
+          (arm.motor, 'gear'),
+          (arm.site_servo, 'gear'),
+          (arm.motor, 'ctrlrange'),
+          (arm.motor, 'forcerange'),
+          (arm.servo, 'kp'),
+          (arm.site_servo, 'kv'),
+      ],
+      'option': [
+          (option, 'gravity'),
+          (option, 'wind'),
+          (option, 'density'),
+          (option, 'viscosity'),
+      ],
   }
 
 
@@ -241,7 +366,7 @@ def _perturb(rng, value, attr, scale=1.0):
     return value * (1 + scale * rng.uniform(-0.3, 0.3))
   if attr in ('gravity', 'wind'):
     return value + scale * rng.uniform(-1, 1, value.shape)
-  if attr == 'inertia':   # keep the triangle inequality
+  if attr == 'inertia':  # keep the triangle inequality
     return value * (1 + scale * rng.uniform(-0.1, 0.1, value.shape))
   if attr == 'rgba':
     return rng.uniform(0, 1, value.shape)
@@ -257,23 +382,37 @@ def scene():
   bindings = [(e, a, g) for g, items in groups.items() for e, a in items]
   compiler = model_compiler.ModelCompiler(
       env._index,  # pylint: disable=protected-access
-      [(e, a, f'{g}:{a}') for e, a, g in bindings])
-  defaults = [model_compiler.spec_value(e, model_compiler.kind_of(e), a)
-              for e, a, _ in bindings]
+      [(e, a, f'{g}:{a}') for e, a, g in bindings],
+  )
+  defaults = [
+      model_compiler.spec_value(e, model_compiler.kind_of(e), a)
+      for e, a, _ in bindings
+  ]
   rng = np.random.RandomState(0)
   worlds = {'defaults': list(defaults)}
   for group in groups:
-    worlds[group] = [_perturb(rng, v, a) if g == group else v
-                     for v, (_, a, g) in zip(defaults, bindings)]
-  worlds['all'] = [_perturb(rng, v, a) for v, (_, a, _) in zip(defaults,
-                                                                bindings)]
+    worlds[group] = [
+        _perturb(rng, v, a) if g == group else v
+        for v, (_, a, g) in zip(defaults, bindings)
+    ]
+  worlds['all'] = [
+      _perturb(rng, v, a) for v, (_, a, _) in zip(defaults, bindings)
+  ]
   names = list(worlds)
-  values = [jnp.asarray(np.stack([worlds[n][i] for n in names]), jnp.float32)
-            for i in range(len(bindings))]
-  fields = jax.jit(jax.vmap(compiler, in_axes=(None, 0)))(env.mjx_model,
-                                                          values)
-  return dict(task=task, env=env, bindings=bindings, worlds=worlds,
-              names=names, fields=fields, compiler=compiler)
+  values = [
+      jnp.asarray(np.stack([worlds[n][i] for n in names]), jnp.float32)
+      for i in range(len(bindings))
+  ]
+  fields = jax.jit(jax.vmap(compiler, in_axes=(None, 0)))(env.mjx_model, values)
+  return dict(
+      task=task,
+      env=env,
+      bindings=bindings,
+      worlds=worlds,
+      names=names,
+      fields=fields,
+      compiler=compiler,
+  )
 
 
 def _world_model(scene, w):
@@ -285,8 +424,10 @@ def _world_model(scene, w):
 def _recompiled(scene, values):
   """mjx.put_model of the spec recompiled with `values` set (then restored)."""
   task, bindings = scene['task'], scene['bindings']
-  saved = [model_compiler.spec_value(e, model_compiler.kind_of(e), a)
-           for e, a, _ in bindings]
+  saved = [
+      model_compiler.spec_value(e, model_compiler.kind_of(e), a)
+      for e, a, _ in bindings
+  ]
   try:
     for (e, a, _), v in zip(bindings, values):
       model_compiler.set_spec_value(e, model_compiler.kind_of(e), a, v)
@@ -320,8 +461,9 @@ def _statics(obj, prefix=''):
 
 def _quat_close(a, b, rtol=RTOL, atol=ATOL):
   """q and -q are the same rotation."""
-  return (np.allclose(a, b, rtol=rtol, atol=atol) or
-          np.allclose(a, -b, rtol=rtol, atol=atol))
+  return np.allclose(a, b, rtol=rtol, atol=atol) or np.allclose(
+      a, -b, rtol=rtol, atol=atol
+  )
 
 
 def _check_body_iquat(varied, reference):
@@ -342,8 +484,9 @@ def _check_body_iquat(varied, reference):
     t1 = r1.reshape(3, 3) @ np.diag(i1) @ r1.reshape(3, 3).T
     t2 = r2.reshape(3, 3) @ np.diag(i2) @ r2.reshape(3, 3).T
     scale = max(np.max(np.abs(i2)), 1e-30)
-    np.testing.assert_allclose(t1, t2, rtol=0, atol=2e-6 * scale,
-                               err_msg=f'inertia tensor of body {b}')
+    np.testing.assert_allclose(
+        t1, t2, rtol=0, atol=2e-6 * scale, err_msg=f'inertia tensor of body {b}'
+    )
     gap = np.min(np.abs(np.diff(np.sort(i2)))) / scale
     if gap > 1e-2:
       assert _quat_close(q1, q2), (b, q1, q2)
@@ -386,14 +529,21 @@ def _compare(varied, reference, label):
 def test_unused_static_fields_are_not_read_by_mjx():
   """Guards the exclusions above: MJX's source never reads these flags."""
   source_dir = pathlib.Path(inspect.getfile(mjx)).parent / '_src'
-  sources = [p.read_text() for p in source_dir.glob('*.py')
-             if not p.name.endswith('_test.py') and p.name != 'types.py']
+  sources = [
+      p.read_text()
+      for p in source_dir.glob('*.py')
+      if not p.name.endswith('_test.py') and p.name != 'types.py'
+  ]
   for name in _UNUSED_STATIC:
     assert not any(name in s for s in sources), name
   # geom_rbound_hfield is read by the height-field collision only.
-  readers = [p.name for p in source_dir.glob('*.py')
-             if not p.name.endswith('_test.py') and p.name not in (
-                 'types.py', 'io.py') and 'geom_rbound_hfield' in p.read_text()]
+  readers = [
+      p.name
+      for p in source_dir.glob('*.py')
+      if not p.name.endswith('_test.py')
+      and p.name not in ('types.py', 'io.py')
+      and 'geom_rbound_hfield' in p.read_text()
+  ]
   assert readers == ['collision_driver.py'], readers
 
 
@@ -424,12 +574,18 @@ def _check_output_fields(scene, references):
   changed = set()
   for reference in references.values():
     varied = _leaves(reference)
-    changed |= {k.split('.')[1].split('[')[0] for k in base
-                if not np.allclose(base[k], varied[k], rtol=RTOL, atol=ATOL)}
+    changed |= {
+        k.split('.')[1].split('[')[0]
+        for k in base
+        if not np.allclose(base[k], varied[k], rtol=RTOL, atol=ATOL)
+    }
   assert changed <= fields, changed - fields
   # Nothing unrelated (e.g. sensor or asset fields) is carried.
-  assert not {f for f in fields if f.startswith(('sensor_', 'mesh_', 'tex_',
-                                                 'key_', 'hfield_'))}
+  assert not {
+      f
+      for f in fields
+      if f.startswith(('sensor_', 'mesh_', 'tex_', 'key_', 'hfield_'))
+  }
 
 
 def _check_rollouts(scene, references, worlds=('defaults', 'body_pose', 'all')):
@@ -439,8 +595,10 @@ def _check_rollouts(scene, references, worlds=('defaults', 'body_pose', 'all')):
   # The recompiled models differ only in static flags MJX never reads (see
   # above); give them the varied models' metadata so one compiled rollout
   # runs both.
-  reference = [jax.tree.unflatten(treedef, jax.tree.leaves(references[w]))
-               for w in worlds]
+  reference = [
+      jax.tree.unflatten(treedef, jax.tree.leaves(references[w]))
+      for w in worlds
+  ]
   models = jax.tree.map(lambda *x: jnp.stack(x), *(varied + reference))
   ctrl = jnp.asarray([0.4, -0.6, 0.3], jnp.float32)
 
@@ -461,8 +619,9 @@ def _check_rollouts(scene, references, worlds=('defaults', 'body_pose', 'all')):
   for i, world in enumerate(worlds):
     # Trajectories of float32 models that agree to ~1e-6 drift apart
     # slowly; contacts and the solver amplify it.
-    np.testing.assert_allclose(states[i], states[n + i], rtol=0, atol=1e-3,
-                               err_msg=world)
+    np.testing.assert_allclose(
+        states[i], states[n + i], rtol=0, atol=1e-3, err_msg=world
+    )
   # The varied worlds really differ from the default one.
   assert np.max(np.abs(states[n - 1] - states[0])) > 1e-2
 
@@ -473,8 +632,10 @@ def test_sampled_worlds_equal_recompiled_models(scene):
   One test, so that the scene is compiled once even when pytest-xdist
   spreads tests over workers.
   """
-  references = {world: _recompiled(scene, values)
-                for world, values in scene['worlds'].items()}
+  references = {
+      world: _recompiled(scene, values)
+      for world, values in scene['worlds'].items()
+  }
   failures = []
   for w, world in enumerate(scene['names']):
     try:
@@ -496,20 +657,28 @@ def test_eig3_matches_mujoco_principal_axes():
     rot = np.zeros(9)
     mujoco.mju_quat2Mat(rot, quat)
     rot = rot.reshape(3, 3)
-    moments = rng.uniform(0.5, 1.0, 3) * 10**rng.uniform(-5, 0)
+    moments = rng.uniform(0.5, 1.0, 3) * 10 ** rng.uniform(-5, 0)
     full = rot @ np.diag(moments) @ rot.T
     spec = mujoco.MjSpec()
     body = spec.worldbody.add_body(mass=1, ipos=[0, 0, 0])
     body.add_freejoint()
-    body.fullinertia = [full[0, 0], full[1, 1], full[2, 2], full[0, 1],
-                        full[0, 2], full[1, 2]]
+    body.fullinertia = [
+        full[0, 0],
+        full[1, 1],
+        full[2, 2],
+        full[0, 1],
+        full[0, 2],
+        full[1, 2],
+    ]
     m = spec.compile()
     matrices.append(full)
     refs.append((m.body_inertia[1].copy(), m.body_iquat[1].copy()))
   values, quats = jax.jit(jax.vmap(model_compiler.eig3))(
-      jnp.asarray(np.stack(matrices), jnp.float32))
-  for (ref_i, ref_q), i, q, full in zip(refs, np.asarray(values),
-                                        np.asarray(quats), matrices):
+      jnp.asarray(np.stack(matrices), jnp.float32)
+  )
+  for (ref_i, ref_q), i, q, full in zip(
+      refs, np.asarray(values), np.asarray(quats), matrices
+  ):
     scale = np.max(ref_i)
     np.testing.assert_allclose(i, ref_i, rtol=0, atol=1e-6 * scale)
     gap = np.min(np.abs(np.diff(np.sort(ref_i)))) / scale
@@ -526,8 +695,9 @@ def test_eig3_degenerate_moments_give_the_same_tensor():
   rot = np.zeros(9)
   mujoco.mju_quat2Mat(rot, np.asarray(quat, np.float64))
   rot = rot.reshape(3, 3)
-  np.testing.assert_allclose(rot @ np.diag(np.asarray(values)) @ rot.T, full,
-                             atol=1e-9)
+  np.testing.assert_allclose(
+      rot @ np.diag(np.asarray(values)) @ rot.T, full, atol=1e-9
+  )
   np.testing.assert_allclose(values, [2e-3, 2e-3, 1e-3], rtol=1e-6)
 
 
@@ -540,7 +710,8 @@ def test_statistics_set_in_the_spec_are_kept():
   arena.add_free_entity(prop)
   env = composer.Environment(composer.NullTask(arena))
   compiler = model_compiler.ModelCompiler(
-      env._index, [(prop.sphere, 'size', 'size')])  # pylint: disable=protected-access
+      env._index, [(prop.sphere, 'size', 'size')]
+  )  # pylint: disable=protected-access
   fields = jax.jit(compiler)(env.mjx_model, [jnp.asarray([0.08, 0, 0])])
   saved = np.array(prop.sphere.size)
   try:
@@ -551,8 +722,13 @@ def test_statistics_set_in_the_spec_are_kept():
     prop.sphere.size = saved
   assert reference.stat.meanmass == 3.0 and reference.stat.extent == 5.0
   for name in ('meaninertia', 'meanmass', 'meansize', 'extent', 'center'):
-    np.testing.assert_allclose(getattr(fields['stat'], name),
-                               getattr(reference.stat, name), rtol=RTOL,
-                               atol=ATOL, err_msg=name)
-  np.testing.assert_allclose(fields['body_inertia'], reference.body_inertia,
-                             rtol=RTOL, atol=ATOL)
+    np.testing.assert_allclose(
+        getattr(fields['stat'], name),
+        getattr(reference.stat, name),
+        rtol=RTOL,
+        atol=ATOL,
+        err_msg=name,
+    )
+  np.testing.assert_allclose(
+      fields['body_inertia'], reference.body_inertia, rtol=RTOL, atol=ATOL
+  )

@@ -24,13 +24,18 @@ class Arm(composer.Robot):
     spec = mujoco.MjSpec()
     spec.modelname = 'arm'
     self.body = spec.worldbody.add_body(name='link', pos=[0, 0, 0.5])
-    self.joint = self.body.add_joint(name='hinge', type=_J.mjJNT_HINGE,
-                                     axis=[0, 1, 0], damping=0.5)
-    self.geom = self.body.add_geom(name='link', type=_G.mjGEOM_BOX,
-                                   size=[0.1, 0.02, 0.02], pos=[0.1, 0, 0])
-    self.motor = spec.add_actuator(name='motor', target='hinge',
-                                   trntype=mujoco.mjtTrn.mjTRN_JOINT,
-                                   gear=[3, 0, 0, 0, 0, 0])
+    self.joint = self.body.add_joint(
+        name='hinge', type=_J.mjJNT_HINGE, axis=[0, 1, 0], damping=0.5
+    )
+    self.geom = self.body.add_geom(
+        name='link', type=_G.mjGEOM_BOX, size=[0.1, 0.02, 0.02], pos=[0.1, 0, 0]
+    )
+    self.motor = spec.add_actuator(
+        name='motor',
+        target='hinge',
+        trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        gear=[3, 0, 0, 0, 0, 0],
+    )
     self._spec = spec
 
   @property
@@ -74,8 +79,13 @@ def _physics(env):
   """A fresh world's Physics (no reset needed to test the variator)."""
   model = env.mjx_model
   index = env._index  # pylint: disable=protected-access
-  return physics_lib.Physics(model=model, data=mjx.make_data(model),
-                             task_state={}, index=index, persistent={})
+  return physics_lib.Physics(
+      model=model,
+      data=mjx.make_data(model),
+      task_state={},
+      index=index,
+      persistent={},
+  )
 
 
 KEY = jax.random.key(0)
@@ -85,16 +95,20 @@ def test_composer_binding_names_map_to_model_fields(env):
   arm = env.task.arm
   option = env.task.arena.mjcf_model.option
   variator = variation.PhysicsVariator()
-  variator.bind_attributes(arm.geom, friction=[0.5, 0.01, 0.001],
-                           geom_rgba=[1, 0, 0, 1])
+  variator.bind_attributes(
+      arm.geom, friction=[0.5, 0.01, 0.001], geom_rgba=[1, 0, 0, 1]
+  )
   variator.bind_attributes(arm.joint, damping=2.0, dof_armature=0.1)
   variator.bind_attributes(arm.body, mass=3.0)
   variator.bind_attributes(arm.motor, gear=[5, 0, 0, 0, 0, 0])
   variator.bind_attributes(option, gravity=[0, 0, -1], density=2.0)
   physics = jax.jit(variator.apply_variations)(_physics(env), KEY)
   m = env.mj_model
-  g, j, b = m.geom('arm/link').id, m.joint('arm/hinge').dofadr[0], m.body(
-      'arm/link').id
+  g, j, b = (
+      m.geom('arm/link').id,
+      m.joint('arm/hinge').dofadr[0],
+      m.body('arm/link').id,
+  )
   np.testing.assert_allclose(physics.model.geom_friction[g], [0.5, 0.01, 0.001])
   np.testing.assert_allclose(physics.model.geom_rgba[g], [1, 0, 0, 1])
   assert physics.model.dof_damping[j] == 2.0
@@ -104,10 +118,12 @@ def test_composer_binding_names_map_to_model_fields(env):
   np.testing.assert_allclose(physics.model.opt.gravity, [0, 0, -1])
   assert physics.model.opt.density == 2.0
   # Like composer: no derived quantity is recomputed.
-  np.testing.assert_array_equal(physics.model.body_subtreemass,
-                                env.mjx_model.body_subtreemass)
-  np.testing.assert_array_equal(physics.model.dof_invweight0,
-                                env.mjx_model.dof_invweight0)
+  np.testing.assert_array_equal(
+      physics.model.body_subtreemass, env.mjx_model.body_subtreemass
+  )
+  np.testing.assert_array_equal(
+      physics.model.dof_invweight0, env.mjx_model.dof_invweight0
+  )
 
 
 def test_initial_value_is_compiled_current_value_is_the_worlds(env):
@@ -115,11 +131,17 @@ def test_initial_value_is_compiled_current_value_is_the_worlds(env):
   cumulative noise compounds on the world's current value."""
   arm = env.task.arm
   fixed = variation.PhysicsVariator()
-  fixed.bind_attributes(arm.joint, damping=noises.Multiplicative(
-      deterministic.Sequence([2.0, 3.0])))
+  fixed.bind_attributes(
+      arm.joint,
+      damping=noises.Multiplicative(deterministic.Sequence([2.0, 3.0])),
+  )
   growing = variation.PhysicsVariator()
-  growing.bind_attributes(arm.body, mass=noises.Multiplicative(
-      deterministic.Sequence([2.0, 3.0]), cumulative=True))
+  growing.bind_attributes(
+      arm.body,
+      mass=noises.Multiplicative(
+          deterministic.Sequence([2.0, 3.0]), cumulative=True
+      ),
+  )
 
   @jax.jit
   def two_episodes(physics):
@@ -142,12 +164,12 @@ def test_initial_value_is_compiled_current_value_is_the_worlds(env):
 
 def test_once_per_world_and_every_steps_schedules(env):
   arm = env.task.arm
-  once = variation.PhysicsVariator(
-      schedule=variation.Schedule.once_per_world())
+  once = variation.PhysicsVariator(schedule=variation.Schedule.once_per_world())
   once.bind_attributes(arm.geom, friction=distributions.Uniform(0.5, 1.5))
   every = variation.PhysicsVariator(schedule=variation.Schedule.every_steps(2))
-  every.bind_attributes(arm.joint, damping=noises.Additive(
-      1.0, cumulative=True))
+  every.bind_attributes(
+      arm.joint, damping=noises.Additive(1.0, cumulative=True)
+  )
 
   @jax.jit
   def run(physics):
@@ -158,7 +180,8 @@ def test_once_per_world_and_every_steps_schedules(env):
       physics = every.apply_variations(physics, key)
       for step in range(5):
         physics = every.apply_variations(
-            physics, jax.random.fold_in(key, step), in_step=True)
+            physics, jax.random.fold_in(key, step), in_step=True
+        )
         dampings.append(physics.model.dof_damping[0])
       frictions.append(physics.model.geom_friction)
     return jnp.stack(frictions), jnp.stack(dampings)
@@ -167,17 +190,22 @@ def test_once_per_world_and_every_steps_schedules(env):
   np.testing.assert_array_equal(frictions[0], frictions[1])
   assert not np.allclose(frictions[0], env.mj_model.geom_friction)
   # 0.5 compiled; +1 at each reset and before control steps 3 and 5.
-  np.testing.assert_allclose(dampings, [1.5, 1.5, 2.5, 2.5, 3.5,
-                                        4.5, 4.5, 5.5, 5.5, 6.5])
+  np.testing.assert_allclose(
+      dampings, [1.5, 1.5, 2.5, 2.5, 3.5, 4.5, 4.5, 5.5, 5.5, 6.5]
+  )
 
 
 def test_environment_carries_only_the_varied_fields(env):
   arm = env.task.arm
   env.task.variator = variator = variation.PhysicsVariator()
-  variator.bind_attributes(arm.geom, friction=distributions.Uniform(
-      [0.5, 0.001, 1e-4], [1.5, 0.01, 1e-3]))
-  variator.bind_attributes(env.task.arena.mjcf_model.option,
-                           wind=distributions.Normal([0, 0, 0], 1.0))
+  variator.bind_attributes(
+      arm.geom,
+      friction=distributions.Uniform([0.5, 0.001, 1e-4], [1.5, 0.01, 1e-3]),
+  )
+  variator.bind_attributes(
+      env.task.arena.mjcf_model.option,
+      wind=distributions.Normal([0, 0, 0], 1.0),
+  )
   try:
     states = jax.jit(jax.vmap(env.reset))(jax.random.split(KEY, 3))
   finally:
@@ -191,8 +219,9 @@ def test_environment_carries_only_the_varied_fields(env):
 def test_bind_errors_list_valid_attributes():
   arm = Arm()
   variator = variation.PhysicsVariator()
-  with pytest.raises(ValueError, match=r"no compiled model attribute 'qpos'"
-                     r".*'damping'"):
+  with pytest.raises(
+      ValueError, match=r"no compiled model attribute 'qpos'" r".*'damping'"
+  ):
     variator.bind_attributes(arm.joint, qpos=0.1)
   with pytest.raises(ValueError, match="'contype'.*'friction'"):
     variator.bind_attributes(arm.geom, contype=0)
@@ -213,14 +242,20 @@ def test_trace_time_errors():
   stray = Arm()
   variator = variation.PhysicsVariator()
   variator.bind_attributes(stray.geom, friction=1.0)
-  with pytest.raises(ValueError, match=r"MjsGeom\('link'\).*not part of the "
-                     'compiled model.*attach its entity'):
+  with pytest.raises(
+      ValueError,
+      match=r"MjsGeom\('link'\).*not part of the "
+      'compiled model.*attach its entity',
+  ):
     trace(variator)
 
   variator = variation.PhysicsVariator()
   variator.bind_attributes(task.arm.geom, friction=jnp.ones(2))
-  with pytest.raises(ValueError, match=r'friction gives values of shape '
-                     r'\(2,\), but the attribute has shape \(3,\)'):
+  with pytest.raises(
+      ValueError,
+      match=r'friction gives values of shape '
+      r'\(2,\), but the attribute has shape \(3,\)',
+  ):
     trace(variator)
 
   variator = variation.PhysicsVariator()

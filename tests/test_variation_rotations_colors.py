@@ -23,200 +23,259 @@ Z = 5.0  # Tolerance in standard errors, as in test_variation_distributions.
 
 
 def _random_unit_quats(n, seed=0):
-    q = np.random.default_rng(seed).normal(size=(n, 4))
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+  q = np.random.default_rng(seed).normal(size=(n, 4))
+  return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def _mj_mul(a, b):
-    out = np.zeros(4)
-    mujoco.mju_mulQuat(out, np.asarray(a, np.float64), np.asarray(b, np.float64))
-    return out
+  out = np.zeros(4)
+  mujoco.mju_mulQuat(out, np.asarray(a, np.float64), np.asarray(b, np.float64))
+  return out
 
 
 def _mj_rotate(quat, vec):
-    out = np.zeros(3)
-    mujoco.mju_rotVecQuat(out, np.asarray(vec, np.float64), np.asarray(quat, np.float64))
-    return out
+  out = np.zeros(3)
+  mujoco.mju_rotVecQuat(
+      out, np.asarray(vec, np.float64), np.asarray(quat, np.float64)
+  )
+  return out
 
 
 # ---------------------------------------------------------------- rotations.
 
 
 def test_identity_quaternion():
-    np.testing.assert_array_equal(rotations.IDENTITY_QUATERNION, [1.0, 0.0, 0.0, 0.0])
+  np.testing.assert_array_equal(
+      rotations.IDENTITY_QUATERNION, [1.0, 0.0, 0.0, 0.0]
+  )
 
 
 def test_uniform_quaternion_is_uniform_over_rotations():
-    n = 20_000
-    quats = np.asarray(
-        jax.jit(jax.vmap(lambda k: rotations.UniformQuaternion()(key=k)))(jax.random.split(KEY, n)),
-        np.float64,
-    )
-    assert quats.shape == (n, 4)
-    np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1.0, rtol=1e-5)
-    # Uniform on S^3: E[q_i] = 0, E[q_i^2] = 1/4 (Var[q_i^2] = 1/8 - 1/16),
-    # E[q_i q_j] = 0 (Var = 1/24).
-    for i in range(4):
-        assert abs(quats[:, i].mean()) < Z * np.sqrt(1 / 4 / n)
-        assert abs((quats[:, i] ** 2).mean() - 1 / 4) < Z * np.sqrt(1 / 16 / n)
-        for j in range(i + 1, 4):
-            assert abs((quats[:, i] * quats[:, j]).mean()) < Z * np.sqrt(1 / 24 / n)
-    # Rotating a fixed vector by a uniform rotation gives a uniform direction.
-    rotated = np.stack([_mj_rotate(q, [0.0, 0.0, 1.0]) for q in quats[:2000]])
-    assert np.all(np.abs(rotated.mean(axis=0)) < Z * np.sqrt(1 / 3 / 2000))
+  n = 20_000
+  quats = np.asarray(
+      jax.jit(jax.vmap(lambda k: rotations.UniformQuaternion()(key=k)))(
+          jax.random.split(KEY, n)
+      ),
+      np.float64,
+  )
+  assert quats.shape == (n, 4)
+  np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1.0, rtol=1e-5)
+  # Uniform on S^3: E[q_i] = 0, E[q_i^2] = 1/4 (Var[q_i^2] = 1/8 - 1/16),
+  # E[q_i q_j] = 0 (Var = 1/24).
+  for i in range(4):
+    assert abs(quats[:, i].mean()) < Z * np.sqrt(1 / 4 / n)
+    assert abs((quats[:, i] ** 2).mean() - 1 / 4) < Z * np.sqrt(1 / 16 / n)
+    for j in range(i + 1, 4):
+      assert abs((quats[:, i] * quats[:, j]).mean()) < Z * np.sqrt(1 / 24 / n)
+  # Rotating a fixed vector by a uniform rotation gives a uniform direction.
+  rotated = np.stack([_mj_rotate(q, [0.0, 0.0, 1.0]) for q in quats[:2000]])
+  assert np.all(np.abs(rotated.mean(axis=0)) < Z * np.sqrt(1 / 3 / 2000))
 
 
 def test_uniform_quaternion_ignores_the_initial_value_like_composer():
-    assert rotations.UniformQuaternion()(jnp.zeros((5, 4)), key=KEY).shape == (4,)
+  assert rotations.UniformQuaternion()(jnp.zeros((5, 4)), key=KEY).shape == (4,)
 
 
 def test_quaternion_from_axis_angle_matches_mujoco():
-    rng = np.random.default_rng(1)
-    for _ in range(10):
-        axis = rng.normal(size=3)
-        axis /= np.linalg.norm(axis)
-        angle = rng.uniform(-np.pi, np.pi)
-        expected = np.zeros(4)
-        mujoco.mju_axisAngle2Quat(expected, axis, angle)
-        actual = rotations.QuaternionFromAxisAngle(axis, angle)()
-        np.testing.assert_allclose(actual, expected, atol=1e-6)
+  rng = np.random.default_rng(1)
+  for _ in range(10):
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    angle = rng.uniform(-np.pi, np.pi)
+    expected = np.zeros(4)
+    mujoco.mju_axisAngle2Quat(expected, axis, angle)
+    actual = rotations.QuaternionFromAxisAngle(axis, angle)()
+    np.testing.assert_allclose(actual, expected, atol=1e-6)
 
 
 def test_quaternion_from_axis_angle_edge_cases():
-    # composer's quirk: the angle is |axis * angle|, so a non-unit axis scales it.
-    np.testing.assert_allclose(
-        rotations.QuaternionFromAxisAngle([0.0, 0.0, 2.0], np.pi / 2)(), [0, 0, 0, 1], atol=1e-6
-    )
-    np.testing.assert_array_equal(
-        rotations.QuaternionFromAxisAngle([0.0, 0.0, 1.0], 0.0)(), rotations.IDENTITY_QUATERNION
-    )
+  # composer's quirk: the angle is |axis * angle|, so a non-unit axis scales it.
+  np.testing.assert_allclose(
+      rotations.QuaternionFromAxisAngle([0.0, 0.0, 2.0], np.pi / 2)(),
+      [0, 0, 0, 1],
+      atol=1e-6,
+  )
+  np.testing.assert_array_equal(
+      rotations.QuaternionFromAxisAngle([0.0, 0.0, 1.0], 0.0)(),
+      rotations.IDENTITY_QUATERNION,
+  )
 
 
 def test_quaternion_from_axis_angle_with_random_operands():
-    variation = rotations.QuaternionFromAxisAngle(
-        axis=distributions.UniformPointOnSphere(), angle=distributions.Uniform(0.0, np.pi)
-    )
-    # Operands are evaluated without the quaternion being varied, so the
-    # distributions draw a (3,) axis and a scalar angle (composer would draw
-    # them with the quaternion's shape).
-    identity = jnp.asarray(rotations.IDENTITY_QUATERNION)
-    sample = jax.jit(jax.vmap(lambda k: variation(identity, None, k)))
-    quats = sample(jax.random.split(KEY, 16))
-    assert quats.shape == (16, 4)
-    np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1.0, rtol=1e-5)
-    assert np.all(quats[:, 0] >= -1e-6)  # angle in [0, pi] => w = cos(angle/2) >= 0.
-    assert len(np.unique(np.asarray(quats[:, 0]))) == 16
+  variation = rotations.QuaternionFromAxisAngle(
+      axis=distributions.UniformPointOnSphere(),
+      angle=distributions.Uniform(0.0, np.pi),
+  )
+  # Operands are evaluated without the quaternion being varied, so the
+  # distributions draw a (3,) axis and a scalar angle (composer would draw
+  # them with the quaternion's shape).
+  identity = jnp.asarray(rotations.IDENTITY_QUATERNION)
+  sample = jax.jit(jax.vmap(lambda k: variation(identity, None, k)))
+  quats = sample(jax.random.split(KEY, 16))
+  assert quats.shape == (16, 4)
+  np.testing.assert_allclose(np.linalg.norm(quats, axis=1), 1.0, rtol=1e-5)
+  assert np.all(
+      quats[:, 0] >= -1e-6
+  )  # angle in [0, pi] => w = cos(angle/2) >= 0.
+  assert len(np.unique(np.asarray(quats[:, 0]))) == 16
 
 
 def test_quaternion_pre_multiply_matches_mujoco():
-    a, b = _random_unit_quats(5, seed=2), _random_unit_quats(5, seed=3)
-    for qa, qb in zip(a, b):
-        actual = rotations.QuaternionPreMultiply(qa)(initial_value=qb)
-        np.testing.assert_allclose(actual, _mj_mul(qa, qb), atol=1e-6)
+  a, b = _random_unit_quats(5, seed=2), _random_unit_quats(5, seed=3)
+  for qa, qb in zip(a, b):
+    actual = rotations.QuaternionPreMultiply(qa)(initial_value=qb)
+    np.testing.assert_allclose(actual, _mj_mul(qa, qb), atol=1e-6)
 
 
 def test_quaternion_pre_multiply_cumulative_and_not():
-    quarter_turn = rotations.QuaternionFromAxisAngle([0.0, 0.0, 1.0], np.pi / 2)
-    initial = jnp.asarray(rotations.IDENTITY_QUATERNION)
-    for cumulative, expected_last in [(False, quarter_turn()), (True, [-1.0, 0.0, 0.0, 0.0])]:
-        variation = rotations.QuaternionPreMultiply(quarter_turn, cumulative=cumulative)
-        current = initial
-        for _ in range(4):
-            current = variation(initial, current)
-        # Four quarter turns compose to a full turn: quaternion -1.
-        np.testing.assert_allclose(current, expected_last, atol=1e-6)
+  quarter_turn = rotations.QuaternionFromAxisAngle([0.0, 0.0, 1.0], np.pi / 2)
+  initial = jnp.asarray(rotations.IDENTITY_QUATERNION)
+  for cumulative, expected_last in [
+      (False, quarter_turn()),
+      (True, [-1.0, 0.0, 0.0, 0.0]),
+  ]:
+    variation = rotations.QuaternionPreMultiply(
+        quarter_turn, cumulative=cumulative
+    )
+    current = initial
+    for _ in range(4):
+      current = variation(initial, current)
+    # Four quarter turns compose to a full turn: quaternion -1.
+    np.testing.assert_allclose(current, expected_last, atol=1e-6)
 
 
 def test_quaternion_rotate():
-    quats, vecs = _random_unit_quats(5, seed=4), np.random.default_rng(5).normal(size=(5, 3))
-    for q, v in zip(quats, vecs):
-        np.testing.assert_allclose(
-            rotations.QuaternionRotate(q, vec=v)(), _mj_rotate(q, v), atol=1e-5
-        )
-    quarter_turn = rotations.QuaternionFromAxisAngle([0.0, 0.0, 1.0], np.pi / 2)
-    x, y = jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray([0.0, 1.0, 0.0])
-    # Without vec: rotates the initial value, or the current one if cumulative.
-    np.testing.assert_allclose(rotations.QuaternionRotate(quarter_turn)(x, y), [0, 1, 0], atol=1e-6)
+  quats, vecs = _random_unit_quats(5, seed=4), np.random.default_rng(5).normal(
+      size=(5, 3)
+  )
+  for q, v in zip(quats, vecs):
     np.testing.assert_allclose(
-        rotations.QuaternionRotate(quarter_turn, cumulative=True)(x, y), [-1, 0, 0], atol=1e-6
+        rotations.QuaternionRotate(q, vec=v)(), _mj_rotate(q, v), atol=1e-5
     )
-    # A vec operand sees the initial value (it is the value being varied).
-    shifted = rotations.QuaternionRotate(quarter_turn, vec=noises.Additive([0.0, 1.0, 0.0]))
-    np.testing.assert_allclose(shifted(x), [-1, 1, 0], atol=1e-6)
+  quarter_turn = rotations.QuaternionFromAxisAngle([0.0, 0.0, 1.0], np.pi / 2)
+  x, y = jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray([0.0, 1.0, 0.0])
+  # Without vec: rotates the initial value, or the current one if cumulative.
+  np.testing.assert_allclose(
+      rotations.QuaternionRotate(quarter_turn)(x, y), [0, 1, 0], atol=1e-6
+  )
+  np.testing.assert_allclose(
+      rotations.QuaternionRotate(quarter_turn, cumulative=True)(x, y),
+      [-1, 0, 0],
+      atol=1e-6,
+  )
+  # A vec operand sees the initial value (it is the value being varied).
+  shifted = rotations.QuaternionRotate(
+      quarter_turn, vec=noises.Additive([0.0, 1.0, 0.0])
+  )
+  np.testing.assert_allclose(shifted(x), [-1, 1, 0], atol=1e-6)
 
 
 def test_rotation_errors_and_repr():
-    with pytest.raises(ValueError, match="multiplies initial_value, but initial_value is None"):
-        rotations.QuaternionPreMultiply(rotations.IDENTITY_QUATERNION)()
-    with pytest.raises(ValueError, match="rotates current_value"):
-        rotations.QuaternionRotate([1.0, 0, 0, 0], cumulative=True)(jnp.ones(3))
-    assert repr(rotations.QuaternionFromAxisAngle([0, 0, 1], distributions.Uniform())) == (
-        "QuaternionFromAxisAngle(axis=[0, 0, 1], angle=Uniform(low=0.0, high=1.0))"
-    )
-    assert rotations.UniformQuaternion() == rotations.UniformQuaternion()
+  with pytest.raises(
+      ValueError, match="multiplies initial_value, but initial_value is None"
+  ):
+    rotations.QuaternionPreMultiply(rotations.IDENTITY_QUATERNION)()
+  with pytest.raises(ValueError, match="rotates current_value"):
+    rotations.QuaternionRotate([1.0, 0, 0, 0], cumulative=True)(jnp.ones(3))
+  assert repr(
+      rotations.QuaternionFromAxisAngle([0, 0, 1], distributions.Uniform())
+  ) == (
+      "QuaternionFromAxisAngle(axis=[0, 0, 1], angle=Uniform(low=0.0, high=1.0))"
+  )
+  assert rotations.UniformQuaternion() == rotations.UniformQuaternion()
 
 
 # ------------------------------------------------------------------- colors.
 
 
 def test_rgb_variation():
-    np.testing.assert_allclose(colors.RgbVariation(0.1, 0.2, 0.3)(), [0.1, 0.2, 0.3, 1.0])
-    np.testing.assert_allclose(colors.RgbVariation(0.1, 0.2, 0.3, 0.5)(), [0.1, 0.2, 0.3, 0.5])
-    random = colors.RgbVariation(
-        distributions.Uniform(), distributions.Uniform(0.5, 1.0), 0.0, distributions.Uniform()
-    )
-    # Bound to an rgba attribute: each channel draws a scalar.
-    value = random(jnp.ones(4), None, KEY)
-    assert value.shape == (4,)
-    assert 0 <= value[0] < 1 and 0.5 <= value[1] < 1 and value[2] == 0
-    assert value[0] != value[3]  # Channels get independent subkeys.
+  np.testing.assert_allclose(
+      colors.RgbVariation(0.1, 0.2, 0.3)(), [0.1, 0.2, 0.3, 1.0]
+  )
+  np.testing.assert_allclose(
+      colors.RgbVariation(0.1, 0.2, 0.3, 0.5)(), [0.1, 0.2, 0.3, 0.5]
+  )
+  random = colors.RgbVariation(
+      distributions.Uniform(),
+      distributions.Uniform(0.5, 1.0),
+      0.0,
+      distributions.Uniform(),
+  )
+  # Bound to an rgba attribute: each channel draws a scalar.
+  value = random(jnp.ones(4), None, KEY)
+  assert value.shape == (4,)
+  assert 0 <= value[0] < 1 and 0.5 <= value[1] < 1 and value[2] == 0
+  assert value[0] != value[3]  # Channels get independent subkeys.
 
 
 def test_rgb_channels_receive_their_channel_of_the_value():
-    initial = jnp.asarray([0.1, 0.2, 0.3, 0.4])
-    current = jnp.asarray([0.5, 0.6, 0.7, 0.8])
-    identity = deterministic.Identity()
-    np.testing.assert_allclose(
-        colors.RgbVariation(identity, identity, identity, identity)(initial, current), current
-    )
-    brighter_red = colors.RgbVariation(noises.Additive(0.5), 0.0, 0.0)
-    np.testing.assert_allclose(brighter_red(initial), [0.6, 0.0, 0.0, 1.0], rtol=1e-6)
+  initial = jnp.asarray([0.1, 0.2, 0.3, 0.4])
+  current = jnp.asarray([0.5, 0.6, 0.7, 0.8])
+  identity = deterministic.Identity()
+  np.testing.assert_allclose(
+      colors.RgbVariation(identity, identity, identity, identity)(
+          initial, current
+      ),
+      current,
+  )
+  brighter_red = colors.RgbVariation(noises.Additive(0.5), 0.0, 0.0)
+  np.testing.assert_allclose(
+      brighter_red(initial), [0.6, 0.0, 0.0, 1.0], rtol=1e-6
+  )
 
 
 def test_batched_channels_stack_on_the_last_axis():
-    value = colors.RgbVariation(jnp.asarray([0.1, 0.2]), 0.5, 0.5)()
-    np.testing.assert_allclose(value, [[0.1, 0.5, 0.5, 1.0], [0.2, 0.5, 0.5, 1.0]])
+  value = colors.RgbVariation(jnp.asarray([0.1, 0.2]), 0.5, 0.5)()
+  np.testing.assert_allclose(
+      value, [[0.1, 0.5, 0.5, 1.0], [0.2, 0.5, 0.5, 1.0]]
+  )
 
 
 def test_hsv_variation_matches_colorsys():
-    rng = np.random.default_rng(0)
-    h, s, v = rng.uniform(size=(3, 200))
-    s[:10] = 0.0  # Gray.
-    h[10:20] = 1.0  # Hue wraps.
-    alpha = rng.uniform(size=200)
-    actual = np.asarray(colors.HsvVariation(h, s, v, alpha)())
-    expected = np.array(
-        [list(colorsys.hsv_to_rgb(*hsv)) + [a] for hsv, a in zip(zip(h, s, v), alpha)]
-    )
-    np.testing.assert_allclose(actual, expected, atol=1e-6)
+  rng = np.random.default_rng(0)
+  h, s, v = rng.uniform(size=(3, 200))
+  s[:10] = 0.0  # Gray.
+  h[10:20] = 1.0  # Hue wraps.
+  alpha = rng.uniform(size=200)
+  actual = np.asarray(colors.HsvVariation(h, s, v, alpha)())
+  expected = np.array(
+      [
+          list(colorsys.hsv_to_rgb(*hsv)) + [a]
+          for hsv, a in zip(zip(h, s, v), alpha)
+      ]
+  )
+  np.testing.assert_allclose(actual, expected, atol=1e-6)
 
 
 def test_hsv_channels_receive_hsv_of_the_value():
-    rgba = jnp.asarray([0.8, 0.3, 0.1, 0.6])
-    identity = deterministic.Identity()
-    round_trip = colors.HsvVariation(identity, identity, identity, identity)(None, rgba)
-    np.testing.assert_allclose(round_trip, rgba, atol=1e-6)
-    # Only the hue is kept; saturation and value are set to 1.
-    hue_only = colors.HsvVariation(identity, 1.0, 1.0)(None, rgba)
-    expected_h = colorsys.rgb_to_hsv(0.8, 0.3, 0.1)[0]
-    np.testing.assert_allclose(hue_only[:3], colorsys.hsv_to_rgb(expected_h, 1.0, 1.0), atol=1e-6)
+  rgba = jnp.asarray([0.8, 0.3, 0.1, 0.6])
+  identity = deterministic.Identity()
+  round_trip = colors.HsvVariation(identity, identity, identity, identity)(
+      None, rgba
+  )
+  np.testing.assert_allclose(round_trip, rgba, atol=1e-6)
+  # Only the hue is kept; saturation and value are set to 1.
+  hue_only = colors.HsvVariation(identity, 1.0, 1.0)(None, rgba)
+  expected_h = colorsys.rgb_to_hsv(0.8, 0.3, 0.1)[0]
+  np.testing.assert_allclose(
+      hue_only[:3], colorsys.hsv_to_rgb(expected_h, 1.0, 1.0), atol=1e-6
+  )
 
 
 def test_gray_variation():
-    np.testing.assert_allclose(colors.GrayVariation(0.3)(), [0.3, 0.3, 0.3, 1.0])
-    np.testing.assert_allclose(colors.GrayVariation(0.3, alpha=0.5)(), [0.3, 0.3, 0.3, 0.5])
-    value = colors.GrayVariation(distributions.Uniform())(jnp.ones(4), None, KEY)
-    assert value.shape == (4,) and value[0] == value[1] == value[2] and value[3] == 1.0
-    assert repr(colors.GrayVariation(0.3)) == "GrayVariation(gray_level=0.3, alpha=1.0)"
-    assert colors.GrayVariation(0.3) == colors.GrayVariation(0.3)
-    assert colors.GrayVariation(0.3) != colors.GrayVariation(0.4)
+  np.testing.assert_allclose(colors.GrayVariation(0.3)(), [0.3, 0.3, 0.3, 1.0])
+  np.testing.assert_allclose(
+      colors.GrayVariation(0.3, alpha=0.5)(), [0.3, 0.3, 0.3, 0.5]
+  )
+  value = colors.GrayVariation(distributions.Uniform())(jnp.ones(4), None, KEY)
+  assert (
+      value.shape == (4,)
+      and value[0] == value[1] == value[2]
+      and value[3] == 1.0
+  )
+  assert (
+      repr(colors.GrayVariation(0.3))
+      == "GrayVariation(gray_level=0.3, alpha=1.0)"
+  )
+  assert colors.GrayVariation(0.3) == colors.GrayVariation(0.3)
+  assert colors.GrayVariation(0.3) != colors.GrayVariation(0.4)

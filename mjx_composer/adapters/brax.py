@@ -66,7 +66,6 @@ import numpy as np
 ObsKey = Union[None, str, Sequence[str]]
 
 
-
 def _install_jax_compat():
   """Gives JAX >= 0.10 back `jax.device_put_replicated` for Brax 0.14.
 
@@ -88,8 +87,7 @@ def _install_jax_compat():
     # jitted function they reach (the evaluator, the training epoch) compiles
     # twice.
     mesh = jax.sharding.Mesh(np.array(devices), ('i',))
-    sharding = jax.sharding.NamedSharding(mesh,
-                                          jax.sharding.PartitionSpec('i'))
+    sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec('i'))
 
     def put(y):
       y = jnp.asarray(y)
@@ -126,38 +124,55 @@ class BraxEnv(brax_base.Env):
       bundled tasks' controls already range over [-1, 1].
   """
 
-  def __init__(self, environment, obs_key: ObsKey = None,
-               episode_length: int | None = None,
-               rescale_actions: bool = False):
+  def __init__(
+      self,
+      environment,
+      obs_key: ObsKey = None,
+      episode_length: int | None = None,
+      rescale_actions: bool = False,
+  ):
     auto_reset = getattr(environment, '_auto_reset', 'same_step')
     if auto_reset != 'same_step':
       raise ValueError(
           "BraxEnv needs an Environment built with auto_reset='same_step' "
           f'(got {auto_reset!r}): Brax trains on the transition into each '
-          'LAST step and must see the next episode start in the same step.')
+          'LAST step and must see the next episode start in the same step.'
+      )
     self._env = environment
     self._obs_key = obs_key
     spec = environment.action_spec()
     if len(spec.shape) != 1:
-      raise ValueError(f'Brax needs a flat action; the action spec has shape '
-                       f'{spec.shape}.')
+      raise ValueError(
+          f'Brax needs a flat action; the action spec has shape '
+          f'{spec.shape}.'
+      )
     if environment.reward_spec().shape != ():
-      raise ValueError('Brax needs a scalar reward; the task has a reward of '
-                       f'shape {environment.reward_spec().shape}.')
+      raise ValueError(
+          'Brax needs a scalar reward; the task has a reward of '
+          f'shape {environment.reward_spec().shape}.'
+      )
     self._action_size = int(spec.shape[0])
     self._rescale = None
     if rescale_actions:
       low = np.asarray(spec.minimum, np.float32)
       high = np.asarray(spec.maximum, np.float32)
       bounded = np.abs(high - low) < 1e9
-      self._rescale = (np.where(bounded, (high + low) / 2, 0.),
-                       np.where(bounded, (high - low) / 2, 1.))
+      self._rescale = (
+          np.where(bounded, (high + low) / 2, 0.0),
+          np.where(bounded, (high - low) / 2, 1.0),
+      )
     if episode_length is None:
       if math.isinf(environment.time_limit):
-        raise ValueError('The environment has no time limit: pass '
-                         'episode_length for Brax\'s evaluator.')
-      episode_length = max(1, math.ceil(
-          environment.time_limit / environment.control_timestep() - 1e-9))
+        raise ValueError(
+            'The environment has no time limit: pass '
+            "episode_length for Brax's evaluator."
+        )
+      episode_length = max(
+          1,
+          math.ceil(
+              environment.time_limit / environment.control_timestep() - 1e-9
+          ),
+      )
     self._episode_length = int(episode_length)
     self._abstract_state_cache = None
 
@@ -203,14 +218,14 @@ class BraxEnv(brax_base.Env):
       return jax.vmap(self.reset)(rng)
     return self._wrap(self._env.reset(rng), first=True)
 
-  def step(self, state: brax_base.State, action: jax.Array
-           ) -> brax_base.State:
+  def step(self, state: brax_base.State, action: jax.Array) -> brax_base.State:
     """Steps one world, or a batch if `action` has a leading batch axis."""
     if any(key in state.info for key in _BRAX_AUTO_RESET_KEYS):
       raise ValueError(
-          'BraxEnv was wrapped by Brax\'s AutoResetWrapper, which would '
-          'replay each world\'s first episode. Pass **training_kwargs(env) '
-          '(wrap_env_fn=wrap_for_training) or wrap_env=False to ppo.train.')
+          "BraxEnv was wrapped by Brax's AutoResetWrapper, which would "
+          "replay each world's first episode. Pass **training_kwargs(env) "
+          '(wrap_env_fn=wrap_for_training) or wrap_env=False to ppo.train.'
+      )
     action = jnp.asarray(action)
     if action.ndim > 1:
       return jax.vmap(self.step)(state, action)
@@ -226,8 +241,9 @@ class BraxEnv(brax_base.Env):
   def _abstract_state(self):
     # Shapes only (no compile); observation_size asks for them.
     if self._abstract_state_cache is None:
-      self._abstract_state_cache = jax.eval_shape(self.reset,
-                                                  jax.random.PRNGKey(0))
+      self._abstract_state_cache = jax.eval_shape(
+          self.reset, jax.random.PRNGKey(0)
+      )
     return self._abstract_state_cache
 
   def select_observation(self, observation):
@@ -238,20 +254,27 @@ class BraxEnv(brax_base.Env):
         return {k: _flat(v) for k, v in observation.items()}
       return _flat(observation)
     if not isinstance(observation, Mapping):
-      raise ValueError(f'obs_key={key!r} selects from a dict, but the '
-                       'observation is an array.')
+      raise ValueError(
+          f'obs_key={key!r} selects from a dict, but the '
+          'observation is an array.'
+      )
     keys = [key] if isinstance(key, str) else list(key)
     missing = [k for k in keys if k not in observation]
     if missing:
-      raise ValueError(f'obs_key: no observation {missing}; the observation '
-                       f'has {sorted(observation)}.')
+      raise ValueError(
+          f'obs_key: no observation {missing}; the observation '
+          f'has {sorted(observation)}.'
+      )
     return jnp.concatenate([_flat(observation[k]) for k in keys])
 
   def _step_metrics(self, state):
     # episode_return/episode_length are running totals: Brax's evaluator sums
     # metrics over steps, so it gets only the per-step ones.
-    return {k: jnp.asarray(v, jnp.float32) for k, v in state.metrics.items()
-            if k not in ('episode_return', 'episode_length')}
+    return {
+        k: jnp.asarray(v, jnp.float32)
+        for k, v in state.metrics.items()
+        if k not in ('episode_return', 'episode_length')
+    }
 
   def _wrap(self, state, first, previous=None) -> brax_base.State:
     done = state.last().astype(jnp.float32)
@@ -262,13 +285,16 @@ class BraxEnv(brax_base.Env):
       summed = {k: jnp.zeros((), jnp.float32) for k in metrics}
     else:
       # Restart the sums at the first step of each episode.
-      keep = 1. - previous.info['episode_done']
-      summed = {k: keep * previous.info['episode_metrics'][k] + v
-                for k, v in metrics.items()}
+      keep = 1.0 - previous.info['episode_done']
+      summed = {
+          k: keep * previous.info['episode_metrics'][k] + v
+          for k, v in metrics.items()
+      }
     episode_metrics = {
-        'sum_reward': jnp.asarray(state.metrics['episode_return'],
-                                  jnp.float32),
-        'length': steps, **summed}
+        'sum_reward': jnp.asarray(state.metrics['episode_return'], jnp.float32),
+        'length': steps,
+        **summed,
+    }
     info = {
         'steps': steps,
         'truncation': truncation,
@@ -280,9 +306,13 @@ class BraxEnv(brax_base.Env):
     }
     raw = state.replace(key=jax.random.key_data(state.key))
     return brax_base.State(
-        pipeline_state=raw, obs=self.select_observation(state.observation),
-        reward=jnp.asarray(state.reward, jnp.float32), done=done,
-        metrics=metrics, info=info)
+        pipeline_state=raw,
+        obs=self.select_observation(state.observation),
+        reward=jnp.asarray(state.reward, jnp.float32),
+        done=done,
+        metrics=metrics,
+        info=info,
+    )
 
 
 def composer_state(state: brax_base.State):
@@ -291,9 +321,13 @@ def composer_state(state: brax_base.State):
   return raw.replace(key=jax.random.wrap_key_data(raw.key))
 
 
-def wrap_for_training(env: BraxEnv, episode_length: int | None = None,
-                      action_repeat: int = 1, randomization_fn=None,
-                      **unused_kwargs) -> BraxEnv:
+def wrap_for_training(
+    env: BraxEnv,
+    episode_length: int | None = None,
+    action_repeat: int = 1,
+    randomization_fn=None,
+    **unused_kwargs,
+) -> BraxEnv:
   """`ppo.train`'s `wrap_env_fn`: checks the arguments, returns `env` as is.
 
   `BraxEnv` already batches itself, auto-resets each world with fresh
@@ -310,23 +344,28 @@ def wrap_for_training(env: BraxEnv, episode_length: int | None = None,
     raise ValueError(
         'randomization_fn is not supported: Brax samples it once per run. '
         'Randomize in the task (initialize_episode, variations), which '
-        'resamples every episode.')
+        'resamples every episode.'
+    )
   if action_repeat != 1:
     raise ValueError(
-        f'action_repeat={action_repeat} is not supported: set the task\'s '
-        'control timestep instead (physics steps per control step).')
+        f"action_repeat={action_repeat} is not supported: set the task's "
+        'control timestep instead (physics steps per control step).'
+    )
   if episode_length is not None and episode_length != env.episode_length:
     raise ValueError(
-        f'episode_length={episode_length} differs from the environment\'s '
+        f"episode_length={episode_length} differs from the environment's "
         f'{env.episode_length} control steps (its time_limit): pass '
-        'episode_length=env.episode_length, or change the time_limit.')
+        'episode_length=env.episode_length, or change the time_limit.'
+    )
   return env
 
 
 def training_kwargs(env: BraxEnv) -> dict:
   """The `ppo.train` (or `sac.train`) arguments a `BraxEnv` needs."""
-  return {'wrap_env_fn': wrap_for_training,
-          'episode_length': env.episode_length}
+  return {
+      'wrap_env_fn': wrap_for_training,
+      'episode_length': env.episode_length,
+  }
 
 
 def _flat(x):

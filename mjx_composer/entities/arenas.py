@@ -19,8 +19,9 @@ _GROUNDPLANE_QUAD_SIZE = 0.25
 
 def _host_call(physics, key):
   """True for composer's host-side `regenerate(random_state)` call."""
-  return key is None and (physics is None
-                          or isinstance(physics, np.random.RandomState))
+  return key is None and (
+      physics is None or isinstance(physics, np.random.RandomState)
+  )
 
 
 class Floor(arena.Arena):
@@ -36,32 +37,56 @@ class Floor(arena.Arena):
       top camera's field of view covers.
   """
 
-  def _build(self, size=(2., 2.), reflectance=0.2, name='floor',
-             top_camera_distance=10., top_camera_y_padding_factor=1.1):
+  def _build(
+      self,
+      size=(2.0, 2.0),
+      reflectance=0.2,
+      name='floor',
+      top_camera_distance=10.0,
+      top_camera_y_padding_factor=1.1,
+  ):
     super()._build(name=name)
     self._size = tuple(float(s) for s in size)
     spec = self.mjcf_model
     spec.add_texture(
-        name='grid', type=mujoco.mjtTexture.mjTEXTURE_2D,
-        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=256, height=256,
-        rgb1=[.2, .3, .4], rgb2=[.1, .2, .3])
-    spec.add_material(name='grid', texrepeat=[4, 4],
-                      textures=['', 'grid'] + [''] * 8,
-                      reflectance=reflectance)
+        name='grid',
+        type=mujoco.mjtTexture.mjTEXTURE_2D,
+        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+        width=256,
+        height=256,
+        rgb1=[0.2, 0.3, 0.4],
+        rgb2=[0.1, 0.2, 0.3],
+    )
+    spec.add_material(
+        name='grid',
+        texrepeat=[4, 4],
+        textures=['', 'grid'] + [''] * 8,
+        reflectance=reflectance,
+    )
     self._ground = spec.worldbody.add_geom(
-        name='ground', type=mujoco.mjtGeom.mjGEOM_PLANE,
+        name='ground',
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
         size=[self._size[0], self._size[1], _GROUNDPLANE_QUAD_SIZE],
-        material='grid')
-    spec.worldbody.add_light(name='top', pos=[0, 0, 4], dir=[0, 0, -1],
-                             type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
-    spec.worldbody.add_camera(name='overview', pos=[1.6, -1.6, 1.4],
-                              xyaxes=[1, 1, 0, -0.4, 0.4, 1])
+        material='grid',
+    )
+    spec.worldbody.add_light(
+        name='top',
+        pos=[0, 0, 4],
+        dir=[0, 0, -1],
+        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+    )
+    spec.worldbody.add_camera(
+        name='overview', pos=[1.6, -1.6, 1.4], xyaxes=[1, 1, 0, -0.4, 0.4, 1]
+    )
     # A field of view that always fits the floor, as locomotion's Floor.
-    fovy = 2 * np.arctan2(top_camera_y_padding_factor * self._size[1],
-                          top_camera_distance)
+    fovy = 2 * np.arctan2(
+        top_camera_y_padding_factor * self._size[1], top_camera_distance
+    )
     self._top_camera = spec.worldbody.add_camera(
-        name='top_camera', pos=[0, 0, top_camera_distance],
-        fovy=float(np.rad2deg(fovy)))
+        name='top_camera',
+        pos=[0, 0, top_camera_distance],
+        fovy=float(np.rad2deg(fovy)),
+    )
 
   @property
   def ground_geoms(self):
@@ -108,23 +133,39 @@ class WalledArena(Floor):
     **floor_kwargs: passed to `Floor` (reflectance, camera options).
   """
 
-  def _build(self, size=(0.5, 0.5), wall_height=0.1,
-             wall_rgba=(0.45, 0.45, 0.5, 1.), size_variation=None,
-             name='walled_arena', **floor_kwargs):
+  def _build(
+      self,
+      size=(0.5, 0.5),
+      wall_height=0.1,
+      wall_rgba=(0.45, 0.45, 0.5, 1.0),
+      size_variation=None,
+      name='walled_arena',
+      **floor_kwargs,
+  ):
     super()._build(size=size, name=name, **floor_kwargs)
     self._wall_half_height = float(wall_height) / 2
     self._size_variation = size_variation
     positions, sizes = self._wall_layout(np.asarray(self._size))
     # Plane normals (their z axes) point into the arena.
     # Each plane's x axis runs along its wall and its y axis up.
-    half = np.sqrt(.5)
-    quats = ([-0.5, -0.5, 0.5, 0.5], [0.5, 0.5, 0.5, 0.5],
-             [half, half, 0., 0.], [0., 0., half, half])
+    half = np.sqrt(0.5)
+    quats = (
+        [-0.5, -0.5, 0.5, 0.5],
+        [0.5, 0.5, 0.5, 0.5],
+        [half, half, 0.0, 0.0],
+        [0.0, 0.0, half, half],
+    )
     self._walls = tuple(
         self.mjcf_model.worldbody.add_geom(
-            name=f'wall_{side}', type=mujoco.mjtGeom.mjGEOM_PLANE,
-            pos=positions[i], size=sizes[i], quat=quats[i], rgba=wall_rgba)
-        for i, side in enumerate(('px', 'nx', 'py', 'ny')))
+            name=f'wall_{side}',
+            type=mujoco.mjtGeom.mjGEOM_PLANE,
+            pos=positions[i],
+            size=sizes[i],
+            quat=quats[i],
+            rgba=wall_rgba,
+        )
+        for i, side in enumerate(('px', 'nx', 'py', 'ny'))
+    )
 
   def _wall_layout(self, size):
     """Wall centres and plane sizes (4, 3) for an interior half-size (2,).
@@ -135,15 +176,23 @@ class WalledArena(Floor):
     h = self._wall_half_height
     sx, sy = size[0], size[1]
     zero = sx * 0
-    positions = xp.stack([
-        xp.stack([sx, zero, zero + h]), xp.stack([-sx, zero, zero + h]),
-        xp.stack([zero, sy, zero + h]), xp.stack([zero, -sy, zero + h]),
-    ])
+    positions = xp.stack(
+        [
+            xp.stack([sx, zero, zero + h]),
+            xp.stack([-sx, zero, zero + h]),
+            xp.stack([zero, sy, zero + h]),
+            xp.stack([zero, -sy, zero + h]),
+        ]
+    )
     quad = zero + _GROUNDPLANE_QUAD_SIZE
-    sizes = xp.stack([
-        xp.stack([sy, zero + h, quad]), xp.stack([sy, zero + h, quad]),
-        xp.stack([sx, zero + h, quad]), xp.stack([sx, zero + h, quad]),
-    ])
+    sizes = xp.stack(
+        [
+            xp.stack([sy, zero + h, quad]),
+            xp.stack([sy, zero + h, quad]),
+            xp.stack([sx, zero + h, quad]),
+            xp.stack([sx, zero + h, quad]),
+        ]
+    )
     return positions, sizes
 
   @property
@@ -173,9 +222,18 @@ class WalledArena(Floor):
     if self._size_variation is None:
       return physics
     nominal = jnp.asarray(self._size, jnp.float32)
-    size = jnp.broadcast_to(jnp.asarray(variation_base.evaluate(
-        self._size_variation, initial_value=nominal, current_value=nominal,
-        key=key), jnp.float32), (2,))
+    size = jnp.broadcast_to(
+        jnp.asarray(
+            variation_base.evaluate(
+                self._size_variation,
+                initial_value=nominal,
+                current_value=nominal,
+                key=key,
+            ),
+            jnp.float32,
+        ),
+        (2,),
+    )
     positions, sizes = self._wall_layout(size)
     physics = physics.bind(list(self._walls)).set(pos=positions, size=sizes)
     ground = physics.bind(self._ground).size

@@ -46,7 +46,7 @@ _RENDERED_HEIGHT_IN_2D_MODE = 0.01
 
 def _ensure_3d(pos):
   pos = np.asarray(pos, float)
-  return np.concatenate([pos, [0.]]) if pos.size == 2 else pos
+  return np.concatenate([pos, [0.0]]) if pos.size == 2 else pos
 
 
 class PositionDetectorObservables(observable.Observables):
@@ -69,7 +69,9 @@ class PositionDetectorObservables(observable.Observables):
     """1. for each registered entity that is detected, else 0. (float32)."""
     return observable.Generic(
         lambda physics: self._entity.detected_entities(physics).astype(
-            jnp.float32))
+            jnp.float32
+        )
+    )
 
 
 class PositionDetector(entity.Entity):
@@ -92,13 +94,24 @@ class PositionDetector(entity.Entity):
     ValueError: if `pos` and `size` differ in length or are not 2 or 3 long.
   """
 
-  def _build(self, pos, size, inverted=False, visible=False,
-             rgba=(1, 1, 1, 1), material=None, detected_rgba=(0, 1, 0, 0.25),
-             retain_substep_detections=False, name='position_detector'):
+  def _build(
+      self,
+      pos,
+      size,
+      inverted=False,
+      visible=False,
+      rgba=(1, 1, 1, 1),
+      material=None,
+      detected_rgba=(0, 1, 0, 0.25),
+      retain_substep_detections=False,
+      name='position_detector',
+  ):
     pos, size = np.asarray(pos, float), np.asarray(size, float)
     if pos.shape != size.shape or pos.size not in (2, 3):
-      raise ValueError('`pos` and `size` should have the same length (2 or '
-                       f'3): got {pos.tolist()!r} and {size.tolist()!r}')
+      raise ValueError(
+          '`pos` and `size` should have the same length (2 or '
+          f'3): got {pos.tolist()!r} and {size.tolist()!r}'
+      )
     self._dims = pos.size
     self._inverted = bool(inverted)
     self._retain_substep_detections = bool(retain_substep_detections)
@@ -109,25 +122,36 @@ class PositionDetector(entity.Entity):
     spec.modelname = name
     self._spec = spec
     self._site = spec.worldbody.add_site(
-        name='detection_zone', type=mujoco.mjtGeom.mjGEOM_BOX,
-        rgba=self._rgba)
+        name='detection_zone', type=mujoco.mjtGeom.mjGEOM_BOX, rgba=self._rgba
+    )
     if material is not None:
       self._site.material = material
-    self._lower_site = spec.worldbody.add_site(name='lower', size=[0.05, 0, 0],
-                                               rgba=self._rgba)
-    self._mid_site = spec.worldbody.add_site(name='mid', size=[0.05, 0, 0],
-                                             rgba=self._rgba)
-    self._upper_site = spec.worldbody.add_site(name='upper', size=[0.05, 0, 0],
-                                               rgba=self._rgba)
+    self._lower_site = spec.worldbody.add_site(
+        name='lower', size=[0.05, 0, 0], rgba=self._rgba
+    )
+    self._mid_site = spec.worldbody.add_site(
+        name='mid', size=[0.05, 0, 0], rgba=self._rgba
+    )
+    self._upper_site = spec.worldbody.add_site(
+        name='upper', size=[0.05, 0, 0], rgba=self._rgba
+    )
     site_obj = mujoco.mjtObj.mjOBJ_SITE
     self._lower_sensor, self._mid_sensor, self._upper_sensor = (
-        spec.add_sensor(name=f'{name}_{which}',
-                        type=mujoco.mjtSensor.mjSENS_FRAMEPOS,
-                        objtype=site_obj, objname=which)
-        for which in ('lower', 'mid', 'upper'))
+        spec.add_sensor(
+            name=f'{name}_{which}',
+            type=mujoco.mjtSensor.mjSENS_FRAMEPOS,
+            objtype=site_obj,
+            objname=which,
+        )
+        for which in ('lower', 'mid', 'upper')
+    )
     if not visible:
-      for site in (self._site, self._lower_site, self._mid_site,
-                   self._upper_site):
+      for site in (
+          self._site,
+          self._lower_site,
+          self._mid_site,
+          self._upper_site,
+      ):
         site.group = constants.SENSOR_SITES_GROUP
     self._set_spec_region(pos, size)
 
@@ -138,9 +162,9 @@ class PositionDetector(entity.Entity):
     self._lower = pos - size
     self._upper = pos + size
     render_pos = np.zeros(3)
-    render_pos[:pos.size] = pos
+    render_pos[: pos.size] = pos
     render_size = np.full(3, _RENDERED_HEIGHT_IN_2D_MODE)
-    render_size[:size.size] = size
+    render_size[: size.size] = size
     self._site.pos = render_pos
     self._site.size = render_size
     self._lower_site.pos = _ensure_3d(self._lower)
@@ -151,9 +175,11 @@ class PositionDetector(entity.Entity):
     """Changes the region before the environment is built (host)."""
     pos, size = np.asarray(pos, float), np.asarray(size, float)
     if pos.shape != size.shape or pos.size != self._dims:
-      raise ValueError('`pos` and `size` should have the same length as the '
-                       f'detector\'s ({self._dims}): got {pos.tolist()!r} and '
-                       f'{size.tolist()!r}')
+      raise ValueError(
+          '`pos` and `size` should have the same length as the '
+          f"detector's ({self._dims}): got {pos.tolist()!r} and "
+          f'{size.tolist()!r}'
+      )
     self._set_spec_region(pos, size)
 
   def set_position(self, physics, pos):
@@ -165,13 +191,18 @@ class PositionDetector(entity.Entity):
     pos = jnp.asarray(pos, jnp.float32)
     if pos.shape != (self._dims,):
       raise ValueError(f'pos must have shape ({self._dims},), got {pos.shape}.')
-    half = (jnp.asarray(self._upper, jnp.float32)
-            - jnp.asarray(self._lower, jnp.float32)) / 2
+    half = (
+        jnp.asarray(self._upper, jnp.float32)
+        - jnp.asarray(self._lower, jnp.float32)
+    ) / 2
     zone = physics.bind(self._site).pos
-    physics = physics.bind(self._site).set(pos=zone.at[:self._dims].set(pos))
+    physics = physics.bind(self._site).set(pos=zone.at[: self._dims].set(pos))
     lower, upper = pos - half, pos + half
-    pad = (lambda x: jnp.concatenate([x, jnp.zeros(1, x.dtype)])
-           if self._dims == 2 else x)
+    pad = (
+        lambda x: jnp.concatenate([x, jnp.zeros(1, x.dtype)])
+        if self._dims == 2
+        else x
+    )
     physics = physics.bind(self._lower_site).set(pos=pad(lower))
     physics = physics.bind(self._mid_site).set(pos=pad(pos))
     return physics.bind(self._upper_site).set(pos=pad(upper))
@@ -196,8 +227,8 @@ class PositionDetector(entity.Entity):
   # -- detection (device) ---------------------------------------------------
 
   def _region(self, physics):
-    lower = physics.bind(self._lower_site).pos[:self._dims]
-    upper = physics.bind(self._upper_site).pos[:self._dims]
+    lower = physics.bind(self._lower_site).pos[: self._dims]
+    upper = physics.bind(self._upper_site).pos[: self._dims]
     return lower, upper
 
   def _instantaneous(self, physics):
@@ -207,12 +238,13 @@ class PositionDetector(entity.Entity):
     lower, upper = self._region(physics)
     flags = []
     for registered in self._entities:
-      geoms = [g for e in registered.iter_entities()
-               for g in e.mjcf_model.geoms]
+      geoms = [
+          g for e in registered.iter_entities() for g in e.mjcf_model.geoms
+      ]
       if not geoms:
         flags.append(jnp.zeros((), bool))
         continue
-      xpos = physics.bind(geoms).xpos[:, :self._dims]
+      xpos = physics.bind(geoms).xpos[:, : self._dims]
       inside = jnp.all((lower < xpos) & (xpos < upper), axis=-1)
       flags.append(jnp.any(inside != self._inverted))
     return jnp.stack(flags)
@@ -236,15 +268,17 @@ class PositionDetector(entity.Entity):
     del key
     if not self._retain_substep_detections:
       return physics
-    return physics.set_persistent(self._state_name(),
-                                  self._instantaneous(physics))
+    return physics.set_persistent(
+        self._state_name(), self._instantaneous(physics)
+    )
 
   def before_step(self, physics, key):
     del key
     if not self._retain_substep_detections:
       return physics
-    return physics.set_persistent(self._state_name(),
-                                  jnp.zeros((len(self._entities),), bool))
+    return physics.set_persistent(
+        self._state_name(), jnp.zeros((len(self._entities),), bool)
+    )
 
   def after_substep(self, physics, key):
     del key
@@ -271,7 +305,7 @@ class PositionDetector(entity.Entity):
 
   @property
   def mid(self):
-    return (self._lower + self._upper) / 2.
+    return (self._lower + self._upper) / 2.0
 
   def site_pos(self, physics):
     """The zone site's model position in one world."""

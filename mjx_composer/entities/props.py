@@ -28,8 +28,13 @@ _GEOM_TYPES = {
     'box': mujoco.mjtGeom.mjGEOM_BOX,
 }
 # How many size numbers each shape takes (MuJoCo's geom `size`).
-_SIZE_LENGTHS = {'sphere': 1, 'capsule': 2, 'cylinder': 2, 'ellipsoid': 3,
-                 'box': 3}
+_SIZE_LENGTHS = {
+    'sphere': 1,
+    'capsule': 2,
+    'cylinder': 2,
+    'ellipsoid': 3,
+    'box': 3,
+}
 
 
 def _geom_type_name(geom_type) -> str:
@@ -39,13 +44,16 @@ def _geom_type_name(geom_type) -> str:
     names = {v: k for k, v in _GEOM_TYPES.items()}
     name = names.get(geom_type)
   if name not in _GEOM_TYPES:
-    raise ValueError(f'Unsupported primitive geom type {geom_type!r}; choose '
-                     f'from {sorted(_GEOM_TYPES)}.')
+    raise ValueError(
+        f'Unsupported primitive geom type {geom_type!r}; choose '
+        f'from {sorted(_GEOM_TYPES)}.'
+    )
   return name
 
 
-class PrimitiveObservables(observable.Observables,
-                           observable.FreePropObservableMixin):
+class PrimitiveObservables(
+    observable.Observables, observable.FreePropObservableMixin
+):
   """Pose and velocity of a `Primitive`'s geom, from its frame sensors."""
 
   @define.observable
@@ -83,26 +91,36 @@ class Primitive(entity.Entity):
     type_name = _geom_type_name(geom_type)
     size = np.reshape(np.asarray(size, float), -1)
     if size.size != _SIZE_LENGTHS[type_name]:
-      raise ValueError(f'A {type_name} takes {_SIZE_LENGTHS[type_name]} size '
-                       f'numbers, got {size.tolist()}.')
+      raise ValueError(
+          f'A {type_name} takes {_SIZE_LENGTHS[type_name]} size '
+          f'numbers, got {size.tolist()}.'
+      )
     # composer's manipulation props take `mass=None` to mean the default.
     geom_kwargs = {k: v for k, v in geom_kwargs.items() if v is not None}
     spec = mujoco.MjSpec()
     spec.modelname = name or type_name
     padded = np.zeros(3)
-    padded[:size.size] = size
+    padded[: size.size] = size
     self._geom = spec.worldbody.add_geom(
-        name='geom', type=_GEOM_TYPES[type_name], size=padded, **geom_kwargs)
+        name='geom', type=_GEOM_TYPES[type_name], size=padded, **geom_kwargs
+    )
     geom_obj = mujoco.mjtObj.mjOBJ_GEOM
-    self._position, self._orientation, self._linear_velocity, \
-        self._angular_velocity = (
-            spec.add_sensor(name=sensor_name, type=sensor_type,
-                            objtype=geom_obj, objname='geom')
-            for sensor_name, sensor_type in (
-                ('position', mujoco.mjtSensor.mjSENS_FRAMEPOS),
-                ('orientation', mujoco.mjtSensor.mjSENS_FRAMEQUAT),
-                ('linear_velocity', mujoco.mjtSensor.mjSENS_FRAMELINVEL),
-                ('angular_velocity', mujoco.mjtSensor.mjSENS_FRAMEANGVEL)))
+    (
+        self._position,
+        self._orientation,
+        self._linear_velocity,
+        self._angular_velocity,
+    ) = (
+        spec.add_sensor(
+            name=sensor_name, type=sensor_type, objtype=geom_obj, objname='geom'
+        )
+        for sensor_name, sensor_type in (
+            ('position', mujoco.mjtSensor.mjSENS_FRAMEPOS),
+            ('orientation', mujoco.mjtSensor.mjSENS_FRAMEQUAT),
+            ('linear_velocity', mujoco.mjtSensor.mjSENS_FRAMELINVEL),
+            ('angular_velocity', mujoco.mjtSensor.mjSENS_FRAMEANGVEL),
+        )
+    )
     self._spec = spec
 
   def _build_observables(self):
@@ -155,18 +173,17 @@ class Box(Primitive):
 class Capsule(Primitive):
   """A capsule prop along z. Args: radius, half_length, then as `Primitive`."""
 
-  def _build(self, radius=0.05, half_length=0.1, name='capsule',
-             **geom_kwargs):
+  def _build(self, radius=0.05, half_length=0.1, name='capsule', **geom_kwargs):
     super()._build('capsule', [radius, half_length], name=name, **geom_kwargs)
 
 
 class Cylinder(Primitive):
   """A cylinder prop along z. Args: radius, half_length, then as `Primitive`."""
 
-  def _build(self, radius=0.05, half_length=0.1, name='cylinder',
-             **geom_kwargs):
-    super()._build('cylinder', [radius, half_length], name=name,
-                   **geom_kwargs)
+  def _build(
+      self, radius=0.05, half_length=0.1, name='cylinder', **geom_kwargs
+  ):
+    super()._build('cylinder', [radius, half_length], name=name, **geom_kwargs)
 
 
 class Ellipsoid(Primitive):
@@ -176,8 +193,9 @@ class Ellipsoid(Primitive):
     super()._build('ellipsoid', radii, name=name, **geom_kwargs)
 
 
-class BallObservables(observable.Observables,
-                      observable.FreePropObservableMixin):
+class BallObservables(
+    observable.Observables, observable.FreePropObservableMixin
+):
   """Pose and velocity of a ball, from frame sensors."""
 
   @define.observable
@@ -204,23 +222,32 @@ class Ball(entity.Entity):
     radius: metres. mass: kilograms. rgba: colour. name: entity name.
   """
 
-  def _build(self, radius=0.05, mass=0.2, rgba=(0.2, 0.6, 0.9, 1.),
-             name='ball'):
+  def _build(
+      self, radius=0.05, mass=0.2, rgba=(0.2, 0.6, 0.9, 1.0), name='ball'
+  ):
     spec = mujoco.MjSpec()
     spec.modelname = name
     body = spec.worldbody.add_body(name='body')
-    self._geom = body.add_geom(name='geom', type=mujoco.mjtGeom.mjGEOM_SPHERE,
-                               size=[radius, 0, 0], mass=mass, rgba=rgba)
+    self._geom = body.add_geom(
+        name='geom',
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[radius, 0, 0],
+        mass=mass,
+        rgba=rgba,
+    )
     site = body.add_site(name='center', size=[0.01, 0, 0])
     obj = mujoco.mjtObj.mjOBJ_SITE
     self._sensors = tuple(
-        spec.add_sensor(name=kind, type=sensor_type, objtype=obj,
-                        objname='center')
+        spec.add_sensor(
+            name=kind, type=sensor_type, objtype=obj, objname='center'
+        )
         for kind, sensor_type in (
             ('pos', mujoco.mjtSensor.mjSENS_FRAMEPOS),
             ('quat', mujoco.mjtSensor.mjSENS_FRAMEQUAT),
             ('linvel', mujoco.mjtSensor.mjSENS_FRAMELINVEL),
-            ('angvel', mujoco.mjtSensor.mjSENS_FRAMEANGVEL)))
+            ('angvel', mujoco.mjtSensor.mjSENS_FRAMEANGVEL),
+        )
+    )
     del site
     self._spec = spec
 

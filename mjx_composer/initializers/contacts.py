@@ -49,7 +49,7 @@ def pair_groups(model: mujoco.MjModel, geoms, excluded=()):
     Empty when the model disables contacts.
   """
   if model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT:
-    return ()   # MuJoCo reports no contacts at all: nothing can collide.
+    return ()  # MuJoCo reports no contacts at all: nothing can collide.
   geoms = np.asarray(geoms, np.int32)
   excluded = np.asarray(excluded, np.int32)
   groups = []
@@ -126,8 +126,7 @@ def welded_chains(model: mujoco.MjModel, frame_body: int, geom_ids):
   return chains
 
 
-def rigid_geom_poses(model: mjx.Model, position, quaternion, geom_ids,
-                     chains):
+def rigid_geom_poses(model: mjx.Model, position, quaternion, geom_ids, chains):
   """World poses of geoms that move rigidly with a body at a given pose.
 
   Composes the body's pose with the model's `body_pos`/`body_quat` down each
@@ -147,7 +146,7 @@ def rigid_geom_poses(model: mjx.Model, position, quaternion, geom_ids,
 
   def one_geom(geom, chain):
     pos, quat = position, quaternion
-    for body in chain:   # D is static and small
+    for body in chain:  # D is static and small
       valid = body >= 0
       body = jnp.maximum(body, 0)
       child_pos = pos + mjx_math.rotate(model.body_pos[body], quat)
@@ -162,4 +161,5 @@ def rigid_geom_poses(model: mjx.Model, position, quaternion, geom_ids,
   geom_ids = jnp.asarray(geom_ids)
   chains = jnp.asarray(chains).reshape(geom_ids.shape[0], -1)
   return jax.vmap(lambda g, c: one_geom(g, [c[d] for d in range(c.shape[0])]))(
-      geom_ids, chains)
+      geom_ids, chains
+  )

@@ -67,7 +67,7 @@ from mjx_composer.variation import rotations
 _SETTLE_QVEL_TOL = 1e-3
 _SETTLE_QACC_TOL = 1e-2
 _NAMES = itertools.count()
-_QPOS_WIDTH = {0: 7, 1: 4, 2: 1, 3: 1}   # mjtJoint: free, ball, slide, hinge
+_QPOS_WIDTH = {0: 7, 1: 4, 2: 1, 3: 1}  # mjtJoint: free, ball, slide, hinge
 _DOF_WIDTH = {0: 6, 1: 3, 2: 1, 3: 1}
 
 
@@ -77,8 +77,9 @@ class _Single(NamedTuple):
   Used for fixed props (their pose is a model field) and for props with
   joints of their own, whose geoms do not move rigidly with the frame.
   """
+
   prop_index: int
-  pair_groups: tuple            # ((FunctionKey, (n, 2) geom ids), ...)
+  pair_groups: tuple  # ((FunctionKey, (n, 2) geom ids), ...)
 
 
 class _RigidRun(NamedTuple):
@@ -86,30 +87,33 @@ class _RigidRun(NamedTuple):
 
   Tables are stacked along the props and padded where sizes differ.
   """
-  prop_indices: np.ndarray      # (n,) indices into `PropPlacer.props`
-  qpos_adr: np.ndarray          # (n,) the freejoints' qpos addresses
-  geom_ids: np.ndarray          # (n, G) geom ids; `ngeom` pads (dropped)
-  chains: np.ndarray            # (n, G, D) welded bodies below the frame
-                                # down to each geom's body; -1 pads
-  keys: tuple                   # MJX function keys of the pair tables
-  pairs: tuple                  # per key: (n, P, 2) geom pairs
-  valid: tuple                  # per key: (n, P) which pairs are real
+
+  prop_indices: np.ndarray  # (n,) indices into `PropPlacer.props`
+  qpos_adr: np.ndarray  # (n,) the freejoints' qpos addresses
+  geom_ids: np.ndarray  # (n, G) geom ids; `ngeom` pads (dropped)
+  chains: np.ndarray  # (n, G, D) welded bodies below the frame
+  # down to each geom's body; -1 pads
+  keys: tuple  # MJX function keys of the pair tables
+  pairs: tuple  # per key: (n, P, 2) geom pairs
+  valid: tuple  # per key: (n, P) which pairs are real
 
 
 class _Tables(NamedTuple):
   """Static facts resolved once against a compiled model."""
-  index: Any                    # the ElementIndex these were resolved with
-  steps: tuple                  # `_Single`s and `_RigidRun`s, in prop order
-  held_qpos: np.ndarray         # qpos addresses of every non-prop joint
-  held_dofs: np.ndarray         # dof addresses of every non-prop joint
-  prop_dofs: np.ndarray         # dof addresses of every prop joint
-  fixed_fields: tuple           # model fields placement writes
+
+  index: Any  # the ElementIndex these were resolved with
+  steps: tuple  # `_Single`s and `_RigidRun`s, in prop order
+  held_qpos: np.ndarray  # qpos addresses of every non-prop joint
+  held_dofs: np.ndarray  # dof addresses of every non-prop joint
+  prop_dofs: np.ndarray  # dof addresses of every prop joint
+  fixed_fields: tuple  # model fields placement writes
 
 
 def _entity_elements(entity, attr):
   """Element handles of `attr` ('geoms', 'joints') in an entity's subtree."""
-  return [el for e in entity.iter_entities()
-          for el in getattr(e.mjcf_model, attr)]
+  return [
+      el for e in entity.iter_entities() for el in getattr(e.mjcf_model, attr)
+  ]
 
 
 def _joint_addresses(model, joint_ids):
@@ -137,9 +141,9 @@ def _rigid_run(model, members):
   geom_ids = np.full((n, max_geoms), model.ngeom, np.int32)
   chains = np.full((n, max_geoms, max(depth, 1)), -1, np.int32)
   for i, (_, _, geoms, prop_chains, _) in enumerate(members):
-    geom_ids[i, :len(geoms)] = geoms
+    geom_ids[i, : len(geoms)] = geoms
     for j, chain in enumerate(prop_chains):
-      chains[i, j, :len(chain)] = chain
+      chains[i, j, : len(chain)] = chain
   # One table per narrow-phase function, padded with a real pair of that
   # function (masked out) so every prop runs the same code.
   keys, pairs, valid = [], [], []
@@ -148,20 +152,28 @@ def _rigid_run(model, members):
       if key not in keys:
         keys.append(key)
   for key in keys:
-    per_prop = [dict(groups).get(key, np.zeros((0, 2), np.int32))
-                for *_, groups in members]
+    per_prop = [
+        dict(groups).get(key, np.zeros((0, 2), np.int32))
+        for *_, groups in members
+    ]
     width = max(len(p) for p in per_prop)
     filler = next(p[0] for p in per_prop if len(p))
     table = np.tile(filler, (n, width, 1)).astype(np.int32)
     mask = np.zeros((n, width), bool)
     for i, p in enumerate(per_prop):
-      table[i, :len(p)] = p
-      mask[i, :len(p)] = True
+      table[i, : len(p)] = p
+      mask[i, : len(p)] = True
     pairs.append(table)
     valid.append(mask)
-  return _RigidRun(np.asarray([m[0] for m in members], np.int32),
-                   np.asarray([m[1] for m in members], np.int32), geom_ids,
-                   chains, tuple(keys), tuple(pairs), tuple(valid))
+  return _RigidRun(
+      np.asarray([m[0] for m in members], np.int32),
+      np.asarray([m[1] for m in members], np.int32),
+      geom_ids,
+      chains,
+      tuple(keys),
+      tuple(pairs),
+      tuple(valid),
+  )
 
 
 class PropPlacer(initializer.Initializer):
@@ -191,20 +203,32 @@ class PropPlacer(initializer.Initializer):
       is smaller than 1, or `props` is empty.
   """
 
-  def __init__(self, props, position,
-               quaternion=rotations.IDENTITY_QUATERNION,
-               ignore_collisions=False, max_qvel_tol=_SETTLE_QVEL_TOL,
-               max_qacc_tol=_SETTLE_QACC_TOL, max_attempts_per_prop=20,
-               settle_physics=False, min_settle_physics_time=0.,
-               max_settle_physics_time=2., max_settle_physics_attempts=1,
-               raise_exception_on_settle_failure=False):
+  def __init__(
+      self,
+      props,
+      position,
+      quaternion=rotations.IDENTITY_QUATERNION,
+      ignore_collisions=False,
+      max_qvel_tol=_SETTLE_QVEL_TOL,
+      max_qacc_tol=_SETTLE_QACC_TOL,
+      max_attempts_per_prop=20,
+      settle_physics=False,
+      min_settle_physics_time=0.0,
+      max_settle_physics_time=2.0,
+      max_settle_physics_attempts=1,
+      raise_exception_on_settle_failure=False,
+  ):
     if max_settle_physics_attempts < 1:
-      raise ValueError('max_settle_physics_attempts should be greater than '
-                       'zero to have any effect, but is '
-                       f'{max_settle_physics_attempts}')
+      raise ValueError(
+          'max_settle_physics_attempts should be greater than '
+          'zero to have any effect, but is '
+          f'{max_settle_physics_attempts}'
+      )
     if max_attempts_per_prop < 1:
-      raise ValueError('max_attempts_per_prop should be at least 1, but is '
-                       f'{max_attempts_per_prop}')
+      raise ValueError(
+          'max_attempts_per_prop should be at least 1, but is '
+          f'{max_attempts_per_prop}'
+      )
     self._props = tuple(props)
     if not self._props:
       raise ValueError('PropPlacer needs at least one prop.')
@@ -219,7 +243,8 @@ class PropPlacer(initializer.Initializer):
     self._max_settle_physics_time = float(max_settle_physics_time)
     self._max_settle_physics_attempts = int(max_settle_physics_attempts)
     self._raise_exception_on_settle_failure = bool(
-        raise_exception_on_settle_failure)
+        raise_exception_on_settle_failure
+    )
     # Per-world state of stateful variations lives under these names.
     self._state_name = f'PropPlacer{next(_NAMES)}'
     self._tables: dict = {}
@@ -232,8 +257,7 @@ class PropPlacer(initializer.Initializer):
 
   def _resolve(self, index, ignore_contacts_with_entities) -> _Tables:
     """Resolves (and caches) everything static about this placement."""
-    cache_key = (id(index),
-                 tuple(id(e) for e in ignore_contacts_with_entities))
+    cache_key = (id(index), tuple(id(e) for e in ignore_contacts_with_entities))
     cached = self._tables.get(cache_key)
     if cached is not None and cached.index is index:
       return cached
@@ -243,38 +267,54 @@ class PropPlacer(initializer.Initializer):
     body_kind = physics_lib.KINDS_BY_NAME['body']
 
     def geoms_of(entity):
-      return np.asarray([index.element_id(geom_kind, g)
-                         for g in _entity_elements(entity, 'geoms')], np.int32)
+      return np.asarray(
+          [
+              index.element_id(geom_kind, g)
+              for g in _entity_elements(entity, 'geoms')
+          ],
+          np.int32,
+      )
 
     prop_geoms = [geoms_of(prop) for prop in self._props]
     ignored = [geoms_of(e) for e in ignore_contacts_with_entities]
     fixed_fields, steps, run, all_prop_joints = (), [], [], []
     for i, prop in enumerate(self._props):
       if prop.attachment_frame is None:
-        raise ValueError(f'PropPlacer: prop {prop.name!r} is not attached to '
-                         'the scene; attach it (e.g. with '
-                         'Arena.add_free_entity) before building the '
-                         'environment.')
-      own_joints = [index.element_id(joint_kind, j)
-                    for j in _entity_elements(prop, 'joints')]
+        raise ValueError(
+            f'PropPlacer: prop {prop.name!r} is not attached to '
+            'the scene; attach it (e.g. with '
+            'Arena.add_free_entity) before building the '
+            'environment.'
+        )
+      own_joints = [
+          index.element_id(joint_kind, j)
+          for j in _entity_elements(prop, 'joints')
+      ]
       freejoint = prop._freejoint()  # pylint: disable=protected-access
-      free_id = (None if freejoint is None
-                 else index.element_id(joint_kind, freejoint))
-      all_prop_joints.extend(own_joints + ([] if free_id is None
-                                           else [free_id]))
+      free_id = (
+          None if freejoint is None else index.element_id(joint_kind, freejoint)
+      )
+      all_prop_joints.extend(
+          own_joints + ([] if free_id is None else [free_id])
+      )
       # Props later in the order are not placed yet: composer disables their
       # contacts, and those of the entities it was told to ignore.
-      excluded = np.concatenate([np.zeros(0, np.int32)] + prop_geoms[i + 1:]
-                                + ignored)
-      groups = (() if self._ignore_collisions else
-                contacts.pair_groups(model, prop_geoms[i], excluded))
+      excluded = np.concatenate(
+          [np.zeros(0, np.int32)] + prop_geoms[i + 1 :] + ignored
+      )
+      groups = (
+          ()
+          if self._ignore_collisions
+          else contacts.pair_groups(model, prop_geoms[i], excluded)
+      )
       chains = None
       if free_id is not None and not own_joints:
         frame = index.element_id(body_kind, prop.attachment_frame)
         chains = contacts.welded_chains(model, frame, prop_geoms[i])
       if chains is not None:
-        run.append((i, int(model.jnt_qposadr[free_id]), prop_geoms[i], chains,
-                    groups))
+        run.append(
+            (i, int(model.jnt_qposadr[free_id]), prop_geoms[i], chains, groups)
+        )
         continue
       if run:
         steps.append(_rigid_run(model, run))
@@ -287,8 +327,9 @@ class PropPlacer(initializer.Initializer):
     prop_qpos, prop_dofs = _joint_addresses(model, all_prop_joints)
     held_qpos = np.setdiff1d(np.arange(model.nq), prop_qpos).astype(np.int32)
     held_dofs = np.setdiff1d(np.arange(model.nv), prop_dofs).astype(np.int32)
-    tables = _Tables(index, tuple(steps), held_qpos, held_dofs, prop_dofs,
-                     fixed_fields)
+    tables = _Tables(
+        index, tuple(steps), held_qpos, held_dofs, prop_dofs, fixed_fields
+    )
     self._tables[cache_key] = tables
     return tables
 
@@ -304,10 +345,11 @@ class PropPlacer(initializer.Initializer):
         return step.pair_groups
       if isinstance(step, _RigidRun) and prop_index in step.prop_indices:
         row = list(step.prop_indices).index(prop_index)
-        return tuple((key, pairs[row][valid[row]])
-                     for key, pairs, valid in zip(step.keys, step.pairs,
-                                                  step.valid)
-                     if valid[row].any())
+        return tuple(
+            (key, pairs[row][valid[row]])
+            for key, pairs, valid in zip(step.keys, step.pairs, step.valid)
+            if valid[row].any()
+        )
     raise IndexError(f'No prop {prop_index}.')
 
   # -- placement (device) ---------------------------------------------------
@@ -333,20 +375,24 @@ class PropPlacer(initializer.Initializer):
     if not self._settle_physics:
       physics, states, failed = self._place_props(physics, key, tables, states)
     else:
-      physics, states, failed = self._place_and_settle(physics, key, tables,
-                                                        states)
+      physics, states, failed = self._place_and_settle(
+          physics, key, tables, states
+      )
     physics = self._store_states(physics, states)
     return physics.fail_initialization(failed).kinematics()
 
   def _load_states(self, physics):
     """Variation states: this world's persistent ones when it has them."""
     states = []
-    for suffix, structure, size in (('position', self._position, 3),
-                                    ('quaternion', self._quaternion, 4)):
+    for suffix, structure, size in (
+        ('position', self._position, 3),
+        ('quaternion', self._quaternion, 4),
+    ):
       initial = variation_base.initial_state(structure, jnp.zeros(size))
       if initial is not None:
-        initial = physics.get_persistent(f'{self._state_name}/{suffix}',
-                                         initial)
+        initial = physics.get_persistent(
+            f'{self._state_name}/{suffix}', initial
+        )
       states.append(initial)
     return tuple(states)
 
@@ -361,12 +407,19 @@ class PropPlacer(initializer.Initializer):
     position_key, quaternion_key = jax.random.split(key)
     position_state, quaternion_state = states
     position, position_state = variation_base.sample(
-        self._position, position_state, position_key, initial[0], current[0])
+        self._position, position_state, position_key, initial[0], current[0]
+    )
     quaternion, quaternion_state = variation_base.sample(
-        self._quaternion, quaternion_state, quaternion_key, initial[1],
-        current[1])
-    pose = (jnp.broadcast_to(jnp.asarray(position, initial[0].dtype), (3,)),
-            jnp.broadcast_to(jnp.asarray(quaternion, initial[1].dtype), (4,)))
+        self._quaternion,
+        quaternion_state,
+        quaternion_key,
+        initial[1],
+        current[1],
+    )
+    pose = (
+        jnp.broadcast_to(jnp.asarray(position, initial[0].dtype), (3,)),
+        jnp.broadcast_to(jnp.asarray(quaternion, initial[1].dtype), (4,)),
+    )
     return pose, (position_state, quaternion_state)
 
   def _search(self, key, initial, states, collides):
@@ -381,14 +434,16 @@ class PropPlacer(initializer.Initializer):
 
     def attempt(carry):
       n, _, current, states = carry
-      pose, states = self._sample_pose(states, jax.random.fold_in(key, n),
-                                       initial, current)
+      pose, states = self._sample_pose(
+          states, jax.random.fold_in(key, n), initial, current
+      )
       return n + 1, jnp.logical_not(collides(pose)), pose, states
 
     def searching(carry):
       n, found, _, _ = carry
-      return jnp.logical_and(jnp.logical_not(found),
-                             n < self._max_attempts_per_prop)
+      return jnp.logical_and(
+          jnp.logical_not(found), n < self._max_attempts_per_prop
+      )
 
     carry = (jnp.zeros((), jnp.int32), jnp.zeros((), bool), initial, states)
     _, found, pose, states = jax.lax.while_loop(searching, attempt, carry)
@@ -402,11 +457,13 @@ class PropPlacer(initializer.Initializer):
     physics = physics.replace(data=mjx.kinematics(physics.model, physics.data))
     for step in tables.steps:
       if isinstance(step, _RigidRun):
-        physics, states, step_failed = self._place_run(physics, key, step,
-                                                       states)
+        physics, states, step_failed = self._place_run(
+            physics, key, step, states
+        )
       else:
-        physics, states, step_failed = self._place_single(physics, key, step,
-                                                          states)
+        physics, states, step_failed = self._place_single(
+            physics, key, step, states
+        )
       failed = jnp.logical_or(failed, step_failed)
     return physics, states, failed
 
@@ -417,11 +474,11 @@ class PropPlacer(initializer.Initializer):
     def collides(pose):
       candidate = prop.set_pose(physics, *pose)
       data = mjx.kinematics(candidate.model, candidate.data)
-      return contacts.min_distance(candidate.model, data,
-                                   step.pair_groups) <= 0
+      return contacts.min_distance(candidate.model, data, step.pair_groups) <= 0
 
     pose, states, found = self._search(
-        jax.random.fold_in(key, step.prop_index), initial, states, collides)
+        jax.random.fold_in(key, step.prop_index), initial, states, collides
+    )
     physics = prop.set_pose(physics, *pose)
     physics = physics.replace(data=mjx.kinematics(physics.model, physics.data))
     return physics, states, jnp.logical_not(found)
@@ -435,37 +492,56 @@ class PropPlacer(initializer.Initializer):
       prop_index, adr, geom_ids, chains, pairs, valid = row
 
       def geom_poses(pose):
-        return contacts.rigid_geom_poses(model, pose[0], pose[1], geom_ids,
-                                         chains)
+        return contacts.rigid_geom_poses(
+            model, pose[0], pose[1], geom_ids, chains
+        )
 
       def collides(pose):
         xpos, xmat = geom_poses(pose)
         candidate = data.replace(
             geom_xpos=geom_xpos.at[geom_ids].set(xpos, mode='drop'),
-            geom_xmat=geom_xmat.at[geom_ids].set(xmat, mode='drop'))
+            geom_xmat=geom_xmat.at[geom_ids].set(xmat, mode='drop'),
+        )
         groups = tuple(zip(run.keys, pairs))
         return contacts.min_distance(model, candidate, groups, valid) <= 0
 
-      initial = (jax.lax.dynamic_slice(qpos, (adr,), (3,)),
-                 jax.lax.dynamic_slice(qpos, (adr + 3,), (4,)))
-      pose, states, found = self._search(jax.random.fold_in(key, prop_index),
-                                         initial, states, collides)
+      initial = (
+          jax.lax.dynamic_slice(qpos, (adr,), (3,)),
+          jax.lax.dynamic_slice(qpos, (adr + 3,), (4,)),
+      )
+      pose, states, found = self._search(
+          jax.random.fold_in(key, prop_index), initial, states, collides
+      )
       # What `set_pose` writes for a free entity.
       qpos = jax.lax.dynamic_update_slice(
-          qpos, jnp.concatenate([pose[0], pose[1] / jnp.linalg.norm(pose[1])]),
-          (adr,))
+          qpos,
+          jnp.concatenate([pose[0], pose[1] / jnp.linalg.norm(pose[1])]),
+          (adr,),
+      )
       xpos, xmat = geom_poses(pose)
       geom_xpos = geom_xpos.at[geom_ids].set(xpos, mode='drop')
       geom_xmat = geom_xmat.at[geom_ids].set(xmat, mode='drop')
       failed = jnp.logical_or(failed, jnp.logical_not(found))
       return (qpos, geom_xpos, geom_xmat, states, failed), None
 
-    carry = (data.qpos, data.geom_xpos, data.geom_xmat, states,
-             jnp.zeros((), bool))
-    rows = (run.prop_indices, run.qpos_adr, run.geom_ids, run.chains,
-            run.pairs, run.valid)
+    carry = (
+        data.qpos,
+        data.geom_xpos,
+        data.geom_xmat,
+        states,
+        jnp.zeros((), bool),
+    )
+    rows = (
+        run.prop_indices,
+        run.qpos_adr,
+        run.geom_ids,
+        run.chains,
+        run.pairs,
+        run.valid,
+    )
     (qpos, geom_xpos, geom_xmat, states, failed), _ = jax.lax.scan(
-        place, carry, rows)
+        place, carry, rows
+    )
     # Body poses are stale until the next kinematics pass; geom poses are
     # current, which is all that the following placements read.
     data = data.replace(qpos=qpos, geom_xpos=geom_xpos, geom_xmat=geom_xmat)
@@ -479,32 +555,49 @@ class PropPlacer(initializer.Initializer):
 
     def unpack(carry):
       _, _, _, data, model_fields, persistent, _ = carry
-      model = (physics.model.replace(**model_fields) if model_fields
-               else physics.model)
+      model = (
+          physics.model.replace(**model_fields)
+          if model_fields
+          else physics.model
+      )
       return physics.replace(model=model, data=data, persistent=persistent)
 
     def one_round(carry):
       n, _, placement_failed, _, _, _, states = carry
       current = unpack(carry)
       current, states, failed = self._place_props(
-          current, jax.random.fold_in(key, n), tables, states)
+          current, jax.random.fold_in(key, n), tables, states
+      )
       current, settled = self._settle(current, tables)
-      return (n + 1, settled, jnp.logical_or(placement_failed, failed),
-              current.data, {f: getattr(current.model, f) for f in fields},
-              current.persistent, states)
+      return (
+          n + 1,
+          settled,
+          jnp.logical_or(placement_failed, failed),
+          current.data,
+          {f: getattr(current.model, f) for f in fields},
+          current.persistent,
+          states,
+      )
 
     def unsettled(carry):
       n, settled, placement_failed, *_ = carry
       # composer raises as soon as a placement fails: no further rounds.
       return jnp.logical_and(
-          jnp.logical_and(jnp.logical_not(settled),
-                          jnp.logical_not(placement_failed)),
-          n < self._max_settle_physics_attempts)
+          jnp.logical_and(
+              jnp.logical_not(settled), jnp.logical_not(placement_failed)
+          ),
+          n < self._max_settle_physics_attempts,
+      )
 
-    carry = (jnp.zeros((), jnp.int32), jnp.zeros((), bool),
-             jnp.zeros((), bool), physics.data,
-             {f: getattr(physics.model, f) for f in fields},
-             physics.persistent, states)
+    carry = (
+        jnp.zeros((), jnp.int32),
+        jnp.zeros((), bool),
+        jnp.zeros((), bool),
+        physics.data,
+        {f: getattr(physics.model, f) for f in fields},
+        physics.persistent,
+        states,
+    )
     carry = jax.lax.while_loop(unsettled, one_round, carry)
     _, settled, failed, *_, states = carry
     if self._raise_exception_on_settle_failure:
@@ -515,8 +608,9 @@ class PropPlacer(initializer.Initializer):
     """Steps with non-prop joints held; returns (physics, settled)."""
     model, start = physics.model, physics.data
     timestep = float(tables.index.model.opt.timestep)
-    max_steps = max(1, math.ceil(self._max_settle_physics_time / timestep
-                                 - 1e-9))
+    max_steps = max(
+        1, math.ceil(self._max_settle_physics_time / timestep - 1e-9)
+    )
     held_qpos, held_dofs = tables.held_qpos, tables.held_dofs
     qpos_held, qvel_held = start.qpos[held_qpos], start.qvel[held_dofs]
     prop_dofs = tables.prop_dofs
@@ -525,14 +619,17 @@ class PropPlacer(initializer.Initializer):
       data, n, _ = carry
       data = mjx.step(model, data)
       # composer's JointStaticIsolator: only the props may move.
-      data = data.replace(qpos=data.qpos.at[held_qpos].set(qpos_held),
-                          qvel=data.qvel.at[held_dofs].set(qvel_held))
+      data = data.replace(
+          qpos=data.qpos.at[held_qpos].set(qpos_held),
+          qvel=data.qvel.at[held_dofs].set(qvel_held),
+      )
       n = n + 1
       if prop_dofs.size:
         qvel = jnp.max(jnp.abs(data.qvel[prop_dofs]))
         qacc = jnp.max(jnp.abs(data.qacc[prop_dofs]))
-        still = jnp.logical_and(qvel < self._max_qvel_tol,
-                                qacc < self._max_qacc_tol)
+        still = jnp.logical_and(
+            qvel < self._max_qvel_tol, qacc < self._max_qacc_tol
+        )
       else:
         still = jnp.ones((), bool)
       # Elapsed time counted in steps: float32 `time` drifts.
@@ -544,5 +641,6 @@ class PropPlacer(initializer.Initializer):
       return jnp.logical_and(jnp.logical_not(settled), n < max_steps)
 
     data, _, settled = jax.lax.while_loop(
-        settling, step, (start, jnp.zeros((), jnp.int32), jnp.zeros((), bool)))
+        settling, step, (start, jnp.zeros((), jnp.int32), jnp.zeros((), bool))
+    )
     return physics.replace(data=data.replace(time=start.time)), settled

@@ -22,6 +22,7 @@ class FakePhysics:
   Attributes:
     counter: () int32, sub-steps taken since reset.
   """
+
   counter: jax.Array
 
   @classmethod
@@ -46,12 +47,22 @@ class FakePhysics:
   @staticmethod
   def observables() -> 'collections.OrderedDict[str, base.Observable]':
     """Fresh observables `twice`, `repeated` and `matrix`, as in composer."""
-    return collections.OrderedDict([
-        ('twice', base.Generic(lambda physics: 2 * physics.time())),
-        ('repeated', base.Generic(
-            lambda physics: jnp.stack([physics.time()] * 2),
-            update_interval=5)),
-        ('matrix', base.Generic(
-            lambda physics: jnp.full((2, 3), physics.time()),
-            update_interval=3)),
-    ])
+    return collections.OrderedDict(
+        [
+            ('twice', base.Generic(lambda physics: 2 * physics.time())),
+            (
+                'repeated',
+                base.Generic(
+                    lambda physics: jnp.stack([physics.time()] * 2),
+                    update_interval=5,
+                ),
+            ),
+            (
+                'matrix',
+                base.Generic(
+                    lambda physics: jnp.full((2, 3), physics.time()),
+                    update_interval=3,
+                ),
+            ),
+        ]
+    )

@@ -26,11 +26,13 @@ class Flattener:
       entry is bounded (unbounded entries get -inf/inf), else an `Array`.
   """
 
-  def __init__(self, spec_dict: Mapping[str, specs.Array], dtype=jnp.float32,
-               name=None):
+  def __init__(
+      self, spec_dict: Mapping[str, specs.Array], dtype=jnp.float32, name=None
+  ):
     if not isinstance(spec_dict, Mapping):
-      raise TypeError('Flattener needs a dict of specs, got '
-                      f'{type(spec_dict).__name__}.')
+      raise TypeError(
+          'Flattener needs a dict of specs, got ' f'{type(spec_dict).__name__}.'
+      )
     self.keys = tuple(spec_dict.keys())
     self._shapes = {k: tuple(spec_dict[k].shape) for k in self.keys}
     self._dtype = np.dtype(dtype)
@@ -41,8 +43,9 @@ class Flattener:
       self.slices[k] = slice(offset, offset + size)
       offset += size
     self.size = offset
-    bounded = [k for k in self.keys
-               if isinstance(spec_dict[k], specs.BoundedArray)]
+    bounded = [
+        k for k in self.keys if isinstance(spec_dict[k], specs.BoundedArray)
+    ]
     if bounded:
       lows, highs = [], []
       for k in self.keys:
@@ -55,9 +58,12 @@ class Flattener:
         lows.append(low.ravel())
         highs.append(high.ravel())
       self.spec = specs.BoundedArray(
-          shape=(self.size,), dtype=self._dtype,
+          shape=(self.size,),
+          dtype=self._dtype,
           minimum=np.concatenate(lows).astype(self._dtype),
-          maximum=np.concatenate(highs).astype(self._dtype), name=name)
+          maximum=np.concatenate(highs).astype(self._dtype),
+          name=name,
+      )
     else:
       self.spec = specs.Array(shape=(self.size,), dtype=self._dtype, name=name)
 
@@ -70,10 +76,12 @@ class Flattener:
     for k in self.keys:
       value = jnp.asarray(observation[k])
       shape = self._shapes[k]
-      lead = value.shape[:value.ndim - len(shape)]
-      if value.shape[len(lead):] != shape:
-        raise ValueError(f'Observation {k!r} has shape {value.shape}, '
-                         f'expected (..., {shape}).')
+      lead = value.shape[: value.ndim - len(shape)]
+      if value.shape[len(lead) :] != shape:
+        raise ValueError(
+            f'Observation {k!r} has shape {value.shape}, '
+            f'expected (..., {shape}).'
+        )
       parts.append(value.reshape(lead + (-1,)).astype(self._dtype))
     if not parts:
       return jnp.zeros((0,), self._dtype)
@@ -84,7 +92,8 @@ class Flattener:
     lead = vector.shape[:-1]
     return collections.OrderedDict(
         (k, vector[..., self.slices[k]].reshape(lead + self._shapes[k]))
-        for k in self.keys)
+        for k in self.keys
+    )
 
 
 def flatten_spec(spec_dict, dtype=jnp.float32, name=None):

@@ -37,6 +37,7 @@ class ObservationGroup:
       aggregation apply either way.
     flatten: return one float32 vector of shape (D,) instead of a dict.
   """
+
   keys: Optional[Sequence[str]] = None
   corrupted: bool = True
   flatten: bool = False

@@ -41,7 +41,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-
 # ---------------------------------------------------------------------------
 # Constant rates: a static schedule and a ring buffer.
 # ---------------------------------------------------------------------------
@@ -67,6 +66,7 @@ class ConstantSchedule:
       some read at a control-step boundary can see. At all other sub-steps
       the observable is not evaluated.
   """
+
   update_interval: int
   delay: int
   buffer_size: int
@@ -77,12 +77,15 @@ class ConstantSchedule:
   substeps: frozenset
 
   @classmethod
-  def plan(cls, update_interval: int, delay: int, buffer_size: int,
-           n: int) -> 'ConstantSchedule':
+  def plan(
+      cls, update_interval: int, delay: int, buffer_size: int, n: int
+  ) -> 'ConstantSchedule':
     u, d, b = update_interval, delay, buffer_size
     if u < 1 or d < 0 or b < 1 or n < 1:
-      raise ValueError(f'Invalid schedule: update_interval={u}, delay={d}, '
-                       f'buffer_size={b}, n={n}.')
+      raise ValueError(
+          f'Invalid schedule: update_interval={u}, delay={d}, '
+          f'buffer_size={b}, n={n}.'
+      )
     # Reads happen at t = k*n. The newest *taken* sample is floor(t/u); the
     # newest *visible* one floor((t-d)/u). The ring must hold the visible
     # window plus everything taken after it. kn mod u repeats with period u.
@@ -104,8 +107,16 @@ class ConstantSchedule:
       # multiple of n must be below B*u.
       if (-(j + d)) % n < b * u:
         substeps.add(j)
-    return cls(u, d, b, n, capacity, static_slots, masked=(g != u),
-               substeps=frozenset(substeps))
+    return cls(
+        u,
+        d,
+        b,
+        n,
+        capacity,
+        static_slots,
+        masked=(g != u),
+        substeps=frozenset(substeps),
+    )
 
   def write_slot(self, t, substep):
     """The ring slot of the sample taken at timestamp `t` (sub-step `substep`).
@@ -151,22 +162,26 @@ class RingBuffer:
     initial: `{stream: shape}`, the timestamp-0 sample, kept for
       initial-value padding; empty under zero padding.
   """
+
   values: dict
   initial: dict
 
 
-def ring_init(schedule: ConstantSchedule, samples: dict,
-              pad_with_initial_value: bool) -> RingBuffer:
+def ring_init(
+    schedule: ConstantSchedule, samples: dict, pad_with_initial_value: bool
+) -> RingBuffer:
   """A ring holding the timestamp-0 sample (index 0, slot 0)."""
   values = {
       name: jnp.zeros((schedule.capacity,) + v.shape, v.dtype).at[0].set(v)
-      for name, v in samples.items()}
+      for name, v in samples.items()
+  }
   initial = dict(samples) if pad_with_initial_value else {}
   return RingBuffer(values=values, initial=initial)
 
 
-def ring_write(schedule: ConstantSchedule, buffer: RingBuffer, samples: dict,
-               t, substep) -> RingBuffer:
+def ring_write(
+    schedule: ConstantSchedule, buffer: RingBuffer, samples: dict, t, substep
+) -> RingBuffer:
   """Stores the samples taken at timestamp `t`, the end of `substep`."""
   slot = schedule.write_slot(t, substep)
   take = schedule.is_sample_time(t) if schedule.masked else None
@@ -178,14 +193,16 @@ def ring_write(schedule: ConstantSchedule, buffer: RingBuffer, samples: dict,
       values[name] = new if take is None else jnp.where(take, new, old)
       continue
     if take is not None:
-      new = jnp.where(take, new, jax.lax.dynamic_index_in_dim(
-          old, slot, axis=0, keepdims=False))
+      new = jnp.where(
+          take,
+          new,
+          jax.lax.dynamic_index_in_dim(old, slot, axis=0, keepdims=False),
+      )
     values[name] = jax.lax.dynamic_update_index_in_dim(old, new, slot, axis=0)
   return buffer.replace(values=values)
 
 
-def ring_read(schedule: ConstantSchedule, buffer: RingBuffer, t,
-              stream: str):
+def ring_read(schedule: ConstantSchedule, buffer: RingBuffer, t, stream: str):
   """The buffered observation at control boundary `t`, oldest first.
 
   Returns:
@@ -197,7 +214,7 @@ def ring_read(schedule: ConstantSchedule, buffer: RingBuffer, t,
   if isinstance(slots, np.ndarray):
     # Static slots: a slice when they are contiguous, else a constant gather.
     if np.all(np.diff(slots) == 1):
-      values = ring[int(slots[0]):int(slots[-1]) + 1]
+      values = ring[int(slots[0]) : int(slots[-1]) + 1]
     else:
       values = ring[slots]
   else:
@@ -231,6 +248,7 @@ class ArrivalBuffer:
       (e.g. a `Sequence`'s position), or None.
     delay_state: likewise for the delay.
   """
+
   values: dict
   timestamps: jax.Array
   arrivals: jax.Array
@@ -240,23 +258,36 @@ class ArrivalBuffer:
   delay_state: Any
 
 
-def arrival_init(capacity: int, samples: dict, delay, next_timestamp,
-                 interval_state, delay_state,
-                 pad_with_initial_value: bool) -> ArrivalBuffer:
+def arrival_init(
+    capacity: int,
+    samples: dict,
+    delay,
+    next_timestamp,
+    interval_state,
+    delay_state,
+    pad_with_initial_value: bool,
+) -> ArrivalBuffer:
   """A buffer holding the timestamp-0 sample, arriving at `delay`."""
-  values = {name: jnp.zeros((capacity,) + v.shape, v.dtype).at[0].set(v)
-            for name, v in samples.items()}
+  values = {
+      name: jnp.zeros((capacity,) + v.shape, v.dtype).at[0].set(v)
+      for name, v in samples.items()
+  }
   timestamps = jnp.full((capacity,), -1, jnp.int32).at[0].set(0)
   arrivals = jnp.zeros((capacity,), jnp.int32).at[0].set(delay)
   return ArrivalBuffer(
-      values=values, timestamps=timestamps, arrivals=arrivals,
+      values=values,
+      timestamps=timestamps,
+      arrivals=arrivals,
       initial=dict(samples) if pad_with_initial_value else {},
       next_timestamp=jnp.asarray(next_timestamp, jnp.int32),
-      interval_state=interval_state, delay_state=delay_state)
+      interval_state=interval_state,
+      delay_state=delay_state,
+  )
 
 
-def arrival_insert(buffer: ArrivalBuffer, samples: dict, t, delay,
-                   take) -> ArrivalBuffer:
+def arrival_insert(
+    buffer: ArrivalBuffer, samples: dict, t, delay, take
+) -> ArrivalBuffer:
   """Inserts the samples taken at `t` with `delay`, where `take` is true.
 
   The slot reused is an empty one if any, else the sample that arrived
@@ -275,11 +306,12 @@ def arrival_insert(buffer: ArrivalBuffer, samples: dict, t, delay,
     new = jnp.where(take, samples[name], old[slot])
     values[name] = old.at[slot].set(new)
   timestamps = buffer.timestamps.at[slot].set(
-      jnp.where(take, t, buffer.timestamps[slot]))
+      jnp.where(take, t, buffer.timestamps[slot])
+  )
   arrivals = buffer.arrivals.at[slot].set(
-      jnp.where(take, t + delay, buffer.arrivals[slot]))
-  return buffer.replace(values=values, timestamps=timestamps,
-                        arrivals=arrivals)
+      jnp.where(take, t + delay, buffer.arrivals[slot])
+  )
+  return buffer.replace(values=values, timestamps=timestamps, arrivals=arrivals)
 
 
 def arrival_read(buffer: ArrivalBuffer, t, buffer_size: int, stream: str):
@@ -290,8 +322,9 @@ def arrival_read(buffer: ArrivalBuffer, t, buffer_size: int, stream: str):
     entries have timestamp -1.
   """
   arrived = jnp.logical_and(buffer.timestamps >= 0, buffer.arrivals <= t)
-  order = jnp.lexsort((buffer.timestamps, buffer.arrivals,
-                       arrived.astype(jnp.int32)))
+  order = jnp.lexsort(
+      (buffer.timestamps, buffer.arrivals, arrived.astype(jnp.int32))
+  )
   chosen = order[-buffer_size:]
   valid = arrived[chosen]
   ring = buffer.values[stream]
@@ -303,14 +336,16 @@ def arrival_read(buffer: ArrivalBuffer, t, buffer_size: int, stream: str):
   return jnp.where(mask, values, pad[None]), timestamps
 
 
-def arrival_capacity(buffer_size: int, max_delay: int,
-                     min_interval: int) -> int:
+def arrival_capacity(
+    buffer_size: int, max_delay: int, min_interval: int
+) -> int:
   """Slots needed: B arrived samples plus every sample that can be in flight."""
   return buffer_size + -(-max_delay // min_interval)
 
 
-def strip_or_aggregate(values, aggregator: Optional[object],
-                       strip_singleton: bool):
+def strip_or_aggregate(
+    values, aggregator: Optional[object], strip_singleton: bool
+):
   """Applies the aggregator over axis 0, or strips a singleton buffer axis."""
   if aggregator is not None:
     return aggregator(values)

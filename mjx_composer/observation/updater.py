@@ -87,6 +87,7 @@ _CORRUPTOR, _DELAY, _INTERVAL = 0, 1, 2
 
 class ObservationPadding(enum.Enum):
   """How to pad buffer entries that precede the first visible sample."""
+
   INITIAL_VALUE = -1
   ZERO = 0
 
@@ -101,6 +102,7 @@ class UpdaterState:
       `obs_buffer.RingBuffer` for constant rates, an
       `obs_buffer.ArrivalBuffer` for varying ones.
   """
+
   t: jax.Array
   buffers: tuple
 
@@ -112,8 +114,7 @@ def _is_number(value) -> bool:
 class _Rate:
   """A static description of an `update_interval` or a `delay`."""
 
-  def __init__(self, owner: str, name: str, value, default: int,
-               minimum: int):
+  def __init__(self, owner: str, name: str, value, default: int, minimum: int):
     self.name = name
     self.variation = None
     if value is None or (_is_number(value) and value == 0):
@@ -122,12 +123,15 @@ class _Rate:
       if value != int(value) or value < minimum:
         raise ValueError(
             f'Observable {owner!r}: {name} must be an integer >= {minimum}, '
-            f'got {value!r}.')
+            f'got {value!r}.'
+        )
       self.low = self.high = int(value)
       return
     if not callable(value):
-      raise ValueError(f'Observable {owner!r}: {name} must be an int or a '
-                       f'Variation, got {value!r}.')
+      raise ValueError(
+          f'Observable {owner!r}: {name} must be an int or a '
+          f'Variation, got {value!r}.'
+      )
     bounds_fn = getattr(value, 'static_bounds', None)
     bounds = bounds_fn() if bounds_fn is not None else None
     if bounds is None:
@@ -136,7 +140,8 @@ class _Rate:
           'no static bounds. A varying update_interval or delay needs bounds '
           'known at build time to size the observation buffer (buffer_size '
           '+ ceil(max_delay / min_interval) slots): use a bounded variation '
-          '(e.g. UniformInteger or Sequence) or a constant.')
+          '(e.g. UniformInteger or Sequence) or a constant.'
+      )
     self.variation = value
     self.low = max(minimum, int(np.round(np.min(bounds[0]))))
     self.high = max(self.low, int(np.round(np.max(bounds[1]))))
@@ -147,8 +152,9 @@ class _Rate:
 
   @property
   def _stateful(self) -> bool:
-    return (hasattr(self.variation, 'sample') and
-            hasattr(self.variation, 'initial_state'))
+    return hasattr(self.variation, 'sample') and hasattr(
+        self.variation, 'initial_state'
+    )
 
   def initial_state(self):
     if self.constant or not self._stateful:
@@ -179,10 +185,11 @@ class _Rate:
 @dataclasses.dataclass
 class _Entry:
   """Static configuration of one enabled observable."""
+
   index: int
   key: str
   observable: Any
-  uids: tuple   # fold_in data per purpose (_CORRUPTOR, _DELAY, _INTERVAL)
+  uids: tuple  # fold_in data per purpose (_CORRUPTOR, _DELAY, _INTERVAL)
   buffer_size: int
   interval: _Rate
   delay: _Rate
@@ -198,7 +205,7 @@ class _Entry:
   @property
   def needs_key(self) -> bool:
     """Whether sampling draws random numbers (corruptor, varying rates)."""
-    return (self.corruptor is not None or self.schedule is None)
+    return self.corruptor is not None or self.schedule is None
 
   def stream(self, corrupted: bool) -> str:
     """The buffer stream holding this view of the observable."""
@@ -212,7 +219,8 @@ def _fold(step_key, entry: _Entry, purpose: int):
   if step_key is None:
     raise ValueError(
         f'Observable {entry.key!r} has a corruptor or a varying rate and '
-        'needs a PRNG key: pass one to reset/update.')
+        'needs a PRNG key: pass one to reset/update.'
+    )
   return jax.random.fold_in(step_key, entry.uids[purpose])
 
 
@@ -225,8 +233,10 @@ def _static_int(value) -> Optional[int]:
   """`value` as a Python int if it is concrete, None if it is a tracer."""
   try:
     return int(value)
-  except (jax.errors.ConcretizationTypeError,
-          jax.errors.TracerIntegerConversionError):
+  except (
+      jax.errors.ConcretizationTypeError,
+      jax.errors.TracerIntegerConversionError,
+  ):
     return None
 
 
@@ -259,26 +269,36 @@ class Updater:
       when `reset` is first traced, or from `observation_spec(physics)`.
   """
 
-  def __init__(self, observables, physics_steps_per_control_step=1,
-               strip_singleton_buffer_dim=False, pad_with_initial_value=False,
-               groups: Optional[Mapping[str, ObservationGroup]] = None,
-               physics=None):
+  def __init__(
+      self,
+      observables,
+      physics_steps_per_control_step=1,
+      strip_singleton_buffer_dim=False,
+      pad_with_initial_value=False,
+      groups: Optional[Mapping[str, ObservationGroup]] = None,
+      physics=None,
+  ):
     if isinstance(observables, dict):
       dicts, self._is_sequence = [observables], False
     elif isinstance(observables, (list, tuple)) and all(
-        isinstance(d, dict) for d in observables):
+        isinstance(d, dict) for d in observables
+    ):
       dicts, self._is_sequence = list(observables), True
     else:
       raise ValueError(
           '`observables` must be a dict, or a list or tuple of dicts, got '
-          f'{type(observables).__name__}.')
+          f'{type(observables).__name__}.'
+      )
     n = int(physics_steps_per_control_step)
     if n < 1 or n != physics_steps_per_control_step:
-      raise ValueError('physics_steps_per_control_step must be a positive '
-                       f'int, got {physics_steps_per_control_step!r}.')
+      raise ValueError(
+          'physics_steps_per_control_step must be a positive '
+          f'int, got {physics_steps_per_control_step!r}.'
+      )
     if isinstance(pad_with_initial_value, ObservationPadding):
       pad_with_initial_value = (
-          pad_with_initial_value == ObservationPadding.INITIAL_VALUE)
+          pad_with_initial_value == ObservationPadding.INITIAL_VALUE
+      )
     self._n = n
     self._strip = bool(strip_singleton_buffer_dim)
     self._pad = bool(pad_with_initial_value)
@@ -286,12 +306,16 @@ class Updater:
     self._container_types = [type(d) for d in dicts]
 
     # (dict index, key, observable) of every enabled observable.
-    enabled = [(i, k, obs) for i, d in enumerate(dicts)
-               for k, obs in d.items() if obs.enabled]
+    enabled = [
+        (i, k, obs)
+        for i, d in enumerate(dicts)
+        for k, obs in d.items()
+        if obs.enabled
+    ]
     self._groups = self._check_groups(groups, dicts, enabled)
 
     self._entries = []
-    self._layout = [[] for _ in dicts]   # per dict: [(key, entry or None)]
+    self._layout = [[] for _ in dicts]  # per dict: [(key, entry or None)]
     for i, key, obs in enabled:
       streams = self._streams(key, obs)
       if not streams:
@@ -300,8 +324,12 @@ class Updater:
       entry = self._make_entry(len(self._entries), i, key, obs, streams)
       self._entries.append(entry)
       self._layout[i].append((key, entry))
-    self._by_key = {(i, k): e for i, layout in enumerate(self._layout)
-                    for k, e in layout if e is not None}
+    self._by_key = {
+        (i, k): e
+        for i, layout in enumerate(self._layout)
+        for k, e in layout
+        if e is not None
+    }
     if physics is not None:
       self._infer_shapes(physics)
 
@@ -311,22 +339,30 @@ class Updater:
     if not groups:
       return None
     if self._is_sequence:
-      raise ValueError('Observation groups need a dict of observables, not a '
-                       f'{type(self._observables).__name__} of dicts.')
+      raise ValueError(
+          'Observation groups need a dict of observables, not a '
+          f'{type(self._observables).__name__} of dicts.'
+      )
     enabled_keys = [k for _, k, _ in enabled]
     checked = {}
     for name, group in groups.items():
       if not isinstance(group, ObservationGroup):
-        raise TypeError(f'Group {name!r} must be an ObservationGroup, got '
-                        f'{type(group).__name__}.')
+        raise TypeError(
+            f'Group {name!r} must be an ObservationGroup, got '
+            f'{type(group).__name__}.'
+        )
       keys = list(enabled_keys if group.keys is None else group.keys)
       for key in keys:
         if key not in dicts[0]:
-          raise KeyError(f'Observation group {name!r} refers to {key!r}, '
-                         f'which is not an observable. Known: {list(dicts[0])}')
+          raise KeyError(
+              f'Observation group {name!r} refers to {key!r}, '
+              f'which is not an observable. Known: {list(dicts[0])}'
+          )
         if key not in enabled_keys:
-          raise ValueError(f'Observation group {name!r} refers to {key!r}, '
-                           'which is not enabled; enable it first.')
+          raise ValueError(
+              f'Observation group {name!r} refers to {key!r}, '
+              'which is not enabled; enable it first.'
+          )
       if len(set(keys)) != len(keys):
         raise ValueError(f'Observation group {name!r} lists a key twice.')
       checked[name] = dataclasses.replace(group, keys=tuple(keys))
@@ -345,35 +381,60 @@ class Updater:
 
   def _make_entry(self, index, dict_index, key, obs, streams) -> _Entry:
     buffer_size = obs.buffer_size or DEFAULT_BUFFER_SIZE
-    if not _is_number(buffer_size) or buffer_size != int(buffer_size) or (
-        buffer_size < 1):
-      raise ValueError(f'Observable {key!r}: buffer_size must be a positive '
-                       f'int (it fixes array shapes), got {buffer_size!r}.')
+    if (
+        not _is_number(buffer_size)
+        or buffer_size != int(buffer_size)
+        or (buffer_size < 1)
+    ):
+      raise ValueError(
+          f'Observable {key!r}: buffer_size must be a positive '
+          f'int (it fixes array shapes), got {buffer_size!r}.'
+      )
     buffer_size = int(buffer_size)
-    interval = _Rate(key, 'update_interval', obs.update_interval,
-                     DEFAULT_UPDATE_INTERVAL, minimum=1)
+    interval = _Rate(
+        key,
+        'update_interval',
+        obs.update_interval,
+        DEFAULT_UPDATE_INTERVAL,
+        minimum=1,
+    )
     delay = _Rate(key, 'delay', obs.delay, DEFAULT_DELAY, minimum=0)
     if interval.constant and delay.constant:
       schedule = obs_buffer.ConstantSchedule.plan(
-          interval.low, delay.low, buffer_size, self._n)
+          interval.low, delay.low, buffer_size, self._n
+      )
       capacity = schedule.capacity
     else:
       schedule = None
-      capacity = obs_buffer.arrival_capacity(buffer_size, delay.high,
-                                             interval.low)
+      capacity = obs_buffer.arrival_capacity(
+          buffer_size, delay.high, interval.low
+      )
     path = key if not self._is_sequence else f'{dict_index}/{key}'
-    uids = tuple(zlib.crc32(f'{path}#{purpose}'.encode('utf-8')) & 0x7FFFFFFF
-                 for purpose in (_CORRUPTOR, _DELAY, _INTERVAL))
+    uids = tuple(
+        zlib.crc32(f'{path}#{purpose}'.encode('utf-8')) & 0x7FFFFFFF
+        for purpose in (_CORRUPTOR, _DELAY, _INTERVAL)
+    )
     spec = obs.array_spec
-    entry = _Entry(index=index, key=key, observable=obs, uids=uids,
-                   buffer_size=buffer_size, interval=interval, delay=delay,
-                   schedule=schedule, capacity=capacity, streams=streams,
-                   aggregator=obs.aggregator, corruptor=obs.corruptor,
-                   array_spec=spec)
+    entry = _Entry(
+        index=index,
+        key=key,
+        observable=obs,
+        uids=uids,
+        buffer_size=buffer_size,
+        interval=interval,
+        delay=delay,
+        schedule=schedule,
+        capacity=capacity,
+        streams=streams,
+        aggregator=obs.aggregator,
+        corruptor=obs.corruptor,
+        array_spec=spec,
+    )
     if spec is not None:  # Samples are cast to the declared spec.
       for stream in streams:
         entry.shapes[stream] = jax.ShapeDtypeStruct(
-            tuple(spec.shape), _canonical_dtype(spec.dtype))
+            tuple(spec.shape), _canonical_dtype(spec.dtype)
+        )
     return entry
 
   # -- introspection ---------------------------------------------------------
@@ -394,8 +455,7 @@ class Updater:
   def active_substeps(self, key: str, dict_index: int = 0) -> tuple:
     """The sub-steps (1..n) after which `update` evaluates an observable."""
     entry = self._by_key[(dict_index, key)]
-    return tuple(j for j in range(1, self._n + 1)
-                 if self._is_active(entry, j))
+    return tuple(j for j in range(1, self._n + 1) if self._is_active(entry, j))
 
   def _is_active(self, entry: _Entry, substep: int) -> bool:
     return entry.schedule is None or substep in entry.schedule.substeps
@@ -420,16 +480,19 @@ class Updater:
     value = jnp.asarray(value)
     spec = entry.array_spec
     if spec is not None:
-      value = jnp.broadcast_to(value.astype(_canonical_dtype(spec.dtype)),
-                               tuple(spec.shape))
+      value = jnp.broadcast_to(
+          value.astype(_canonical_dtype(spec.dtype)), tuple(spec.shape)
+      )
     entry.shapes.setdefault(
-        stream, jax.ShapeDtypeStruct(value.shape, value.dtype))
+        stream, jax.ShapeDtypeStruct(value.shape, value.dtype)
+    )
     return value
 
   def _infer_shapes(self, physics):
     """Fills in sample shapes by tracing the observables abstractly."""
-    missing = [e for e in self._entries
-               if any(s not in e.shapes for s in e.streams)]
+    missing = [
+        e for e in self._entries if any(s not in e.shapes for s in e.streams)
+    ]
     if not missing:
       return
 
@@ -450,22 +513,31 @@ class Updater:
     for entry in self._entries:
       samples = self._sample(entry, physics, step_key)
       if entry.schedule is not None:
-        buffers.append(obs_buffer.ring_init(entry.schedule, samples,
-                                            self._pad))
+        buffers.append(obs_buffer.ring_init(entry.schedule, samples, self._pad))
         continue
       delay, delay_state = entry.delay.draw(
-          entry.delay.initial_state(),
-          lambda: _fold(step_key, entry, _DELAY))  # pylint: disable=cell-var-from-loop
+          entry.delay.initial_state(), lambda: _fold(step_key, entry, _DELAY)
+      )  # pylint: disable=cell-var-from-loop
       interval, interval_state = entry.interval.draw(
           entry.interval.initial_state(),
-          lambda: _fold(step_key, entry, _INTERVAL))  # pylint: disable=cell-var-from-loop
-      buffers.append(obs_buffer.arrival_init(
-          entry.capacity, samples, delay, interval, interval_state,
-          delay_state, self._pad))
+          lambda: _fold(step_key, entry, _INTERVAL),
+      )  # pylint: disable=cell-var-from-loop
+      buffers.append(
+          obs_buffer.arrival_init(
+              entry.capacity,
+              samples,
+              delay,
+              interval,
+              interval_state,
+              delay_state,
+              self._pad,
+          )
+      )
     return UpdaterState(t=t, buffers=tuple(buffers))
 
-  def update(self, state: UpdaterState, physics, key, substep, *,
-             substep_bounds=None) -> UpdaterState:
+  def update(
+      self, state: UpdaterState, physics, key, substep, *, substep_bounds=None
+  ) -> UpdaterState:
     """Advances one physics sub-step, sampling what may become visible.
 
     Args:
@@ -495,8 +567,10 @@ class Updater:
       return self._apply(self._active(j), state, physics, key, j)
     low, high = substep_bounds if substep_bounds is not None else (1, n)
     if not 1 <= low <= high <= n:
-      raise ValueError(f'substep_bounds must satisfy 1 <= low <= high <= {n}, '
-                       f'got {substep_bounds!r}.')
+      raise ValueError(
+          f'substep_bounds must satisfy 1 <= low <= high <= {n}, '
+          f'got {substep_bounds!r}.'
+      )
     signatures = [self._active(j) for j in range(low, high + 1)]
     distinct = list(dict.fromkeys(signatures))
     if len(distinct) == 1:
@@ -505,13 +579,13 @@ class Updater:
     branch = jnp.asarray(table)[jnp.clip(substep - low, 0, high - low)]
     branches = [
         (lambda active: lambda s, p, k, j: self._apply(active, s, p, k, j))(a)
-        for a in distinct]
+        for a in distinct
+    ]
     return jax.lax.switch(branch, branches, state, physics, key, substep)
 
   def _active(self, substep: int) -> tuple:
     """Indices of the observables evaluated after sub-step `substep`."""
-    return tuple(e.index for e in self._entries
-                 if self._is_active(e, substep))
+    return tuple(e.index for e in self._entries if self._is_active(e, substep))
 
   def _apply(self, active, state, physics, key, substep) -> UpdaterState:
     buffers = list(state.buffers)
@@ -524,20 +598,25 @@ class Updater:
       samples = self._sample(entry, physics, step_key)
       if entry.schedule is not None:
         buffers[index] = obs_buffer.ring_write(
-            entry.schedule, buffer, samples, t, substep)
+            entry.schedule, buffer, samples, t, substep
+        )
         continue
       take = t == buffer.next_timestamp
       delay, delay_state = entry.delay.draw(
-          buffer.delay_state, lambda: _fold(step_key, entry, _DELAY))  # pylint: disable=cell-var-from-loop
+          buffer.delay_state, lambda: _fold(step_key, entry, _DELAY)
+      )  # pylint: disable=cell-var-from-loop
       interval, interval_state = entry.interval.draw(
-          buffer.interval_state, lambda: _fold(step_key, entry, _INTERVAL))  # pylint: disable=cell-var-from-loop
+          buffer.interval_state, lambda: _fold(step_key, entry, _INTERVAL)
+      )  # pylint: disable=cell-var-from-loop
       buffer = obs_buffer.arrival_insert(buffer, samples, t, delay, take)
       select = lambda new, old: jax.tree.map(  # pylint: disable=cell-var-from-loop
-          lambda a, b: jnp.where(take, a, b), new, old)
+          lambda a, b: jnp.where(take, a, b), new, old
+      )
       buffers[index] = buffer.replace(
           next_timestamp=jnp.where(take, t + interval, buffer.next_timestamp),
           delay_state=select(delay_state, buffer.delay_state),
-          interval_state=select(interval_state, buffer.interval_state))
+          interval_state=select(interval_state, buffer.interval_state),
+      )
     return state.replace(buffers=tuple(buffers))
 
   # -- reading ---------------------------------------------------------------
@@ -550,8 +629,7 @@ class Updater:
 
   def _observe(self, entry: _Entry, state: UpdaterState, corrupted: bool):
     values, _ = self._read(entry, state, entry.stream(corrupted))
-    return obs_buffer.strip_or_aggregate(values, entry.aggregator,
-                                         self._strip)
+    return obs_buffer.strip_or_aggregate(values, entry.aggregator, self._strip)
 
   def get_observation(self, state: UpdaterState):
     """The observation of one world at a control-step boundary.
@@ -565,8 +643,10 @@ class Updater:
       holding the enabled observables. With groups, `{group name: dict}` (or
       a flat vector for `flatten=True` groups).
     """
-    return self._structure(lambda e, corrupted: self._observe(
-        e, state, corrupted), flat=self._flatten_values)
+    return self._structure(
+        lambda e, corrupted: self._observe(e, state, corrupted),
+        flat=self._flatten_values,
+    )
 
   def buffer_timestamps(self, state: UpdaterState):
     """Like `get_observation`, but the timestamps of the buffered samples.
@@ -576,7 +656,8 @@ class Updater:
     """
     return self._structure(
         lambda e, corrupted: self._read(e, state, e.stream(corrupted))[1],
-        flat=None)
+        flat=None,
+    )
 
   def observation_spec(self, physics=None):
     """`dm_env` specs matching `get_observation`.
@@ -587,13 +668,17 @@ class Updater:
     """
     if physics is not None:
       self._infer_shapes(physics)
-    missing = [e.key for e in self._entries
-               if any(s not in e.shapes for s in e.streams)]
+    missing = [
+        e.key
+        for e in self._entries
+        if any(s not in e.shapes for s in e.streams)
+    ]
     if missing:
       raise RuntimeError(
           f'The shapes of observables {missing} are not known yet: pass a '
           'Physics to observation_spec(physics) or to Updater(..., '
-          'physics=...), or trace reset first.')
+          'physics=...), or trace reset first.'
+      )
     return self._structure(self._spec, flat=self._flatten_specs)
 
   def _spec(self, entry: _Entry, corrupted: bool):
@@ -603,29 +688,44 @@ class Updater:
     array_spec = entry.array_spec
     aggregator = entry.aggregator
     if aggregator is None:
-      shape = (tuple(sample.shape) if self._strip and entry.buffer_size == 1
-               else buffered)
+      shape = (
+          tuple(sample.shape)
+          if self._strip and entry.buffer_size == 1
+          else buffered
+      )
       if array_spec is not None:
         return array_spec.replace(name=name, shape=shape)
       return specs.Array(shape=shape, dtype=sample.dtype, name=name)
-    out = jax.eval_shape(aggregator,
-                         jax.ShapeDtypeStruct(buffered, sample.dtype))
+    out = jax.eval_shape(
+        aggregator, jax.ShapeDtypeStruct(buffered, sample.dtype)
+    )
     if isinstance(array_spec, specs.BoundedArray):
       preserves = getattr(aggregator, 'preserves_bounds', None)
       if preserves is None:
         logging.warning(
             'Observable %r: its aggregator %r does not say whether it '
             'preserves bounds (attribute `preserves_bounds`); the bounds of '
-            'its BoundedArray spec are dropped.', name, aggregator)
+            'its BoundedArray spec are dropped.',
+            name,
+            aggregator,
+        )
       if preserves:
         try:
           return specs.BoundedArray(
-              shape=out.shape, dtype=out.dtype, minimum=array_spec.minimum,
-              maximum=array_spec.maximum, name=name)
+              shape=out.shape,
+              dtype=out.dtype,
+              minimum=array_spec.minimum,
+              maximum=array_spec.maximum,
+              name=name,
+          )
         except ValueError:
-          logging.warning('Observable %r: bounds of shape %s do not fit the '
-                          'aggregated shape %s; dropped.', name,
-                          np.shape(array_spec.minimum), out.shape)
+          logging.warning(
+              'Observable %r: bounds of shape %s do not fit the '
+              'aggregated shape %s; dropped.',
+              name,
+              np.shape(array_spec.minimum),
+              out.shape,
+          )
     return specs.Array(shape=out.shape, dtype=out.dtype, name=name)
 
   # -- structure -------------------------------------------------------------
@@ -654,7 +754,8 @@ class Updater:
     if not values:
       return jnp.zeros((0,), jnp.float32)
     return jnp.concatenate(
-        [jnp.ravel(v).astype(jnp.float32) for v in values.values()])
+        [jnp.ravel(v).astype(jnp.float32) for v in values.values()]
+    )
 
   @staticmethod
   def _flatten_specs(name, spec_dict):

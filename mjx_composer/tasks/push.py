@@ -39,9 +39,13 @@ _PLACEMENT_HALF_SIZE = 0.48
 _ZONE_HALF_SIZE = 0.1
 _ZONE_RADIUS = (0.25, 0.4)
 _PLACEMENTS = ('placer', 'ring', 'unchecked', 'fixed')
-_BOX_COLOURS = ((0.85, 0.3, 0.25, 1.), (0.3, 0.7, 0.35, 1.),
-                (0.25, 0.45, 0.85, 1.), (0.85, 0.75, 0.2, 1.),
-                (0.6, 0.35, 0.75, 1.))
+_BOX_COLOURS = (
+    (0.85, 0.3, 0.25, 1.0),
+    (0.3, 0.7, 0.35, 1.0),
+    (0.25, 0.45, 0.85, 1.0),
+    (0.85, 0.75, 0.2, 1.0),
+    (0.6, 0.35, 0.75, 1.0),
+)
 
 
 class Push(task.Task):
@@ -70,56 +74,81 @@ class Push(task.Task):
     observation_noise: standard deviation of the joint sensor noise.
   """
 
-  def __init__(self, num_boxes=5, placement='placer', max_attempts_per_prop=20,
-               max_contact_points=40, control_timestep=0.02,
-               physics_timestep=0.004, observation_noise=0.01):
+  def __init__(
+      self,
+      num_boxes=5,
+      placement='placer',
+      max_attempts_per_prop=20,
+      max_contact_points=40,
+      control_timestep=0.02,
+      physics_timestep=0.004,
+      observation_noise=0.01,
+  ):
     if placement not in _PLACEMENTS:
-      raise ValueError(f'placement must be one of {_PLACEMENTS}, got '
-                       f'{placement!r}.')
+      raise ValueError(
+          f'placement must be one of {_PLACEMENTS}, got ' f'{placement!r}.'
+      )
     self._arena = arenas.WalledArena(
-        size=(_ARENA_HALF_SIZE, _ARENA_HALF_SIZE), size_variation=None)
+        size=(_ARENA_HALF_SIZE, _ARENA_HALF_SIZE), size_variation=None
+    )
     self._arm = robots.Arm()
     self._arena.attach(self._arm)
     self._boxes = []
     self._ring = []
     for i in range(num_boxes):
-      box = props.Box(half_lengths=(_BOX_HALF_SIZE,) * 3, mass=0.1,
-                      rgba=_BOX_COLOURS[i % len(_BOX_COLOURS)],
-                      name=f'box_{i}')
+      box = props.Box(
+          half_lengths=(_BOX_HALF_SIZE,) * 3,
+          mass=0.1,
+          rgba=_BOX_COLOURS[i % len(_BOX_COLOURS)],
+          name=f'box_{i}',
+      )
       frame = self._arena.add_free_entity(box)
       # Where the boxes start without the placer: a ring that is clear of
       # the arm and of each other.
       angle = 2 * np.pi * i / max(num_boxes, 1)
-      frame.pos = [0.3 * np.cos(angle), 0.3 * np.sin(angle),
-                   _BOX_HALF_SIZE + _DROP_HEIGHT]
+      frame.pos = [
+          0.3 * np.cos(angle),
+          0.3 * np.sin(angle),
+          _BOX_HALF_SIZE + _DROP_HEIGHT,
+      ]
       self._ring.append(np.array(frame.pos))
       self._boxes.append(box)
     self._zone = position_detector.PositionDetector(
-        pos=(_ZONE_RADIUS[0], 0.), size=(_ZONE_HALF_SIZE, _ZONE_HALF_SIZE),
-        visible=True, rgba=(0.2, 0.9, 0.3, 0.3), name='zone')
+        pos=(_ZONE_RADIUS[0], 0.0),
+        size=(_ZONE_HALF_SIZE, _ZONE_HALF_SIZE),
+        visible=True,
+        rgba=(0.2, 0.9, 0.3, 0.3),
+        name='zone',
+    )
     self._arena.attach(self._zone)
     self._zone.register_entities(*self._boxes)
     if max_contact_points is not None:
-      self._arena.mjcf_model.add_numeric(name='max_contact_points',
-                                         data=[max_contact_points])
+      self._arena.mjcf_model.add_numeric(
+          name='max_contact_points', data=[max_contact_points]
+      )
     self._placement = placement
     z = _BOX_HALF_SIZE + _DROP_HEIGHT
     self._placer = prop_initializer.PropPlacer(
         self._boxes,
         position=distributions.Uniform(
             low=(-_PLACEMENT_HALF_SIZE, -_PLACEMENT_HALF_SIZE, z),
-            high=(_PLACEMENT_HALF_SIZE, _PLACEMENT_HALF_SIZE, z)),
+            high=(_PLACEMENT_HALF_SIZE, _PLACEMENT_HALF_SIZE, z),
+        ),
         quaternion=rotations.QuaternionFromAxisAngle(
-            axis=(0., 0., 1.), angle=distributions.Uniform(-np.pi, np.pi)),
+            axis=(0.0, 0.0, 1.0), angle=distributions.Uniform(-np.pi, np.pi)
+        ),
         ignore_collisions=placement == 'unchecked',
-        max_attempts_per_prop=max_attempts_per_prop)
+        max_attempts_per_prop=max_attempts_per_prop,
+    )
     self.set_timesteps(control_timestep, physics_timestep)
 
     arm_obs = self._arm.observables
     arm_obs.joint_positions.configure(
-        enabled=True, corruptor=reach.gaussian_noise(observation_noise))
+        enabled=True, corruptor=reach.gaussian_noise(observation_noise)
+    )
     arm_obs.joint_velocities.configure(
-        enabled=True, corruptor=reach.gaussian_noise(10 * observation_noise))
+        enabled=True, corruptor=reach.gaussian_noise(10 * observation_noise)
+    )
     arm_obs.hand_position.enabled = True
     for box in self._boxes:
       box.observables.position.enabled = True
@@ -150,22 +179,32 @@ class Push(task.Task):
   def observation_groups(self):
     """The policy/critic split used by the demo and training scripts."""
     boxes = [box.name for box in self._boxes]
-    policy = (['arm/joint_positions', 'arm/joint_velocities',
-               'arm/hand_position'] + [f'{b}/position' for b in boxes]
-              + ['zone/mid'])
-    critic = (policy + [f'{b}/linear_velocity' for b in boxes]
-              + ['zone/detected'])
-    return {'policy': groups_lib.ObservationGroup(keys=policy, flatten=True),
-            'critic': groups_lib.ObservationGroup(keys=critic, corrupted=False,
-                                                  flatten=True)}
+    policy = (
+        ['arm/joint_positions', 'arm/joint_velocities', 'arm/hand_position']
+        + [f'{b}/position' for b in boxes]
+        + ['zone/mid']
+    )
+    critic = (
+        policy + [f'{b}/linear_velocity' for b in boxes] + ['zone/detected']
+    )
+    return {
+        'policy': groups_lib.ObservationGroup(keys=policy, flatten=True),
+        'critic': groups_lib.ObservationGroup(
+            keys=critic, corrupted=False, flatten=True
+        ),
+    }
 
   def initialize_episode(self, physics, key):
     zone_key, place_key = jax.random.split(key)
     angle, radius = jax.random.uniform(
-        zone_key, (2,), minval=jnp.array([-np.pi, _ZONE_RADIUS[0]]),
-        maxval=jnp.array([np.pi, _ZONE_RADIUS[1]]))
+        zone_key,
+        (2,),
+        minval=jnp.array([-np.pi, _ZONE_RADIUS[0]]),
+        maxval=jnp.array([np.pi, _ZONE_RADIUS[1]]),
+    )
     physics = self._zone.set_position(
-        physics, radius * jnp.array([jnp.cos(angle), jnp.sin(angle)]))
+        physics, radius * jnp.array([jnp.cos(angle), jnp.sin(angle)])
+    )
     if self._placement in ('placer', 'unchecked'):
       physics = self._placer(physics, place_key)
     elif self._placement == 'ring':
@@ -175,13 +214,15 @@ class Push(task.Task):
   def _turn_ring(self, physics, key):
     turn_key, yaw_key = jax.random.split(key)
     turn = jax.random.uniform(turn_key, (), minval=-np.pi, maxval=np.pi)
-    yaws = jax.random.uniform(yaw_key, (len(self._boxes),), minval=-np.pi,
-                              maxval=np.pi)
+    yaws = jax.random.uniform(
+        yaw_key, (len(self._boxes),), minval=-np.pi, maxval=np.pi
+    )
     c, s = jnp.cos(turn), jnp.sin(turn)
     for box, built, yaw in zip(self._boxes, self._ring, yaws):
-      position = jnp.array([c * built[0] - s * built[1],
-                            s * built[0] + c * built[1], built[2]])
-      quaternion = jnp.array([jnp.cos(yaw / 2), 0., 0., jnp.sin(yaw / 2)])
+      position = jnp.array(
+          [c * built[0] - s * built[1], s * built[0] + c * built[1], built[2]]
+      )
+      quaternion = jnp.array([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
       physics = box.set_pose(physics, position, quaternion)
     return physics
 
@@ -194,21 +235,30 @@ class Push(task.Task):
     return physics.bind(self._zone.mid_site).pos[:2]
 
   def _box_to_zone(self, physics):
-    return jnp.linalg.norm(self._box_positions(physics)[:, :2]
-                           - self._zone_centre(physics), axis=-1)
+    return jnp.linalg.norm(
+        self._box_positions(physics)[:, :2] - self._zone_centre(physics),
+        axis=-1,
+    )
 
   def get_reward(self, physics):
     in_zone = self._zone.detected_entities(physics)
-    closeness = 1. - jnp.tanh(self._box_to_zone(physics) / 0.3)
+    closeness = 1.0 - jnp.tanh(self._box_to_zone(physics) / 0.3)
     hand = physics.bind(self._arm.hand).xpos
     to_hand = jnp.linalg.norm(self._box_positions(physics) - hand, axis=-1)
     nearest = jnp.min(jnp.where(in_zone, jnp.inf, to_hand))
-    reach_term = jnp.where(jnp.isfinite(nearest),
-                           1. - jnp.tanh(nearest / 0.3), 1.)
-    return (0.6 * jnp.mean(in_zone.astype(jnp.float32))
-            + 0.3 * jnp.mean(closeness) + 0.1 * reach_term)
+    reach_term = jnp.where(
+        jnp.isfinite(nearest), 1.0 - jnp.tanh(nearest / 0.3), 1.0
+    )
+    return (
+        0.6 * jnp.mean(in_zone.astype(jnp.float32))
+        + 0.3 * jnp.mean(closeness)
+        + 0.1 * reach_term
+    )
 
   def get_metrics(self, physics):
-    return {'boxes_in_zone': jnp.sum(
-                self._zone.detected_entities(physics).astype(jnp.float32)),
-            'distance': jnp.mean(self._box_to_zone(physics))}
+    return {
+        'boxes_in_zone': jnp.sum(
+            self._zone.detected_entities(physics).astype(jnp.float32)
+        ),
+        'distance': jnp.mean(self._box_to_zone(physics)),
+    }

@@ -37,9 +37,12 @@ _TARGET_HIGH = np.array([0.45, 0.45, 0.6], np.float32)
 
 def gaussian_noise(scale):
   """A corruptor adding N(0, scale²) noise to every sample."""
+
   def corrupt(value, key):
-    return value + scale * jax.random.normal(key, jnp.shape(value),
-                                             jnp.result_type(value))
+    return value + scale * jax.random.normal(
+        key, jnp.shape(value), jnp.result_type(value)
+    )
+
   return corrupt
 
 
@@ -57,8 +60,13 @@ class Reach(task.Task):
       every episode (see the module docstring).
   """
 
-  def __init__(self, control_timestep=0.02, physics_timestep=0.004,
-               observation_noise=0.01, randomize=True):
+  def __init__(
+      self,
+      control_timestep=0.02,
+      physics_timestep=0.004,
+      observation_noise=0.01,
+      randomize=True,
+  ):
     self._arena = arenas.Floor(size=(1.5, 1.5))
     self._arm = robots.Arm()
     self._arena.attach(self._arm)
@@ -68,23 +76,30 @@ class Reach(task.Task):
 
     arm_obs = self._arm.observables
     arm_obs.joint_positions.configure(
-        enabled=True, corruptor=gaussian_noise(observation_noise))
+        enabled=True, corruptor=gaussian_noise(observation_noise)
+    )
     arm_obs.joint_velocities.configure(
-        enabled=True, corruptor=gaussian_noise(10 * observation_noise))
+        enabled=True, corruptor=gaussian_noise(10 * observation_noise)
+    )
     # A slower, delayed hand tracker: sampled every 2 sub-steps, 1 sub-step
     # late, the last 3 samples stacked.
-    arm_obs.hand_position.configure(enabled=True, update_interval=2, delay=1,
-                                    buffer_size=3)
+    arm_obs.hand_position.configure(
+        enabled=True, update_interval=2, delay=1, buffer_size=3
+    )
     # Actuator forces averaged over the control step's sub-steps.
     arm_obs.actuator_forces.configure(
-        enabled=True, buffer_size=self.physics_steps_per_control_step,
-        aggregator='mean')
+        enabled=True,
+        buffer_size=self.physics_steps_per_control_step,
+        aggregator='mean',
+    )
     self._ball.observables.position.configure(
-        enabled=True, corruptor=gaussian_noise(observation_noise))
+        enabled=True, corruptor=gaussian_noise(observation_noise)
+    )
     for name in ('orientation', 'linear_velocity', 'angular_velocity'):
       self._ball.observables.get_observable(name).enabled = True
     self._target = observable.Generic(
-        lambda physics: physics.task_state['target'])
+        lambda physics: physics.task_state['target']
+    )
     self._target.enabled = True
     self._distance = observable.Generic(self._hand_to_target)
     self._distance.enabled = True
@@ -94,21 +109,33 @@ class Reach(task.Task):
 
   def _bind_randomization(self):
     scale = lambda low, high: noises.Multiplicative(
-        distributions.Uniform(low, high))
+        distributions.Uniform(low, high)
+    )
     bind = self._variator.bind_attributes
     for geom in self._arm.mjcf_model.geoms:
-      bind(geom, rgba=colors.HsvVariation(
-          h=distributions.Uniform(0., 1.), s=distributions.Uniform(0.3, 0.8),
-          v=distributions.Uniform(0.5, 1.)))
-      if geom.name != 'base':   # the fixed pedestal's mass is irrelevant
+      bind(
+          geom,
+          rgba=colors.HsvVariation(
+              h=distributions.Uniform(0.0, 1.0),
+              s=distributions.Uniform(0.3, 0.8),
+              v=distributions.Uniform(0.5, 1.0),
+          ),
+      )
+      if geom.name != 'base':  # the fixed pedestal's mass is irrelevant
         bind(geom, density=scale(0.7, 1.3))
     for actuator in self._arm.actuators:
       bind(actuator, gear=scale(0.8, 1.2))
-    bind(self._ball.geom, size=scale(0.7, 1.3), mass=scale(0.5, 2.),
-         friction=scale(0.5, 1.5),
-         rgba=colors.RgbVariation(r=distributions.Uniform(0., 1.),
-                                  g=distributions.Uniform(0., 1.),
-                                  b=distributions.Uniform(0., 1.)))
+    bind(
+        self._ball.geom,
+        size=scale(0.7, 1.3),
+        mass=scale(0.5, 2.0),
+        friction=scale(0.5, 1.5),
+        rgba=colors.RgbVariation(
+            r=distributions.Uniform(0.0, 1.0),
+            g=distributions.Uniform(0.0, 1.0),
+            b=distributions.Uniform(0.0, 1.0),
+        ),
+    )
     bind(self._arena.ground_geoms[0], friction=scale(0.7, 1.3))
 
   @property
@@ -130,14 +157,26 @@ class Reach(task.Task):
   @staticmethod
   def observation_groups():
     """The policy/critic split used by the demo and training scripts."""
-    policy = ['arm/joint_positions', 'arm/joint_velocities',
-              'arm/hand_position', 'target']
-    critic = policy + ['arm/actuator_forces', 'ball/position',
-                       'ball/orientation', 'ball/linear_velocity',
-                       'ball/angular_velocity', 'hand_to_target']
-    return {'policy': groups_lib.ObservationGroup(keys=policy, flatten=True),
-            'critic': groups_lib.ObservationGroup(keys=critic, corrupted=False,
-                                                  flatten=True)}
+    policy = [
+        'arm/joint_positions',
+        'arm/joint_velocities',
+        'arm/hand_position',
+        'target',
+    ]
+    critic = policy + [
+        'arm/actuator_forces',
+        'ball/position',
+        'ball/orientation',
+        'ball/linear_velocity',
+        'ball/angular_velocity',
+        'hand_to_target',
+    ]
+    return {
+        'policy': groups_lib.ObservationGroup(keys=policy, flatten=True),
+        'critic': groups_lib.ObservationGroup(
+            keys=critic, corrupted=False, flatten=True
+        ),
+    }
 
   def initial_task_state(self):
     return {'target': jnp.zeros(3, jnp.float32)}
@@ -145,22 +184,29 @@ class Reach(task.Task):
   def initialize_episode(self, physics, key):
     variation_key, target_key, ball_key = jax.random.split(key, 3)
     physics = self._variator.apply_variations(physics, variation_key)
-    target = jax.random.uniform(target_key, (3,), minval=_TARGET_LOW,
-                                maxval=_TARGET_HIGH)
-    angle, radius = jax.random.uniform(ball_key, (2,), minval=jnp.array(
-        [-np.pi, 0.3]), maxval=jnp.array([np.pi, 0.8]))
+    target = jax.random.uniform(
+        target_key, (3,), minval=_TARGET_LOW, maxval=_TARGET_HIGH
+    )
+    angle, radius = jax.random.uniform(
+        ball_key,
+        (2,),
+        minval=jnp.array([-np.pi, 0.3]),
+        maxval=jnp.array([np.pi, 0.8]),
+    )
     ball_xy = radius * jnp.array([jnp.cos(angle), jnp.sin(angle)])
-    radius = physics.bind(self._ball.geom).size[0]   # varied per world
+    radius = physics.bind(self._ball.geom).size[0]  # varied per world
     physics = self._ball.set_pose(
-        physics, position=jnp.concatenate([ball_xy, radius[None]]))
+        physics, position=jnp.concatenate([ball_xy, radius[None]])
+    )
     return physics.update_task_state(target=target)
 
   def _hand_to_target(self, physics):
-    return jnp.linalg.norm(physics.bind(self._arm.hand).xpos
-                           - physics.task_state['target'])[None]
+    return jnp.linalg.norm(
+        physics.bind(self._arm.hand).xpos - physics.task_state['target']
+    )[None]
 
   def get_reward(self, physics):
-    return 1. - jnp.tanh(self._hand_to_target(physics)[0] / 0.3)
+    return 1.0 - jnp.tanh(self._hand_to_target(physics)[0] / 0.3)
 
   def get_metrics(self, physics):
     return {'distance': self._hand_to_target(physics)[0]}

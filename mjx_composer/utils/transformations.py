@@ -7,17 +7,20 @@ def quat_mul(a, b):
   """Hamilton product `a ⊗ b` (apply `b`, then `a`), like `mju_mulQuat`."""
   aw, ax, ay, az = jnp.moveaxis(jnp.asarray(a), -1, 0)
   bw, bx, by, bz = jnp.moveaxis(jnp.asarray(b), -1, 0)
-  return jnp.stack([
-      aw * bw - ax * bx - ay * by - az * bz,
-      aw * bx + ax * bw + ay * bz - az * by,
-      aw * by - ax * bz + ay * bw + az * bx,
-      aw * bz + ax * by - ay * bx + az * bw,
-  ], axis=-1)
+  return jnp.stack(
+      [
+          aw * bw - ax * bx - ay * by - az * bz,
+          aw * bx + ax * bw + ay * bz - az * by,
+          aw * by - ax * bz + ay * bw + az * bx,
+          aw * bz + ax * by - ay * bx + az * bw,
+      ],
+      axis=-1,
+  )
 
 
 def quat_conj(q):
   q = jnp.asarray(q)
-  return q * jnp.array([1., -1., -1., -1.], dtype=q.dtype)
+  return q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
 
 
 def rotate_vec(quat, vec):

@@ -22,137 +22,143 @@ from mjx_composer.variation import base
 
 
 def _stack_channels(channels):
-    arrays = [jnp.asarray(c) for c in channels]
-    dtype = base.float_dtype(*arrays)
-    return jnp.stack(jnp.broadcast_arrays(*[a.astype(dtype) for a in arrays]), axis=-1)
+  arrays = [jnp.asarray(c) for c in channels]
+  dtype = base.float_dtype(*arrays)
+  return jnp.stack(
+      jnp.broadcast_arrays(*[a.astype(dtype) for a in arrays]), axis=-1
+  )
 
 
 def _is_rgba(value):
-    return value is not None and jnp.shape(value)[-1:] == (4,)
+  return value is not None and jnp.shape(value)[-1:] == (4,)
 
 
 def _split_rgba(value):
-    """Per-channel values of an RGBA array, or the value whole for each."""
-    if not _is_rgba(value):
-        return [value] * 4
-    value = jnp.asarray(value)
-    return [value[..., i] for i in range(4)]
+  """Per-channel values of an RGBA array, or the value whole for each."""
+  if not _is_rgba(value):
+    return [value] * 4
+  value = jnp.asarray(value)
+  return [value[..., i] for i in range(4)]
 
 
 def _hsv_to_rgb(h, s, v):
-    """Vectorised `colorsys.hsv_to_rgb` (same sector rule: int() truncation)."""
-    h, s, v = (jnp.asarray(x) for x in (h, s, v))
-    dtype = base.float_dtype(h, s, v)
-    h, s, v = (x.astype(dtype) for x in (h, s, v))
-    sector = jnp.trunc(h * 6.0)
-    f = h * 6.0 - sector
-    sector = jnp.mod(sector, 6).astype(jnp.int32)
-    p = v * (1.0 - s)
-    q = v * (1.0 - s * f)
-    t = v * (1.0 - s * (1.0 - f))
-    choose = lambda options: jnp.select([sector == i for i in range(6)], options)
-    r = choose([v, q, p, p, t, v])
-    g = choose([t, v, v, q, p, p])
-    b = choose([p, p, t, v, v, q])
-    gray = s == 0.0
-    return tuple(jnp.where(gray, v, c) for c in (r, g, b))
+  """Vectorised `colorsys.hsv_to_rgb` (same sector rule: int() truncation)."""
+  h, s, v = (jnp.asarray(x) for x in (h, s, v))
+  dtype = base.float_dtype(h, s, v)
+  h, s, v = (x.astype(dtype) for x in (h, s, v))
+  sector = jnp.trunc(h * 6.0)
+  f = h * 6.0 - sector
+  sector = jnp.mod(sector, 6).astype(jnp.int32)
+  p = v * (1.0 - s)
+  q = v * (1.0 - s * f)
+  t = v * (1.0 - s * (1.0 - f))
+  choose = lambda options: jnp.select([sector == i for i in range(6)], options)
+  r = choose([v, q, p, p, t, v])
+  g = choose([t, v, v, q, p, p])
+  b = choose([p, p, t, v, v, q])
+  gray = s == 0.0
+  return tuple(jnp.where(gray, v, c) for c in (r, g, b))
 
 
 def _rgb_to_hsv(r, g, b):
-    """Vectorised `colorsys.rgb_to_hsv`."""
-    max_c = jnp.maximum(jnp.maximum(r, g), b)
-    min_c = jnp.minimum(jnp.minimum(r, g), b)
-    delta = max_c - min_c
-    gray = delta == 0
-    safe_delta = jnp.where(gray, 1.0, delta)
-    s = jnp.where(gray, 0.0, delta / jnp.where(max_c == 0, 1.0, max_c))
-    rc, gc, bc = ((max_c - c) / safe_delta for c in (r, g, b))
-    h = jnp.where(r == max_c, bc - gc, jnp.where(g == max_c, 2.0 + rc - bc, 4.0 + gc - rc))
-    h = jnp.where(gray, 0.0, jnp.mod(h / 6.0, 1.0))
-    return h, s, max_c
+  """Vectorised `colorsys.rgb_to_hsv`."""
+  max_c = jnp.maximum(jnp.maximum(r, g), b)
+  min_c = jnp.minimum(jnp.minimum(r, g), b)
+  delta = max_c - min_c
+  gray = delta == 0
+  safe_delta = jnp.where(gray, 1.0, delta)
+  s = jnp.where(gray, 0.0, delta / jnp.where(max_c == 0, 1.0, max_c))
+  rc, gc, bc = ((max_c - c) / safe_delta for c in (r, g, b))
+  h = jnp.where(
+      r == max_c, bc - gc, jnp.where(g == max_c, 2.0 + rc - bc, 4.0 + gc - rc)
+  )
+  h = jnp.where(gray, 0.0, jnp.mod(h / 6.0, 1.0))
+  return h, s, max_c
 
 
 class RgbVariation(base.CompositeVariation):
-    """A colour given by independent R, G, B and alpha channels in [0, 1]."""
+  """A colour given by independent R, G, B and alpha channels in [0, 1]."""
 
-    def __init__(self, r, g, b, alpha=1.0):
-        """Initializes an `RgbVariation`.
+  def __init__(self, r, g, b, alpha=1.0):
+    """Initializes an `RgbVariation`.
 
-        Args:
-          r: red channel: constant or variation.
-          g: green channel: constant or variation.
-          b: blue channel: constant or variation.
-          alpha: opacity: constant or variation.
-        """
-        self._r, self._g, self._b, self._alpha = r, g, b, alpha
-        self._operands = (r, g, b, alpha)
+    Args:
+      r: red channel: constant or variation.
+      g: green channel: constant or variation.
+      b: blue channel: constant or variation.
+      alpha: opacity: constant or variation.
+    """
+    self._r, self._g, self._b, self._alpha = r, g, b, alpha
+    self._operands = (r, g, b, alpha)
 
-    def _operand_inputs(self, initial_value, current_value):
-        return list(zip(_split_rgba(initial_value), _split_rgba(current_value)))
+  def _operand_inputs(self, initial_value, current_value):
+    return list(zip(_split_rgba(initial_value), _split_rgba(current_value)))
 
-    def _apply(self, values, key, initial_value, current_value):
-        return _stack_channels(values)
+  def _apply(self, values, key, initial_value, current_value):
+    return _stack_channels(values)
 
-    def _eq_fields(self):
-        return self._operands
+  def _eq_fields(self):
+    return self._operands
 
-    def __repr__(self):
-        return base.format_call(
-            type(self).__name__, r=self._r, g=self._g, b=self._b, alpha=self._alpha
-        )
+  def __repr__(self):
+    return base.format_call(
+        type(self).__name__, r=self._r, g=self._g, b=self._b, alpha=self._alpha
+    )
 
 
 class HsvVariation(base.CompositeVariation):
-    """A colour given by hue, saturation, value and alpha channels in [0, 1].
+  """A colour given by hue, saturation, value and alpha channels in [0, 1].
 
-    Converted with the rule of `colorsys.hsv_to_rgb` (hue wraps modulo 1).
+  Converted with the rule of `colorsys.hsv_to_rgb` (hue wraps modulo 1).
+  """
+
+  def __init__(self, h, s, v, alpha=1.0):
+    """Initializes an `HsvVariation`.
+
+    Args:
+      h: hue: constant or variation.
+      s: saturation: constant or variation.
+      v: value (brightness): constant or variation.
+      alpha: opacity: constant or variation.
     """
+    self._h, self._s, self._v, self._alpha = h, s, v, alpha
+    self._operands = (h, s, v, alpha)
 
-    def __init__(self, h, s, v, alpha=1.0):
-        """Initializes an `HsvVariation`.
+  def _operand_inputs(self, initial_value, current_value):
+    def channels(value):
+      if not _is_rgba(value):
+        return [value] * 4
+      r, g, b, alpha = _split_rgba(value)
+      return list(_rgb_to_hsv(r, g, b)) + [alpha]
 
-        Args:
-          h: hue: constant or variation.
-          s: saturation: constant or variation.
-          v: value (brightness): constant or variation.
-          alpha: opacity: constant or variation.
-        """
-        self._h, self._s, self._v, self._alpha = h, s, v, alpha
-        self._operands = (h, s, v, alpha)
+    return list(zip(channels(initial_value), channels(current_value)))
 
-    def _operand_inputs(self, initial_value, current_value):
-        def channels(value):
-            if not _is_rgba(value):
-                return [value] * 4
-            r, g, b, alpha = _split_rgba(value)
-            return list(_rgb_to_hsv(r, g, b)) + [alpha]
+  def _apply(self, values, key, initial_value, current_value):
+    h, s, v, alpha = values
+    return _stack_channels(list(_hsv_to_rgb(h, s, v)) + [alpha])
 
-        return list(zip(channels(initial_value), channels(current_value)))
+  def _eq_fields(self):
+    return self._operands
 
-    def _apply(self, values, key, initial_value, current_value):
-        h, s, v, alpha = values
-        return _stack_channels(list(_hsv_to_rgb(h, s, v)) + [alpha])
-
-    def _eq_fields(self):
-        return self._operands
-
-    def __repr__(self):
-        return base.format_call(
-            type(self).__name__, h=self._h, s=self._s, v=self._v, alpha=self._alpha
-        )
+  def __repr__(self):
+    return base.format_call(
+        type(self).__name__, h=self._h, s=self._s, v=self._v, alpha=self._alpha
+    )
 
 
 class GrayVariation(HsvVariation):
-    """A gray colour: `HsvVariation(0, 0, gray_level, alpha)`."""
+  """A gray colour: `HsvVariation(0, 0, gray_level, alpha)`."""
 
-    def __init__(self, gray_level, alpha=1.0):
-        """Initializes a `GrayVariation`.
+  def __init__(self, gray_level, alpha=1.0):
+    """Initializes a `GrayVariation`.
 
-        Args:
-          gray_level: brightness in [0, 1]: constant or variation.
-          alpha: opacity: constant or variation.
-        """
-        super().__init__(h=0.0, s=0.0, v=gray_level, alpha=alpha)
+    Args:
+      gray_level: brightness in [0, 1]: constant or variation.
+      alpha: opacity: constant or variation.
+    """
+    super().__init__(h=0.0, s=0.0, v=gray_level, alpha=alpha)
 
-    def __repr__(self):
-        return base.format_call(type(self).__name__, gray_level=self._v, alpha=self._alpha)
+  def __repr__(self):
+    return base.format_call(
+        type(self).__name__, gray_level=self._v, alpha=self._alpha
+    )

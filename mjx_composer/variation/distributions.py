@@ -33,279 +33,293 @@ from mjx_composer.variation import base
 
 
 def _int_dtype():
-    return jnp.result_type(int)
+  return jnp.result_type(int)
 
 
 class Distribution(base.CompositeVariation):
-    """Base class of parametrised distributions.
+  """Base class of parametrised distributions.
 
-    Subclasses pass their parameters by keyword to `__init__` (in the order of
-    their signature: that order fixes which subkey each variation parameter
-    gets) and implement `_draw(key, shape, **params)`, which receives the
-    evaluated parameters as jnp arrays (or `None`) and returns a sample of
-    `shape` (or one that broadcasts to it).
+  Subclasses pass their parameters by keyword to `__init__` (in the order of
+  their signature: that order fixes which subkey each variation parameter
+  gets) and implement `_draw(key, shape, **params)`, which receives the
+  evaluated parameters as jnp arrays (or `None`) and returns a sample of
+  `shape` (or one that broadcasts to it).
 
-    Constructor parameters are readable as attributes (`Uniform(0, 2).high`),
-    as in composer.
-    """
+  Constructor parameters are readable as attributes (`Uniform(0, 2).high`),
+  as in composer.
+  """
 
-    _DRAWS_RANDOMNESS = True
+  _DRAWS_RANDOMNESS = True
 
-    def __init__(self, single_sample=False, **params):
-        self._single_sample = bool(single_sample)
-        self._params = dict(params)
-        self._operands = tuple(params.values())
+  def __init__(self, single_sample=False, **params):
+    self._single_sample = bool(single_sample)
+    self._params = dict(params)
+    self._operands = tuple(params.values())
 
-    def __getattr__(self, name):
-        params = self.__dict__.get("_params", {})
-        if not name.startswith("_") and name in params:
-            return params[name]
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+  def __getattr__(self, name):
+    params = self.__dict__.get("_params", {})
+    if not name.startswith("_") and name in params:
+      return params[name]
+    raise AttributeError(
+        f"{type(self).__name__!r} object has no attribute {name!r}"
+    )
 
-    @property
-    def single_sample(self) -> bool:
-        return self._single_sample
+  @property
+  def single_sample(self) -> bool:
+    return self._single_sample
 
-    def _draw(self, key, shape, **params):
-        raise NotImplementedError
+  def _draw(self, key, shape, **params):
+    raise NotImplementedError
 
-    def _shapes(self, params, initial_value):
-        """(draw shape, output shape) for evaluated parameters (see module doc)."""
-        param_shape = jnp.broadcast_shapes(
-            *[jnp.shape(p) for p in params if p is not None]
-        )
-        if initial_value is None:
-            full_shape = param_shape
-        else:
-            full_shape = jnp.broadcast_shapes(param_shape, np.shape(initial_value))
-        return (param_shape if self._single_sample else full_shape), full_shape
+  def _shapes(self, params, initial_value):
+    """(draw shape, output shape) for evaluated parameters (see module doc)."""
+    param_shape = jnp.broadcast_shapes(
+        *[jnp.shape(p) for p in params if p is not None]
+    )
+    if initial_value is None:
+      full_shape = param_shape
+    else:
+      full_shape = jnp.broadcast_shapes(param_shape, np.shape(initial_value))
+    return (param_shape if self._single_sample else full_shape), full_shape
 
-    def _apply(self, values, key, initial_value, current_value):
-        params = [base.as_array(v) for v in values]
-        draw_shape, full_shape = self._shapes(params, initial_value)
-        sample = self._draw(key, draw_shape, **dict(zip(self._params, params)))
-        return jnp.broadcast_to(sample, full_shape)
+  def _apply(self, values, key, initial_value, current_value):
+    params = [base.as_array(v) for v in values]
+    draw_shape, full_shape = self._shapes(params, initial_value)
+    sample = self._draw(key, draw_shape, **dict(zip(self._params, params)))
+    return jnp.broadcast_to(sample, full_shape)
 
-    def _eq_fields(self):
-        return (tuple(self._params.items()), self._single_sample)
+  def _eq_fields(self):
+    return (tuple(self._params.items()), self._single_sample)
 
-    def __repr__(self):
-        extra = {"single_sample": True} if self._single_sample else {}
-        return base.format_call(type(self).__name__, **self._params, **extra)
+  def __repr__(self):
+    extra = {"single_sample": True} if self._single_sample else {}
+    return base.format_call(type(self).__name__, **self._params, **extra)
 
 
 class Uniform(Distribution):
-    """Uniform on `[low, high)` (numpy's `uniform`; `low > high` is allowed)."""
+  """Uniform on `[low, high)` (numpy's `uniform`; `low > high` is allowed)."""
 
-    def __init__(self, low=0.0, high=1.0, single_sample=False):
-        """Initializes a `Uniform`.
+  def __init__(self, low=0.0, high=1.0, single_sample=False):
+    """Initializes a `Uniform`.
 
-        Args:
-          low: lower bound (inclusive): scalar, array, or variation.
-          high: upper bound (exclusive): scalar, array, or variation.
-          single_sample: draw once (in the parameters' shape) and broadcast,
-            instead of once per element of the initial value.
-        """
-        super().__init__(low=low, high=high, single_sample=single_sample)
+    Args:
+      low: lower bound (inclusive): scalar, array, or variation.
+      high: upper bound (exclusive): scalar, array, or variation.
+      single_sample: draw once (in the parameters' shape) and broadcast,
+        instead of once per element of the initial value.
+    """
+    super().__init__(low=low, high=high, single_sample=single_sample)
 
-    def _draw(self, key, shape, low, high):
-        dtype = base.float_dtype(low, high)
-        # Not jax.random.uniform(minval=, maxval=): it clamps at minval, which
-        # breaks numpy's `low > high` case.
-        return low + (high - low) * jax.random.uniform(key, shape, dtype)
+  def _draw(self, key, shape, low, high):
+    dtype = base.float_dtype(low, high)
+    # Not jax.random.uniform(minval=, maxval=): it clamps at minval, which
+    # breaks numpy's `low > high` case.
+    return low + (high - low) * jax.random.uniform(key, shape, dtype)
 
-    def static_bounds(self):
-        low, high = base.static_bounds(self.low), base.static_bounds(self.high)
-        if low is None or high is None:
-            return None
-        return base._as_bounds(np.minimum(low[0], high[0]), np.maximum(low[1], high[1]))
+  def static_bounds(self):
+    low, high = base.static_bounds(self.low), base.static_bounds(self.high)
+    if low is None or high is None:
+      return None
+    return base._as_bounds(
+        np.minimum(low[0], high[0]), np.maximum(low[1], high[1])
+    )
 
 
 class UniformInteger(Distribution):
-    """Uniform integers in `[low, high)`, or `[0, low)` if `high` is None.
+  """Uniform integers in `[low, high)`, or `[0, low)` if `high` is None.
 
-    numpy's `randint` semantics; the upper bound is exclusive, so
-    `static_bounds()` is `(low, high - 1)`.
+  numpy's `randint` semantics; the upper bound is exclusive, so
+  `static_bounds()` is `(low, high - 1)`.
+  """
+
+  def __init__(self, low, high=None, single_sample=False):
+    """Initializes a `UniformInteger`.
+
+    Args:
+      low: smallest value (or the exclusive upper bound if `high` is None):
+        integer scalar, array, or variation.
+      high: exclusive upper bound, or `None`.
+      single_sample: draw once and broadcast (see module docstring).
     """
+    super().__init__(low=low, high=high, single_sample=single_sample)
 
-    def __init__(self, low, high=None, single_sample=False):
-        """Initializes a `UniformInteger`.
+  def _draw(self, key, shape, low, high):
+    if high is None:
+      low, high = 0, low
+    return jax.random.randint(key, shape, low, high, dtype=_int_dtype())
 
-        Args:
-          low: smallest value (or the exclusive upper bound if `high` is None):
-            integer scalar, array, or variation.
-          high: exclusive upper bound, or `None`.
-          single_sample: draw once and broadcast (see module docstring).
-        """
-        super().__init__(low=low, high=high, single_sample=single_sample)
-
-    def _draw(self, key, shape, low, high):
-        if high is None:
-            low, high = 0, low
-        return jax.random.randint(key, shape, low, high, dtype=_int_dtype())
-
-    def static_bounds(self):
-        low = base.static_bounds(self.low)
-        if self.high is None:
-            return None if low is None else base._as_bounds(np.zeros_like(low[0]), low[1] - 1)
-        high = base.static_bounds(self.high)
-        if low is None or high is None:
-            return None
-        return base._as_bounds(low[0], high[1] - 1)
+  def static_bounds(self):
+    low = base.static_bounds(self.low)
+    if self.high is None:
+      return (
+          None
+          if low is None
+          else base._as_bounds(np.zeros_like(low[0]), low[1] - 1)
+      )
+    high = base.static_bounds(self.high)
+    if low is None or high is None:
+      return None
+    return base._as_bounds(low[0], high[1] - 1)
 
 
 class UniformChoice(Distribution):
-    """Uniform choice among numeric `choices` (rows of an array).
+  """Uniform choice among numeric `choices` (rows of an array).
 
-    `choices` is a sequence of numbers, an array whose first axis enumerates
-    the choices (each choice is then a row of shape `choices.shape[1:]`), an
-    integer `n` (numpy's shorthand for `range(n)`), or a list containing
-    variations (evaluated, then stacked). String or object choices, which
-    composer allows, cannot live in a JAX array: choose an index with
-    `UniformInteger(len(choices))` and map it on the host.
+  `choices` is a sequence of numbers, an array whose first axis enumerates
+  the choices (each choice is then a row of shape `choices.shape[1:]`), an
+  integer `n` (numpy's shorthand for `range(n)`), or a list containing
+  variations (evaluated, then stacked). String or object choices, which
+  composer allows, cannot live in a JAX array: choose an index with
+  `UniformInteger(len(choices))` and map it on the host.
 
-    Shape: choices fill the trailing axes; without `single_sample`, the
-    leading axes of the (broadcast) initial value get independent picks.
-    E.g. scalar choices and an initial value of shape (3,) give 3 picks; rows
-    of shape (4,) and an initial value of shape (4,) give one row.
+  Shape: choices fill the trailing axes; without `single_sample`, the
+  leading axes of the (broadcast) initial value get independent picks.
+  E.g. scalar choices and an initial value of shape (3,) give 3 picks; rows
+  of shape (4,) and an initial value of shape (4,) give one row.
+  """
+
+  def __init__(self, choices, single_sample=False):
+    """Initializes a `UniformChoice`.
+
+    Args:
+      choices: see the class docstring.
+      single_sample: draw one choice and broadcast it.
+
+    Raises:
+      TypeError: for non-numeric choices.
+      ValueError: for an empty set of choices.
     """
+    if not base._contains_variation(choices):
+      array = np.asarray(choices)
+      if array.dtype.kind not in "biuf":
+        raise TypeError(
+            "UniformChoice needs numeric choices (they become a JAX "
+            f"array); got {choices!r}. Choose an index with "
+            "UniformInteger(len(choices)) and map it on the host."
+        )
+      if array.ndim == 0:
+        if array.dtype.kind not in "iu":
+          raise ValueError(
+              f"UniformChoice choices must be a sequence, got {choices!r}."
+          )
+        choices = np.arange(int(array))
+        array = choices
+      if array.shape[0] == 0:
+        raise ValueError("UniformChoice needs at least one choice.")
+    super().__init__(choices=choices, single_sample=single_sample)
 
-    def __init__(self, choices, single_sample=False):
-        """Initializes a `UniformChoice`.
+  def _apply(self, values, key, initial_value, current_value):
+    choices = base.as_array(values[0])
+    row_shape = choices.shape[1:]
+    if initial_value is None:
+      full_shape = row_shape
+    else:
+      full_shape = jnp.broadcast_shapes(np.shape(initial_value), row_shape)
+    batch_shape = (
+        ()
+        if self._single_sample
+        else full_shape[: len(full_shape) - len(row_shape)]
+    )
+    index = jax.random.randint(key, batch_shape, 0, choices.shape[0])
+    return jnp.broadcast_to(choices[index], full_shape)
 
-        Args:
-          choices: see the class docstring.
-          single_sample: draw one choice and broadcast it.
-
-        Raises:
-          TypeError: for non-numeric choices.
-          ValueError: for an empty set of choices.
-        """
-        if not base._contains_variation(choices):
-            array = np.asarray(choices)
-            if array.dtype.kind not in "biuf":
-                raise TypeError(
-                    "UniformChoice needs numeric choices (they become a JAX "
-                    f"array); got {choices!r}. Choose an index with "
-                    "UniformInteger(len(choices)) and map it on the host."
-                )
-            if array.ndim == 0:
-                if array.dtype.kind not in "iu":
-                    raise ValueError(f"UniformChoice choices must be a sequence, got {choices!r}.")
-                choices = np.arange(int(array))
-                array = choices
-            if array.shape[0] == 0:
-                raise ValueError("UniformChoice needs at least one choice.")
-        super().__init__(choices=choices, single_sample=single_sample)
-
-    def _apply(self, values, key, initial_value, current_value):
-        choices = base.as_array(values[0])
-        row_shape = choices.shape[1:]
-        if initial_value is None:
-            full_shape = row_shape
-        else:
-            full_shape = jnp.broadcast_shapes(np.shape(initial_value), row_shape)
-        batch_shape = () if self._single_sample else full_shape[: len(full_shape) - len(row_shape)]
-        index = jax.random.randint(key, batch_shape, 0, choices.shape[0])
-        return jnp.broadcast_to(choices[index], full_shape)
-
-    def static_bounds(self):
-        bounds = base.static_bounds(self.choices)
-        if bounds is None or np.ndim(bounds[0]) == 0:
-            return None
-        return base._as_bounds(np.min(bounds[0], axis=0), np.max(bounds[1], axis=0))
+  def static_bounds(self):
+    bounds = base.static_bounds(self.choices)
+    if bounds is None or np.ndim(bounds[0]) == 0:
+      return None
+    return base._as_bounds(np.min(bounds[0], axis=0), np.max(bounds[1], axis=0))
 
 
 class UniformPointOnSphere(base.Variation):
-    """Unit 3-vectors, uniform on the sphere (normalised standard normals).
+  """Unit 3-vectors, uniform on the sphere (normalised standard normals).
 
-    Shape: without `single_sample`, one point per row of the initial value
-    when its last axis has size 3 (e.g. varying an axis attribute), otherwise
-    `shape(initial_value) + (3,)` as in composer; `(3,)` without an initial
-    value. With `single_sample`, one point broadcast to that shape.
-    (composer always appends an axis, which turns a (3,) initial value into
-    (3, 3); we fill it instead.)
-    """
+  Shape: without `single_sample`, one point per row of the initial value
+  when its last axis has size 3 (e.g. varying an axis attribute), otherwise
+  `shape(initial_value) + (3,)` as in composer; `(3,)` without an initial
+  value. With `single_sample`, one point broadcast to that shape.
+  (composer always appends an axis, which turns a (3,) initial value into
+  (3, 3); we fill it instead.)
+  """
 
-    def __init__(self, single_sample=False):
-        self._single_sample = bool(single_sample)
+  def __init__(self, single_sample=False):
+    self._single_sample = bool(single_sample)
 
-    def _sample(self, state, key, initial_value, current_value):
-        self._require_key(key)
-        if initial_value is None:
-            full_shape = (3,)
-        else:
-            shape = tuple(np.shape(initial_value))
-            full_shape = shape if shape[-1:] == (3,) else shape + (3,)
-        draw_shape = (3,) if self._single_sample else full_shape
-        point = jax.random.normal(key, draw_shape, base.float_dtype())
-        point = point / jnp.linalg.norm(point, axis=-1, keepdims=True)
-        return jnp.broadcast_to(point, full_shape), state
+  def _sample(self, state, key, initial_value, current_value):
+    self._require_key(key)
+    if initial_value is None:
+      full_shape = (3,)
+    else:
+      shape = tuple(np.shape(initial_value))
+      full_shape = shape if shape[-1:] == (3,) else shape + (3,)
+    draw_shape = (3,) if self._single_sample else full_shape
+    point = jax.random.normal(key, draw_shape, base.float_dtype())
+    point = point / jnp.linalg.norm(point, axis=-1, keepdims=True)
+    return jnp.broadcast_to(point, full_shape), state
 
-    def static_bounds(self):
-        return np.asarray(-1.0), np.asarray(1.0)
+  def static_bounds(self):
+    return np.asarray(-1.0), np.asarray(1.0)
 
-    def _eq_fields(self):
-        return (self._single_sample,)
+  def _eq_fields(self):
+    return (self._single_sample,)
 
-    def __repr__(self):
-        extra = {"single_sample": True} if self._single_sample else {}
-        return base.format_call(type(self).__name__, **extra)
+  def __repr__(self):
+    extra = {"single_sample": True} if self._single_sample else {}
+    return base.format_call(type(self).__name__, **extra)
 
 
 class Normal(Distribution):
-    """Gaussian with mean `loc` and standard deviation `scale`."""
+  """Gaussian with mean `loc` and standard deviation `scale`."""
 
-    def __init__(self, loc=0.0, scale=1.0, single_sample=False):
-        super().__init__(loc=loc, scale=scale, single_sample=single_sample)
+  def __init__(self, loc=0.0, scale=1.0, single_sample=False):
+    super().__init__(loc=loc, scale=scale, single_sample=single_sample)
 
-    def _draw(self, key, shape, loc, scale):
-        dtype = base.float_dtype(loc, scale)
-        return loc + scale * jax.random.normal(key, shape, dtype)
+  def _draw(self, key, shape, loc, scale):
+    dtype = base.float_dtype(loc, scale)
+    return loc + scale * jax.random.normal(key, shape, dtype)
 
 
 class LogNormal(Distribution):
-    """`exp(N(mean, sigma))` (numpy's `lognormal` parametrisation)."""
+  """`exp(N(mean, sigma))` (numpy's `lognormal` parametrisation)."""
 
-    def __init__(self, mean=0.0, sigma=1.0, single_sample=False):
-        super().__init__(mean=mean, sigma=sigma, single_sample=single_sample)
+  def __init__(self, mean=0.0, sigma=1.0, single_sample=False):
+    super().__init__(mean=mean, sigma=sigma, single_sample=single_sample)
 
-    def _draw(self, key, shape, mean, sigma):
-        dtype = base.float_dtype(mean, sigma)
-        return jnp.exp(mean + sigma * jax.random.normal(key, shape, dtype))
+  def _draw(self, key, shape, mean, sigma):
+    dtype = base.float_dtype(mean, sigma)
+    return jnp.exp(mean + sigma * jax.random.normal(key, shape, dtype))
 
 
 class Exponential(Distribution):
-    """Exponential with mean `scale` (numpy's parametrisation)."""
+  """Exponential with mean `scale` (numpy's parametrisation)."""
 
-    def __init__(self, scale=1.0, single_sample=False):
-        super().__init__(scale=scale, single_sample=single_sample)
+  def __init__(self, scale=1.0, single_sample=False):
+    super().__init__(scale=scale, single_sample=single_sample)
 
-    def _draw(self, key, shape, scale):
-        return scale * jax.random.exponential(key, shape, base.float_dtype(scale))
+  def _draw(self, key, shape, scale):
+    return scale * jax.random.exponential(key, shape, base.float_dtype(scale))
 
 
 class Poisson(Distribution):
-    """Poisson with rate `lam`; integer samples."""
+  """Poisson with rate `lam`; integer samples."""
 
-    def __init__(self, lam=1.0, single_sample=False):
-        super().__init__(lam=lam, single_sample=single_sample)
+  def __init__(self, lam=1.0, single_sample=False):
+    super().__init__(lam=lam, single_sample=single_sample)
 
-    def _draw(self, key, shape, lam):
-        return jax.random.poisson(key, lam, shape, dtype=_int_dtype())
+  def _draw(self, key, shape, lam):
+    return jax.random.poisson(key, lam, shape, dtype=_int_dtype())
 
 
 class Bernoulli(Distribution):
-    """1 with probability `prob`, else 0 (integers, like `binomial(1, prob)`)."""
+  """1 with probability `prob`, else 0 (integers, like `binomial(1, prob)`)."""
 
-    def __init__(self, prob=0.5, single_sample=False):
-        super().__init__(prob=prob, single_sample=single_sample)
+  def __init__(self, prob=0.5, single_sample=False):
+    super().__init__(prob=prob, single_sample=single_sample)
 
-    def _draw(self, key, shape, prob):
-        return jax.random.bernoulli(key, prob, shape).astype(_int_dtype())
+  def _draw(self, key, shape, prob):
+    return jax.random.bernoulli(key, prob, shape).astype(_int_dtype())
 
-    def static_bounds(self):
-        return np.asarray(0), np.asarray(1)
+  def static_bounds(self):
+    return np.asarray(0), np.asarray(1)
 
 
 _NEGATIVE_STDEV = "`stdev` must be >= 0, got {}."
@@ -313,59 +327,61 @@ _NEGATIVE_TIMESCALE = "`timescale` must be >= 0, got {}."
 
 
 class BiasedRandomWalk(base.Variation):
-    """Zero-mean Ornstein-Uhlenbeck noise: a stateful, correlated walk.
+  """Zero-mean Ornstein-Uhlenbeck noise: a stateful, correlated walk.
 
-    With `retain = exp(-1 / timescale)` (0 when `timescale == 0`) and
-    `scale = stdev * sqrt(1 - retain**2)`, each draw does
+  With `retain = exp(-1 / timescale)` (0 when `timescale == 0`) and
+  `scale = stdev * sqrt(1 - retain**2)`, each draw does
 
-        x <- retain * x + N(0, scale)
+      x <- retain * x + N(0, scale)
 
-    starting from `x = 0`, so the stationary standard deviation is `stdev`
-    and the correlation decays by `exp(-1)` every `timescale` draws.
+  starting from `x = 0`, so the stationary standard deviation is `stdev`
+  and the correlation decays by `exp(-1)` every `timescale` draws.
 
-    composer keeps `x` on the object; here it is the state:
-    `initial_state()` is `x = 0` and `sample(state, key)` returns the new `x`
-    both as the value and as the new state. Like composer, the walk ignores the
-    shape of the initial value; it has the broadcast shape of `stdev` and
-    `timescale`, so array parameters give independent walks per element.
+  composer keeps `x` on the object; here it is the state:
+  `initial_state()` is `x = 0` and `sample(state, key)` returns the new `x`
+  both as the value and as the new state. Like composer, the walk ignores the
+  shape of the initial value; it has the broadcast shape of `stdev` and
+  `timescale`, so array parameters give independent walks per element.
+  """
+
+  def __init__(self, stdev=0.1, timescale=10.0):
+    """Initializes a `BiasedRandomWalk`.
+
+    Args:
+      stdev: stationary standard deviation (>= 0), scalar or array.
+      timescale: number of draws over which the correlation drops by
+        `exp(-1)` (>= 0); 0 gives independent normal draws.
+
+    Raises:
+      ValueError: if `stdev` or `timescale` is negative.
     """
+    stdev_array = np.asarray(stdev, dtype=float)
+    timescale_array = np.asarray(timescale, dtype=float)
+    if np.any(stdev_array < 0):
+      raise ValueError(_NEGATIVE_STDEV.format(stdev))
+    if np.any(timescale_array < 0):
+      raise ValueError(_NEGATIVE_TIMESCALE.format(timescale))
+    self._stdev, self._timescale = stdev, timescale
+    with np.errstate(divide="ignore"):
+      retain = np.where(
+          timescale_array == 0, 0.0, np.exp(-1.0 / timescale_array)
+      )
+    self._retain = retain
+    self._scale = stdev_array * np.sqrt(1.0 - retain * retain)
+    self._shape = np.broadcast_shapes(stdev_array.shape, timescale_array.shape)
 
-    def __init__(self, stdev=0.1, timescale=10.0):
-        """Initializes a `BiasedRandomWalk`.
+  def initial_state(self, initial_value=None):
+    del initial_value  # The walk's shape is that of its parameters.
+    return jnp.zeros(self._shape, base.float_dtype())
 
-        Args:
-          stdev: stationary standard deviation (>= 0), scalar or array.
-          timescale: number of draws over which the correlation drops by
-            `exp(-1)` (>= 0); 0 gives independent normal draws.
+  def _sample(self, state, key, initial_value, current_value):
+    self._require_key(key)
+    self._require_state(state)
+    noise = jax.random.normal(key, self._shape, state.dtype)
+    value = (self._retain * state + self._scale * noise).astype(state.dtype)
+    return value, value
 
-        Raises:
-          ValueError: if `stdev` or `timescale` is negative.
-        """
-        stdev_array = np.asarray(stdev, dtype=float)
-        timescale_array = np.asarray(timescale, dtype=float)
-        if np.any(stdev_array < 0):
-            raise ValueError(_NEGATIVE_STDEV.format(stdev))
-        if np.any(timescale_array < 0):
-            raise ValueError(_NEGATIVE_TIMESCALE.format(timescale))
-        self._stdev, self._timescale = stdev, timescale
-        with np.errstate(divide="ignore"):
-            retain = np.where(timescale_array == 0, 0.0, np.exp(-1.0 / timescale_array))
-        self._retain = retain
-        self._scale = stdev_array * np.sqrt(1.0 - retain * retain)
-        self._shape = np.broadcast_shapes(stdev_array.shape, timescale_array.shape)
-
-    def initial_state(self, initial_value=None):
-        del initial_value  # The walk's shape is that of its parameters.
-        return jnp.zeros(self._shape, base.float_dtype())
-
-    def _sample(self, state, key, initial_value, current_value):
-        self._require_key(key)
-        self._require_state(state)
-        noise = jax.random.normal(key, self._shape, state.dtype)
-        value = (self._retain * state + self._scale * noise).astype(state.dtype)
-        return value, value
-
-    def __repr__(self):
-        return base.format_call(
-            type(self).__name__, stdev=self._stdev, timescale=self._timescale
-        )
+  def __repr__(self):
+    return base.format_call(
+        type(self).__name__, stdev=self._stdev, timescale=self._timescale
+    )

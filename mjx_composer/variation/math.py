@@ -21,71 +21,71 @@ from mjx_composer.variation import base
 
 
 class MathOp(base.CompositeVariation):
-    """Applies `_callable` to the evaluated `args` and `kwargs`.
+  """Applies `_callable` to the evaluated `args` and `kwargs`.
 
-    Positional arguments are converted to jnp arrays (lists are stacked, as
-    numpy would); keyword arguments are passed as evaluated.
-    """
+  Positional arguments are converted to jnp arrays (lists are stacked, as
+  numpy would); keyword arguments are passed as evaluated.
+  """
 
-    _callable = None
+  _callable = None
 
-    def __init__(self, *args, **kwargs):
-        self._args = args
-        self._kwargs = kwargs
-        # One operand per argument: a lone argument gets the node's key as is.
-        self._operands = tuple(args) + tuple(kwargs.values())
+  def __init__(self, *args, **kwargs):
+    self._args = args
+    self._kwargs = kwargs
+    # One operand per argument: a lone argument gets the node's key as is.
+    self._operands = tuple(args) + tuple(kwargs.values())
 
-    def _apply(self, values, key, initial_value, current_value):
-        args = [base.as_array(a) for a in values[: len(self._args)]]
-        kwargs = dict(zip(self._kwargs, values[len(self._args):]))
-        return type(self)._callable(*args, **kwargs)
+  def _apply(self, values, key, initial_value, current_value):
+    args = [base.as_array(a) for a in values[: len(self._args)]]
+    kwargs = dict(zip(self._kwargs, values[len(self._args) :]))
+    return type(self)._callable(*args, **kwargs)
 
-    def _eq_fields(self):
-        return (self._args, self._kwargs)
+  def _eq_fields(self):
+    return (self._args, self._kwargs)
 
-    def __repr__(self):
-        return base.format_call(type(self).__name__, *self._args, **self._kwargs)
+  def __repr__(self):
+    return base.format_call(type(self).__name__, *self._args, **self._kwargs)
 
 
 class Log(MathOp):
-    """Elementwise natural logarithm."""
+  """Elementwise natural logarithm."""
 
-    _callable = staticmethod(jnp.log)
+  _callable = staticmethod(jnp.log)
 
 
 class _Reduction(MathOp):
-    """A max/min reduction whose bounds follow from its argument's bounds."""
+  """A max/min reduction whose bounds follow from its argument's bounds."""
 
-    _numpy_reduce = None
+  _numpy_reduce = None
 
-    def static_bounds(self):
-        # Only the full reduction of one argument: with an `axis`, bounds that
-        # broadcast (are smaller than the value) would not reduce the same way.
-        if len(self._args) != 1 or self._kwargs:
-            return None
-        bounds = base.static_bounds(self._args[0])
-        if bounds is None:
-            return None
-        reduce = type(self)._numpy_reduce
-        # max(x) >= x_i >= low_i for every i, and max(x) <= max_i high_i; min alike.
-        return np.asarray(reduce(bounds[0])), np.asarray(reduce(bounds[1]))
+  def static_bounds(self):
+    # Only the full reduction of one argument: with an `axis`, bounds that
+    # broadcast (are smaller than the value) would not reduce the same way.
+    if len(self._args) != 1 or self._kwargs:
+      return None
+    bounds = base.static_bounds(self._args[0])
+    if bounds is None:
+      return None
+    reduce = type(self)._numpy_reduce
+    # max(x) >= x_i >= low_i for every i, and max(x) <= max_i high_i; min alike.
+    return np.asarray(reduce(bounds[0])), np.asarray(reduce(bounds[1]))
 
 
 class Max(_Reduction):
-    """Largest element (`jnp.max`), as composer's `np.max`."""
+  """Largest element (`jnp.max`), as composer's `np.max`."""
 
-    _callable = staticmethod(jnp.max)
-    _numpy_reduce = staticmethod(np.max)
+  _callable = staticmethod(jnp.max)
+  _numpy_reduce = staticmethod(np.max)
 
 
 class Min(_Reduction):
-    """Smallest element (`jnp.min`), as composer's `np.min`."""
+  """Smallest element (`jnp.min`), as composer's `np.min`."""
 
-    _callable = staticmethod(jnp.min)
-    _numpy_reduce = staticmethod(np.min)
+  _callable = staticmethod(jnp.min)
+  _numpy_reduce = staticmethod(np.min)
 
 
 class Norm(MathOp):
-    """Vector or matrix norm (`jnp.linalg.norm`)."""
+  """Vector or matrix norm (`jnp.linalg.norm`)."""
 
-    _callable = staticmethod(jnp.linalg.norm)
+  _callable = staticmethod(jnp.linalg.norm)

@@ -63,7 +63,8 @@ class _Plan:
     self._compiler = model_compiler.ModelCompiler(
         physics.index,
         [(b.element, b.attr, b.describe()) for b in bindings],
-        owner=variator.persistent_name)
+        owner=variator.persistent_name,
+    )
     self.initial_values = self._compiler.initial_values
 
   def read_current(self, physics, entry):
@@ -90,9 +91,11 @@ class MJCFVariator(variator_base.Variator):
     kind = model_compiler.check_attribute(element, attr)
     initial = model_compiler.spec_value(element, kind, attr)
     variator_base.check_static_shape(
-        variation, initial,
+        variation,
+        initial,
         variator_base.describe_element(element) + '.' + attr,
-        self.persistent_name)
+        self.persistent_name,
+    )
 
   def _prepare(self, physics):
     return _Plan(self, physics)

@@ -59,9 +59,9 @@ import numpy as np
 
 from mjx_composer import physics as physics_lib
 
-_EPS = 1e-14          # mjEPS (user_util.h)
-_MINVAL = 1e-15       # mjMINVAL
-_MAXVAL = 1e10        # mjMAXVAL
+_EPS = 1e-14  # mjEPS (user_util.h)
+_MINVAL = 1e-15  # mjMINVAL
+_MAXVAL = 1e10  # mjMAXVAL
 
 # The class of `MjSpec.option` (not `mujoco.MjOption`, the compiled struct).
 SPEC_OPTION = type(mujoco.MjSpec().option)
@@ -72,25 +72,51 @@ _Joint = mujoco.mjtJoint
 # Supported MJCF attributes, by element kind. Values are the shape of the
 # attribute as a variation sees it.
 ATTRIBUTES = {
-    'geom': {'size': (3,), 'rgba': (4,), 'friction': (3,), 'mass': (),
-             'density': (), 'pos': (3,), 'quat': (4,), 'solref': (2,),
-             'solimp': (5,)},
-    'body': {'pos': (3,), 'quat': (4,), 'mass': (), 'inertia': (3,),
-             'ipos': (3,), 'iquat': (4,)},
+    'geom': {
+        'size': (3,),
+        'rgba': (4,),
+        'friction': (3,),
+        'mass': (),
+        'density': (),
+        'pos': (3,),
+        'quat': (4,),
+        'solref': (2,),
+        'solimp': (5,),
+    },
+    'body': {
+        'pos': (3,),
+        'quat': (4,),
+        'mass': (),
+        'inertia': (3,),
+        'ipos': (3,),
+        'iquat': (4,),
+    },
     'site': {'pos': (3,), 'quat': (4,)},
-    'joint': {'damping': (), 'stiffness': (), 'armature': (),
-              'frictionloss': (), 'range': (2,)},
-    'actuator': {'gear': (6,), 'ctrlrange': (2,), 'forcerange': (2,),
-                 'kp': (), 'kv': (), 'gainprm': (10,), 'biasprm': (10,)},
-    'option': {'gravity': (3,), 'wind': (3,), 'density': (),
-               'viscosity': ()},
+    'joint': {
+        'damping': (),
+        'stiffness': (),
+        'armature': (),
+        'frictionloss': (),
+        'range': (2,),
+    },
+    'actuator': {
+        'gear': (6,),
+        'ctrlrange': (2,),
+        'forcerange': (2,),
+        'kp': (),
+        'kv': (),
+        'gainprm': (10,),
+        'biasprm': (10,),
+    },
+    'option': {'gravity': (3,), 'wind': (3,), 'density': (), 'viscosity': ()},
 }
 
 
 def supported_text() -> str:
   """The supported attributes, for error messages."""
-  return '; '.join(f'{kind}: {", ".join(attrs)}'
-                   for kind, attrs in ATTRIBUTES.items())
+  return '; '.join(
+      f'{kind}: {", ".join(attrs)}' for kind, attrs in ATTRIBUTES.items()
+  )
 
 
 def kind_of(element) -> str:
@@ -102,11 +128,12 @@ def kind_of(element) -> str:
   except TypeError as e:
     raise TypeError(
         f'MJCFVariator cannot bind {element!r}: expected an MjSpec element '
-        f'handle or the root spec\'s option. Supported: {supported_text()}.'
+        f"handle or the root spec's option. Supported: {supported_text()}."
     ) from e
   if kind not in ATTRIBUTES:
     raise ValueError(
-        f'MJCFVariator cannot vary a {kind}. Supported: {supported_text()}.')
+        f'MJCFVariator cannot vary a {kind}. Supported: {supported_text()}.'
+    )
   return kind
 
 
@@ -156,14 +183,18 @@ def _limited(flag, autolimits: bool, has_range: bool) -> bool:
 
 
 def _is_position_like(actuator) -> bool:
-  return (actuator.gaintype == mujoco.mjtGain.mjGAIN_FIXED and
-          actuator.biastype == mujoco.mjtBias.mjBIAS_AFFINE and
-          actuator.gainprm[0] == -actuator.biasprm[1])
+  return (
+      actuator.gaintype == mujoco.mjtGain.mjGAIN_FIXED
+      and actuator.biastype == mujoco.mjtBias.mjBIAS_AFFINE
+      and actuator.gainprm[0] == -actuator.biasprm[1]
+  )
 
 
 def _is_muscle(actuator) -> bool:
-  return (actuator.gaintype == mujoco.mjtGain.mjGAIN_MUSCLE or
-          actuator.biastype == mujoco.mjtBias.mjBIAS_MUSCLE)
+  return (
+      actuator.gaintype == mujoco.mjtGain.mjGAIN_MUSCLE
+      or actuator.biastype == mujoco.mjtBias.mjBIAS_MUSCLE
+  )
 
 
 def _option_has_fluid(opt) -> bool:
@@ -188,113 +219,165 @@ def check_attribute(element, attr: str) -> str:
         'that maps onto compiled model fields we can re-derive on the device. '
         f'Supported {kind} attributes: {sorted(ATTRIBUTES[kind])}. '
         f'(All supported: {supported_text()}.) To write a compiled field '
-        'without re-deriving anything, use PhysicsVariator.')
+        'without re-deriving anything, use PhysicsVariator.'
+    )
   name = getattr(element, 'name', '') or ''
   what = f'{kind} {name!r}' if name else kind
-  refuse = lambda why: ValueError(f'MJCFVariator cannot vary {attr!r} of '
-                                  f'{what}: {why}')
+  refuse = lambda why: ValueError(
+      f'MJCFVariator cannot vary {attr!r} of ' f'{what}: {why}'
+  )
   if kind == 'geom':
-    if element.type in _MESHLIKE and attr in ('size', 'mass', 'density',
-                                              'pos', 'quat'):
-      raise refuse('mesh, SDF and height-field geoms take their size, '
-                   'inertia and frame from the asset, which would need '
-                   're-meshing. Vary a primitive geom instead.')
+    if element.type in _MESHLIKE and attr in (
+        'size',
+        'mass',
+        'density',
+        'pos',
+        'quat',
+    ):
+      raise refuse(
+          'mesh, SDF and height-field geoms take their size, '
+          'inertia and frame from the asset, which would need '
+          're-meshing. Vary a primitive geom instead.'
+      )
     if not np.isnan(element.fromto[0]) and attr in ('pos', 'quat'):
-      raise refuse('the geom is placed by `fromto`, which the compiler uses '
-                   'instead of pos/quat.')
+      raise refuse(
+          'the geom is placed by `fromto`, which the compiler uses '
+          'instead of pos/quat.'
+      )
     if attr == 'quat' and element.alt.type != _QUAT_ORIENTATION:
-      raise refuse('the geom orientation is given by an alternative '
-                   '(euler/axisangle/xyaxes/zaxis), which the compiler uses '
-                   'instead of quat.')
+      raise refuse(
+          'the geom orientation is given by an alternative '
+          '(euler/axisangle/xyaxes/zaxis), which the compiler uses '
+          'instead of quat.'
+      )
     if attr == 'size' and element.fluid_ellipsoid > 0:
-      raise refuse('the geom has fluid_ellipsoid interaction, whose '
-                   'coefficients (geom_fluid) are static in MJX.')
+      raise refuse(
+          'the geom has fluid_ellipsoid interaction, whose '
+          'coefficients (geom_fluid) are static in MJX.'
+      )
   elif kind == 'body':
     if name == 'world':
-      raise refuse('the world body does not vary. To move an attached '
-                   'entity, bind its attachment frame '
-                   '(entity.attachment_frame).')
+      raise refuse(
+          'the world body does not vary. To move an attached '
+          'entity, bind its attachment frame '
+          '(entity.attachment_frame).'
+      )
     if attr == 'quat' and element.alt.type != _QUAT_ORIENTATION:
-      raise refuse('the body orientation is given by an alternative '
-                   '(euler/axisangle/xyaxes/zaxis), which the compiler uses '
-                   'instead of quat.')
+      raise refuse(
+          'the body orientation is given by an alternative '
+          '(euler/axisangle/xyaxes/zaxis), which the compiler uses '
+          'instead of quat.'
+      )
     if attr in ('inertia', 'iquat') and not np.isnan(element.fullinertia[0]):
       raise refuse('the body inertia is given by fullinertia.')
     if attr == 'iquat' and element.ialt.type != _QUAT_ORIENTATION:
       raise refuse('the inertial orientation is given by an alternative.')
-    if attr in _INERTIA_ATTRS and _body_infers_inertia(element) and any(
-        _geom_in_inertia_group(g, element.compiler) for g in element.geoms):
+    if (
+        attr in _INERTIA_ATTRS
+        and _body_infers_inertia(element)
+        and any(
+            _geom_in_inertia_group(g, element.compiler) for g in element.geoms
+        )
+    ):
       raise refuse(
           'the body infers its mass and inertia from its geoms (the '
-          'compiler ignores the body\'s own mass/inertia). Vary the geoms\' '
+          "compiler ignores the body's own mass/inertia). Vary the geoms' "
           'mass, density or size, or give the body an explicit inertial '
-          '(set its ipos, mass and inertia in the spec).')
+          '(set its ipos, mass and inertia in the spec).'
+      )
   elif kind == 'site':
     if attr == 'quat' and element.alt.type != _QUAT_ORIENTATION:
-      raise refuse('the site orientation is given by an alternative '
-                   '(euler/axisangle/xyaxes/zaxis), which the compiler uses '
-                   'instead of quat.')
+      raise refuse(
+          'the site orientation is given by an alternative '
+          '(euler/axisangle/xyaxes/zaxis), which the compiler uses '
+          'instead of quat.'
+      )
   elif kind == 'joint':
     if attr == 'frictionloss' and element.frictionloss <= 0:
-      raise refuse('the compiled joint has no friction loss, and MJX fixes '
-                   'at put_model time which dofs have friction-loss '
-                   'constraints. Give it a nonzero frictionloss in the spec '
-                   '(and keep varied values positive).')
+      raise refuse(
+          'the compiled joint has no friction loss, and MJX fixes '
+          'at put_model time which dofs have friction-loss '
+          'constraints. Give it a nonzero frictionloss in the spec '
+          '(and keep varied values positive).'
+      )
     if attr == 'range':
       if element.type == _Joint.mjJNT_FREE:
         raise refuse('free joints have no range.')
       has_range = not (element.range[0] == 0 and element.range[1] == 0)
-      if not _limited(element.limited, element.compiler.autolimits,
-                      has_range):
-        raise refuse('the joint is not limited, and jnt_limited is static '
-                     'in MJX. Give it a range (limited) in the spec.')
-    if attr in ('damping', 'stiffness') and (element.springdamper[0] or
-                                             element.springdamper[1]):
-      raise refuse('the joint sets springdamper, from which the compiler '
-                   'derives its stiffness and damping.')
+      if not _limited(element.limited, element.compiler.autolimits, has_range):
+        raise refuse(
+            'the joint is not limited, and jnt_limited is static '
+            'in MJX. Give it a range (limited) in the spec.'
+        )
+    if attr in ('damping', 'stiffness') and (
+        element.springdamper[0] or element.springdamper[1]
+    ):
+      raise refuse(
+          'the joint sets springdamper, from which the compiler '
+          'derives its stiffness and damping.'
+      )
   elif kind == 'actuator':
     if _is_muscle(element) and attr in ('gear', 'gainprm', 'biasprm'):
-      raise refuse('muscle parameters and transmissions feed the '
-                   'compiler\'s actuator length-range simulation, which we '
-                   'do not run on the device.')
+      raise refuse(
+          'muscle parameters and transmissions feed the '
+          "compiler's actuator length-range simulation, which we "
+          'do not run on the device.'
+      )
     if attr == 'ctrlrange':
       if element.inheritrange > 0:
-        raise refuse('the actuator inherits its ctrlrange from its target '
-                     '(inheritrange).')
+        raise refuse(
+            'the actuator inherits its ctrlrange from its target '
+            '(inheritrange).'
+        )
       has_range = not (element.ctrlrange[0] == 0 and element.ctrlrange[1] == 0)
-      if not _limited(element.ctrllimited, element.compiler.autolimits,
-                      has_range):
-        raise refuse('the actuator is not ctrllimited, and that is static '
-                     'in MJX. Give it a ctrlrange in the spec.')
+      if not _limited(
+          element.ctrllimited, element.compiler.autolimits, has_range
+      ):
+        raise refuse(
+            'the actuator is not ctrllimited, and that is static '
+            'in MJX. Give it a ctrlrange in the spec.'
+        )
     if attr == 'forcerange':
-      has_range = not (element.forcerange[0] == 0 and
-                       element.forcerange[1] == 0)
-      if not _limited(element.forcelimited, element.compiler.autolimits,
-                      has_range):
-        raise refuse('the actuator is not forcelimited, and that is static '
-                     'in MJX. Give it a forcerange in the spec.')
+      has_range = not (
+          element.forcerange[0] == 0 and element.forcerange[1] == 0
+      )
+      if not _limited(
+          element.forcelimited, element.compiler.autolimits, has_range
+      ):
+        raise refuse(
+            'the actuator is not forcelimited, and that is static '
+            'in MJX. Give it a forcerange in the spec.'
+        )
     if attr in ('kp', 'kv') and not _is_position_like(element):
-      raise refuse(f'{attr} is defined for position actuators (fixed gain, '
-                   'affine bias, gainprm[0] == -biasprm[1]); bind gainprm '
-                   'and biasprm instead.')
+      raise refuse(
+          f'{attr} is defined for position actuators (fixed gain, '
+          'affine bias, gainprm[0] == -biasprm[1]); bind gainprm '
+          'and biasprm instead.'
+      )
     if attr == 'kv' and element.biasprm[2] > 0:
-      raise refuse('the actuator sets a dampratio (biasprm[2] > 0), from '
-                   'which the compiler derives its damping.')
+      raise refuse(
+          'the actuator sets a dampratio (biasprm[2] > 0), from '
+          'which the compiler derives its damping.'
+      )
   elif kind == 'option':
     if attr in ('density', 'viscosity', 'wind') and not _option_has_fluid(
-        element):
-      raise refuse('the model has no fluid forces (density, viscosity and '
-                   'wind are zero), which MJX decides statically. Give the '
-                   'root spec a nonzero option density or viscosity.')
+        element
+    ):
+      raise refuse(
+          'the model has no fluid forces (density, viscosity and '
+          'wind are zero), which MJX decides statically. Give the '
+          'root spec a nonzero option density or viscosity.'
+      )
   return kind
 
 
 def _body_infers_inertia(body) -> bool:
   """Whether the compiler infers this body's inertial from its geoms."""
   mode = body.compiler.inertiafromgeom
-  return (mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE or
-          (mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO and
-           np.isnan(body.ipos[0])))
+  return mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE or (
+      mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
+      and np.isnan(body.ipos[0])
+  )
 
 
 def _geom_in_inertia_group(geom, compiler) -> bool:
@@ -309,10 +392,14 @@ def _geom_in_inertia_group(geom, compiler) -> bool:
 def _quat_mul_np(a, b):
   w1, x1, y1, z1 = a
   w2, x2, y2, z2 = b
-  return np.array([w1*w2 - x1*x2 - y1*y2 - z1*z2,
-                   w1*x2 + x1*w2 + y1*z2 - z1*y2,
-                   w1*y2 - x1*z2 + y1*w2 + z1*x2,
-                   w1*z2 + x1*y2 - y1*x2 + z1*w2])
+  return np.array(
+      [
+          w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+          w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+          w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+          w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+      ]
+  )
 
 
 def _quat_to_mat_np(q):
@@ -335,32 +422,43 @@ def _frame_between(compiled_pos, compiled_quat, local_pos, local_quat):
   conj = local_quat * np.array([1, -1, -1, -1])
   fq = _quat_mul_np(np.asarray(compiled_quat, np.float64), conj)
   fp = np.asarray(compiled_pos, np.float64) - _quat_to_mat_np(fq) @ np.asarray(
-      local_pos, np.float64)
+      local_pos, np.float64
+  )
   return fp, fq
 
 
 def _quat_mul(a, b):
   w1, x1, y1, z1 = a[0], a[1], a[2], a[3]
   w2, x2, y2, z2 = b[0], b[1], b[2], b[3]
-  return jnp.stack([w1*w2 - x1*x2 - y1*y2 - z1*z2,
-                    w1*x2 + x1*w2 + y1*z2 - z1*y2,
-                    w1*y2 - x1*z2 + y1*w2 + z1*x2,
-                    w1*z2 + x1*y2 - y1*x2 + z1*w2])
+  return jnp.stack(
+      [
+          w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+          w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+          w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+          w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+      ]
+  )
 
 
 def _quat_to_mat(q):
   w, x, y, z = q[0], q[1], q[2], q[3]
-  return jnp.array([
-      [1 - 2*(y*y + z*z), 2*(x*y - w*z), 2*(x*z + w*y)],
-      [2*(x*y + w*z), 1 - 2*(x*x + z*z), 2*(y*z - w*x)],
-      [2*(x*z - w*y), 2*(y*z + w*x), 1 - 2*(x*x + y*y)]])
+  return jnp.array(
+      [
+          [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+          [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+          [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+      ]
+  )
 
 
 def _normalize_quat(q):
   """MuJoCo's `mjuu_normvec`: leave (near-)unit and (near-)zero alone."""
   norm = jnp.sqrt(jnp.sum(q * q))
-  scale = jnp.where((norm < _EPS) | (jnp.abs(norm - 1) <= _EPS), 1.0,
-                    1.0 / jnp.maximum(norm, _EPS))
+  scale = jnp.where(
+      (norm < _EPS) | (jnp.abs(norm - 1) <= _EPS),
+      1.0,
+      1.0 / jnp.maximum(norm, _EPS),
+  )
   return q * scale
 
 
@@ -425,8 +523,7 @@ def eig3(mat, iterations=24):
     return jnp.where(done, quat, new), done
 
   quat0 = jnp.array([1.0, 0.0, 0.0, 0.0], dtype)
-  quat, _ = jax.lax.fori_loop(0, iterations, body,
-                              (quat0, jnp.zeros((), bool)))
+  quat, _ = jax.lax.fori_loop(0, iterations, body, (quat0, jnp.zeros((), bool)))
   r = _quat_to_mat(quat)
   eigval = jnp.diagonal(r.T @ mat @ r)
   # Sort decreasing (bubble sort 0, 1, 0), rotating the frame by quarter
@@ -466,9 +563,12 @@ def _geom_volume(gtype, shell, size):
   if gtype == _Geom.mjGEOM_ELLIPSOID:
     if shell:
       p = 1.6075
-      tmp = ((size[0] * size[1])**p + (size[1] * size[2])**p +
-             (size[2] * size[0])**p)
-      return 4 * math.pi * (tmp / 3)**(1 / p)
+      tmp = (
+          (size[0] * size[1]) ** p
+          + (size[1] * size[2]) ** p
+          + (size[2] * size[0]) ** p
+      )
+      return 4 * math.pi * (tmp / 3) ** (1 / p)
     return 4 * math.pi * size[0] * size[1] * size[2] / 3
   if gtype == _Geom.mjGEOM_BOX:
     if shell:
@@ -481,7 +581,7 @@ def _geom_inertia(gtype, shell, size, mass):
   """Principal inertia (geom frame) of a primitive geom of `mass`."""
   zeros = jnp.zeros((), size.dtype)
   if gtype == _Geom.mjGEOM_SPHERE:
-    i = (2 / 3 if shell else 2 / 5) * mass * size[0]**2
+    i = (2 / 3 if shell else 2 / 5) * mass * size[0] ** 2
     return jnp.stack([i, i, i])
   if gtype == _Geom.mjGEOM_CAPSULE:
     r, half = size[0], size[1]
@@ -521,10 +621,15 @@ def _geom_inertia(gtype, shell, size, mass):
     disk_z = mass_disk * r * r / 2
     return jnp.stack([ixy + 2 * disk_x, ixy + 2 * disk_x, iz + 2 * disk_z])
   if gtype == _Geom.mjGEOM_ELLIPSOID:
-    s00, s11, s22 = size[0]**2, size[1]**2, size[2]**2
+    s00, s11, s22 = size[0] ** 2, size[1] ** 2, size[2] ** 2
     if not shell:
-      return jnp.stack([mass * (s11 + s22) / 5, mass * (s00 + s22) / 5,
-                        mass * (s00 + s11) / 5])
+      return jnp.stack(
+          [
+              mass * (s11 + s22) / 5,
+              mass * (s00 + s22) / 5,
+              mass * (s00 + s11) / 5,
+          ]
+      )
     eps = 1e-6
     va = 4 * math.pi * size[0] * size[1] * size[2] / 3
     ae, be, ce = size[0] + eps, size[1] + eps, size[2] + eps
@@ -532,24 +637,52 @@ def _geom_inertia(gtype, shell, size, mass):
     density = mass / (vb - va)
     ma, mb = va * density, vb * density
     ia = jnp.stack([ma * (s11 + s22), ma * (s00 + s22), ma * (s00 + s11)]) / 5
-    ib = jnp.stack([mb * (be * be + ce * ce), mb * (ae * ae + ce * ce),
-                    mb * (ae * ae + be * be)]) / 5
+    ib = (
+        jnp.stack(
+            [
+                mb * (be * be + ce * ce),
+                mb * (ae * ae + ce * ce),
+                mb * (ae * ae + be * be),
+            ]
+        )
+        / 5
+    )
     return ib - ia
   if gtype == _Geom.mjGEOM_BOX:
-    s00, s11, s22 = size[0]**2, size[1]**2, size[2]**2
+    s00, s11, s22 = size[0] ** 2, size[1] ** 2, size[2] ** 2
     if not shell:
-      return jnp.stack([mass * (s11 + s22) / 3, mass * (s00 + s22) / 3,
-                        mass * (s00 + s11) / 3])
+      return jnp.stack(
+          [
+              mass * (s11 + s22) / 3,
+              mass * (s00 + s22) / 3,
+              mass * (s00 + s11) / 3,
+          ]
+      )
     lx, ly, lz = 2 * size[0], 2 * size[1], 2 * size[2]
     a0, a1, a2 = lx * ly, ly * lz, lz * lx
     total = 2 * (a0 + a1 + a2)
     m0, m1, m2 = mass * a0 / total, mass * a1 / total, mass * a2 / total
-    ix = 2 * (m0 * s22 + m2 * s11 + m0 * ly * ly / 12 +
-              m1 * (ly * ly + lz * lz) / 12 + m2 * lz * lz / 12)
-    iy = 2 * (m0 * s22 + m1 * s00 + m0 * lx * lx / 12 + m1 * lz * lz / 12 +
-              m2 * (lx * lx + lz * lz) / 12)
-    iz = 2 * (m1 * s00 + m2 * s11 + m0 * (lx * lx + ly * ly) / 12 +
-              m1 * ly * ly / 12 + m2 * lx * lx / 12)
+    ix = 2 * (
+        m0 * s22
+        + m2 * s11
+        + m0 * ly * ly / 12
+        + m1 * (ly * ly + lz * lz) / 12
+        + m2 * lz * lz / 12
+    )
+    iy = 2 * (
+        m0 * s22
+        + m1 * s00
+        + m0 * lx * lx / 12
+        + m1 * lz * lz / 12
+        + m2 * (lx * lx + lz * lz) / 12
+    )
+    iz = 2 * (
+        m1 * s00
+        + m2 * s11
+        + m0 * (lx * lx + ly * ly) / 12
+        + m1 * ly * ly / 12
+        + m2 * lx * lx / 12
+    )
     return jnp.stack([ix, iy, iz])
   return jnp.stack([zeros, zeros, zeros])
 
@@ -576,7 +709,7 @@ def _geom_rbound(gtype, size):
   if gtype == _Geom.mjGEOM_CAPSULE:
     return size[0] + size[1]
   if gtype == _Geom.mjGEOM_CYLINDER:
-    return jnp.sqrt(size[0]**2 + size[1]**2)
+    return jnp.sqrt(size[0] ** 2 + size[1] ** 2)
   if gtype == _Geom.mjGEOM_ELLIPSOID:
     return jnp.max(size)
   if gtype == _Geom.mjGEOM_BOX:
@@ -594,8 +727,9 @@ def _geom_aabb(gtype, size):
   elif gtype == _Geom.mjGEOM_CYLINDER:
     half = jnp.stack([size[0], size[0], size[1]])
   elif gtype == _Geom.mjGEOM_PLANE:
-    return jnp.asarray([0, 0, -_MAXVAL / 2, _MAXVAL, _MAXVAL, _MAXVAL / 2],
-                       size.dtype)
+    return jnp.asarray(
+        [0, 0, -_MAXVAL / 2, _MAXVAL, _MAXVAL, _MAXVAL / 2], size.dtype
+    )
   else:
     half = size
   return jnp.concatenate([jnp.stack([zero, zero, zero]), half])
@@ -608,10 +742,11 @@ def _geom_aabb(gtype, size):
 @dataclasses.dataclass
 class _Bound:
   """One binding resolved against the compiled model."""
+
   element: Any
   kind: str
   attr: str
-  obj_id: int          # compiled id (-1 for the option)
+  obj_id: int  # compiled id (-1 for the option)
   describe: str
 
 
@@ -628,8 +763,12 @@ class ModelCompiler:
     owner: the variator's name, for messages.
   """
 
-  def __init__(self, index, bindings: Sequence[tuple[Any, str, str]],
-               owner: str = 'MJCFVariator'):
+  def __init__(
+      self,
+      index,
+      bindings: Sequence[tuple[Any, str, str]],
+      owner: str = 'MJCFVariator',
+  ):
     self._owner = owner
     self._m = index.model
     self._handles = _handles_by_id(index)
@@ -641,13 +780,16 @@ class ModelCompiler:
         try:
           obj_id = index.element_id(physics_lib.KINDS_BY_NAME[kind], element)
         except (ValueError, KeyError) as e:
-          raise ValueError(f'{owner}: cannot apply the variation bound to '
-                           f'{describe}: {e}') from e
+          raise ValueError(
+              f'{owner}: cannot apply the variation bound to '
+              f'{describe}: {e}'
+          ) from e
       self._bound.append(_Bound(element, kind, attr, obj_id, describe))
     self.initial_values = [
         spec_value(b.element, b.kind, b.attr).astype(np.float32)
-        for b in self._bound]
-    self._auto = None   # which statistics the compiler computed (lazy)
+        for b in self._bound
+    ]
+    self._auto = None  # which statistics the compiler computed (lazy)
     self._analyse()
 
   # -- static analysis ------------------------------------------------------
@@ -657,19 +799,22 @@ class ModelCompiler:
 
   def _analyse(self):
     m = self._m
-    by = lambda kind, attrs: [b for b in self._bound
-                              if b.kind == kind and b.attr in attrs]
+    by = lambda kind, attrs: [
+        b for b in self._bound if b.kind == kind and b.attr in attrs
+    ]
     self._geom_size = {b.obj_id for b in by('geom', ('size',))}
-    self._geom_mass = {b.obj_id for b in by('geom', ('mass', 'density',
-                                                     'size'))}
+    self._geom_mass = {
+        b.obj_id for b in by('geom', ('mass', 'density', 'size'))
+    }
     self._geom_pose = {b.obj_id for b in by('geom', ('pos', 'quat'))}
     self._body_pose = {b.obj_id for b in by('body', ('pos', 'quat'))}
     self._inertial_bound = {b.obj_id for b in by('body', _INERTIA_ATTRS)}
     self._site_pose = {b.obj_id for b in by('site', ('pos', 'quat'))}
     self._armature = bool(by('joint', ('armature',)))
     self._gear = bool(by('actuator', ('gear',)))
-    self._gains = {b.obj_id for b in by('actuator', ('kp', 'kv', 'gainprm',
-                                                     'biasprm'))}
+    self._gains = {
+        b.obj_id for b in by('actuator', ('kp', 'kv', 'gainprm', 'biasprm'))
+    }
 
     body_geoms = {}
     for g in range(m.ngeom):
@@ -691,31 +836,39 @@ class ModelCompiler:
     for b in self._inertia_bodies:
       body = self._handles['body'][b]
       if 'ipos' in self._bound_attrs('body', b) or not _body_infers_inertia(
-          body):
+          body
+      ):
         continue
       for g in self._body_geoms.get(b, ()):
         geom = self._handles['geom'][g]
-        if geom.type in _MESHLIKE and _geom_in_inertia_group(geom,
-                                                             body.compiler):
+        if geom.type in _MESHLIKE and _geom_in_inertia_group(
+            geom, body.compiler
+        ):
           raise ValueError(
               f'{self._owner}: body {body.name!r} infers its inertia from a '
               f'mesh geom ({geom.name!r}) too; re-deriving it needs the '
-              'mesh\'s inertia, which the compiled model does not keep. Give '
-              'the body an explicit inertial, or vary geoms of another body.')
+              "mesh's inertia, which the compiled model does not keep. Give "
+              'the body an explicit inertial, or vary geoms of another body.'
+          )
 
     self._inertia_changed = bool(self._inertia_bodies)
     self._pose_changed = bool(self._body_pose)
-    self._m_changed = (self._inertia_changed or self._armature or
-                       self._pose_changed)
-    self._kinematics_changed = (self._pose_changed or self._inertia_changed or
-                                bool(self._geom_pose) or
-                                bool(self._site_pose) or
-                                bool(self._geom_size))
+    self._m_changed = (
+        self._inertia_changed or self._armature or self._pose_changed
+    )
+    self._kinematics_changed = (
+        self._pose_changed
+        or self._inertia_changed
+        or bool(self._geom_pose)
+        or bool(self._site_pose)
+        or bool(self._geom_size)
+    )
     self._check_structure()
 
   def _bound_attrs(self, kind: str, obj_id: int) -> set[str]:
-    return {b.attr for b in self._bound if b.kind == kind and
-            b.obj_id == obj_id}
+    return {
+        b.attr for b in self._bound if b.kind == kind and b.obj_id == obj_id
+    }
 
   def _copies_body_frame(self, b: int) -> bool:
     """Whether the body's inertial frame is its (local) body frame."""
@@ -724,9 +877,10 @@ class ModelCompiler:
       return False
     if not _body_infers_inertia(body):
       return True
-    return not any(_geom_in_inertia_group(self._handles['geom'][g],
-                                          body.compiler)
-                   for g in self._body_geoms.get(b, ()))
+    return not any(
+        _geom_in_inertia_group(self._handles['geom'][g], body.compiler)
+        for g in self._body_geoms.get(b, ())
+    )
 
   def _check_structure(self):
     """Trace-time refusals that depend on the composed model."""
@@ -737,8 +891,13 @@ class ModelCompiler:
       b = None
       if bound.kind == 'body':
         b = bound.obj_id
-      elif bound.kind == 'geom' and bound.attr in ('pos', 'quat', 'size',
-                                                   'mass', 'density'):
+      elif bound.kind == 'geom' and bound.attr in (
+          'pos',
+          'quat',
+          'size',
+          'mass',
+          'density',
+      ):
         b = int(m.geom_bodyid[bound.obj_id])
       elif bound.kind == 'site':
         b = int(m.site_bodyid[bound.obj_id])
@@ -749,28 +908,42 @@ class ModelCompiler:
       if bound.kind == 'joint' and bound.attr == 'range':
         for a in range(m.nu):
           act = self._handles['actuator'].get(a)
-          if (act is not None and act.inheritrange > 0 and
-              m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT and
-              m.actuator_trnid[a, 0] == bound.obj_id):
-            raise self._error(bound, 'an actuator inherits its ctrlrange '
-                              'from this joint\'s range (inheritrange).')
+          if (
+              act is not None
+              and act.inheritrange > 0
+              and m.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT
+              and m.actuator_trnid[a, 0] == bound.obj_id
+          ):
+            raise self._error(
+                bound,
+                'an actuator inherits its ctrlrange '
+                "from this joint's range (inheritrange).",
+            )
     if mass_affecting and root is not None and root.compiler.settotalmass > 0:
       raise ValueError(
           f'{self._owner}: the root spec sets compiler settotalmass, which '
           'rescales every body when any mass changes; varying masses, '
-          'inertias, sizes or poses under settotalmass is not supported.')
+          'inertias, sizes or poses under settotalmass is not supported.'
+      )
     if mass_affecting:
       for j in range(m.njnt):
         joint = self._handles['joint'].get(j)
-        if joint is not None and (joint.springdamper[0] or
-                                  joint.springdamper[1]):
+        if joint is not None and (
+            joint.springdamper[0] or joint.springdamper[1]
+        ):
           raise ValueError(
               f'{self._owner}: joint {joint.name!r} sets springdamper, whose '
               'stiffness and damping the compiler derives from the mass '
               'matrix; varying masses, inertias or poses in this model is '
-              'not supported.')
-    geometric = self._kinematics_changed or self._gear or bool(
-        [b for b in self._bound if b.kind == 'joint' and b.attr == 'range'])
+              'not supported.'
+          )
+    geometric = (
+        self._kinematics_changed
+        or self._gear
+        or bool(
+            [b for b in self._bound if b.kind == 'joint' and b.attr == 'range']
+        )
+    )
     if geometric:
       for a in range(m.nu):
         act = self._handles['actuator'].get(a)
@@ -778,61 +951,86 @@ class ModelCompiler:
           raise ValueError(
               f'{self._owner}: the model has muscle actuators, whose length '
               'ranges the compiler computes by simulation; varying poses, '
-              'sizes, gears or ranges in this model is not supported.')
+              'sizes, gears or ranges in this model is not supported.'
+          )
 
   def _check_body(self, bound: _Bound, b: int):
     m = self._m
     body = self._handles['body'].get(b)
     # Judge from the compiled model: an attachment frame's handle does not
     # hold the attached entity's geoms and bodies.
-    has_children = bool(np.any(np.asarray(m.body_parentid)[b + 1:] == b))
-    if (bound.kind == 'body' and bound.attr in _INERTIA_ATTRS and
-        body is not None and _body_infers_inertia(body) and any(
+    has_children = bool(np.any(np.asarray(m.body_parentid)[b + 1 :] == b))
+    if (
+        bound.kind == 'body'
+        and bound.attr in _INERTIA_ATTRS
+        and body is not None
+        and _body_infers_inertia(body)
+        and any(
             _geom_in_inertia_group(self._handles['geom'][g], body.compiler)
-            for g in self._body_geoms.get(b, ()))):
+            for g in self._body_geoms.get(b, ())
+        )
+    ):
       raise self._error(
-          bound, 'the body infers its mass and inertia from its geoms (here '
+          bound,
+          'the body infers its mass and inertia from its geoms (here '
           'those of the attached entity), so the compiler ignores its own '
-          'mass/inertia. Vary the geoms\' mass, density or size instead.')
+          "mass/inertia. Vary the geoms' mass, density or size instead.",
+      )
     # Free-joint alignment moves the body frame to the inertial frame.
     if body is not None and len(body.joints) == 1 and not has_children:
       joint = body.joints[0]
       if joint.type == _Joint.mjJNT_FREE and (
-          joint.align == mujoco.mjtAlignFree.mjALIGNFREE_TRUE or
-          (joint.align == mujoco.mjtAlignFree.mjALIGNFREE_AUTO and
-           body.compiler.alignfree)):
-        raise self._error(bound, f'body {body.name!r} has an aligned free '
-                          'joint (compiler alignfree), which moves the body '
-                          'frame with its inertia.')
+          joint.align == mujoco.mjtAlignFree.mjALIGNFREE_TRUE
+          or (
+              joint.align == mujoco.mjtAlignFree.mjALIGNFREE_AUTO
+              and body.compiler.alignfree
+          )
+      ):
+        raise self._error(
+            bound,
+            f'body {body.name!r} has an aligned free '
+            'joint (compiler alignfree), which moves the body '
+            'frame with its inertia.',
+        )
     if int(m.body_simple[b]) == 0:
       return
     attr = bound.attr
     simple_why = (
         f'body {mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)!r} is '
         'compiled as a "simple" body (its inertial frame is its body frame), '
-        'so MJX\'s mass matrix omits couplings that this variation would '
-        'create. Set `simple = 0` on that MjsBody in the spec to vary it.')
+        "so MJX's mass matrix omits couplings that this variation would "
+        'create. Set `simple = 0` on that MjsBody in the spec to vary it.'
+    )
     if bound.kind == 'body' and attr in ('ipos', 'iquat'):
       raise self._error(bound, simple_why)
-    if bound.kind == 'body' and attr in ('pos', 'quat') and (
-        self._copies_body_frame(b)):
+    if (
+        bound.kind == 'body'
+        and attr in ('pos', 'quat')
+        and (self._copies_body_frame(b))
+    ):
       raise self._error(bound, simple_why)
     if bound.kind == 'geom' and body is not None and _body_infers_inertia(body):
-      selected = [g for g in self._body_geoms.get(b, ())
-                  if _geom_in_inertia_group(self._handles['geom'][g],
-                                            body.compiler)]
+      selected = [
+          g
+          for g in self._body_geoms.get(b, ())
+          if _geom_in_inertia_group(self._handles['geom'][g], body.compiler)
+      ]
       if attr in ('pos', 'quat') or len(selected) > 1:
         raise self._error(bound, simple_why)
 
   def _check_option(self, bound: _Bound):
     compiled = np.asarray(getattr(self._m.opt, bound.attr), np.float64)
     value = spec_value(bound.element, 'option', bound.attr)
-    if not np.allclose(compiled.reshape(value.shape), value, rtol=1e-9,
-                       atol=1e-12):
-      raise self._error(bound, 'this MjOption does not hold the compiled '
-                        f'model\'s {bound.attr} ({value} vs {compiled}): bind '
-                        'the root entity\'s `mjcf_model.option` (options of '
-                        'attached entities are not compiled).')
+    if not np.allclose(
+        compiled.reshape(value.shape), value, rtol=1e-9, atol=1e-12
+    ):
+      raise self._error(
+          bound,
+          'this MjOption does not hold the compiled '
+          f"model's {bound.attr} ({value} vs {compiled}): bind "
+          "the root entity's `mjcf_model.option` (options of "
+          'attached entities are not compiled).',
+      )
 
   # -- the device computation -----------------------------------------------
 
@@ -872,8 +1070,9 @@ class ModelCompiler:
         body_vals.setdefault(i, {})[attr] = value
       elif kind == 'site':
         site = self._handles['site'][i]
-        frame = _frame_between(m.site_pos[i], m.site_quat[i], site.pos,
-                               site.quat)
+        frame = _frame_between(
+            m.site_pos[i], m.site_quat[i], site.pos, site.quat
+        )
         if attr == 'pos':
           put('site_pos', i, _apply_frame(frame, pos=value))
         else:
@@ -886,8 +1085,10 @@ class ModelCompiler:
           put('jnt_stiffness', i, value)
         elif attr == 'range':
           joint = self._handles['joint'][i]
-          if joint.compiler.degree and joint.type in (_Joint.mjJNT_HINGE,
-                                                      _Joint.mjJNT_BALL):
+          if joint.compiler.degree and joint.type in (
+              _Joint.mjJNT_HINGE,
+              _Joint.mjJNT_BALL,
+          ):
             value = value * (math.pi / 180)
           put('jnt_range', i, value)
       elif kind == 'actuator':
@@ -906,8 +1107,12 @@ class ModelCompiler:
     self._bodies(body_vals, geom_vals, get, put)
     if self._inertia_changed:
       fields['body_subtreemass'] = self._subtreemass(get('body_mass'))
-    if self._m_changed or self._kinematics_changed or self._gear or (
-        self._gains and self._dampratio_actuators()):
+    if (
+        self._m_changed
+        or self._kinematics_changed
+        or self._gear
+        or (self._gains and self._dampratio_actuators())
+    ):
       self._set_const(model, fields, get, act_vals)
     if opt_updates:
       fields['opt'] = model.opt.replace(**opt_updates)
@@ -926,8 +1131,9 @@ class ModelCompiler:
         put('geom_rbound', g, _geom_rbound(gtype, size))
         put('geom_aabb', g, _geom_aabb(gtype, size))
       if 'pos' in vals or 'quat' in vals:
-        frame = _frame_between(m.geom_pos[g], m.geom_quat[g], geom.pos,
-                               geom.quat)
+        frame = _frame_between(
+            m.geom_pos[g], m.geom_quat[g], geom.pos, geom.quat
+        )
         if 'pos' in vals:
           put('geom_pos', g, _apply_frame(frame, pos=vals['pos']))
         if 'quat' in vals:
@@ -937,8 +1143,12 @@ class ModelCompiler:
     """The compiled size: `fromto` fixes the length (and box/ellipsoid y)."""
     if np.isnan(geom.fromto[0]):
       return size
-    length = float(self._m.geom_size[g, 2 if geom.type in (
-        _Geom.mjGEOM_BOX, _Geom.mjGEOM_ELLIPSOID) else 1])
+    length = float(
+        self._m.geom_size[
+            g,
+            2 if geom.type in (_Geom.mjGEOM_BOX, _Geom.mjGEOM_ELLIPSOID) else 1,
+        ]
+    )
     if geom.type in (_Geom.mjGEOM_BOX, _Geom.mjGEOM_ELLIPSOID):
       return jnp.stack([size[0], size[0], jnp.asarray(length, size.dtype)])
     return size.at[1].set(length)
@@ -953,8 +1163,11 @@ class ModelCompiler:
     dtype = jnp.float32
     # Unbound geoms: the world's current size (another variator's, or the
     # compiled one); their mass and density can only come from the spec.
-    size = (self._compiled_size(g, geom, vals['size']) if 'size' in vals
-            else get('geom_size')[g])
+    size = (
+        self._compiled_size(g, geom, vals['size'])
+        if 'size' in vals
+        else get('geom_size')[g]
+    )
     if 'mass' in vals:
       mass = vals['mass']
     elif not np.isnan(geom.mass):
@@ -965,12 +1178,14 @@ class ModelCompiler:
     if gtype in _MESHLIKE:
       # A guard: `_analyse` refuses this already. The compiler derives mesh
       # inertia from the asset, which the compiled model does not keep.
-      body = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY,
-                               int(m.geom_bodyid[g]))
+      body = mujoco.mj_id2name(
+          m, mujoco.mjtObj.mjOBJ_BODY, int(m.geom_bodyid[g])
+      )
       raise ValueError(
           f'{self._owner}: body {body!r} infers its inertia from a mesh geom '
           'as well; varying its other geoms would need the mesh inertia, '
-          'which the compiled model does not keep.')
+          'which the compiled model does not keep.'
+      )
     mass_, inertia = _geom_mass_inertia(gtype, shell, size, mass, density)
     pos = get('geom_pos')[g]
     quat = get('geom_quat')[g]
@@ -985,21 +1200,26 @@ class ModelCompiler:
       body = self._handles['body'][b]
       vals = body_vals.get(b, {})
       local_pos = vals.get('pos', jnp.asarray(body.pos, dtype))
-      local_quat = _normalize_quat(vals.get('quat',
-                                            jnp.asarray(body.quat, dtype)))
+      local_quat = _normalize_quat(
+          vals.get('quat', jnp.asarray(body.quat, dtype))
+      )
       if b in self._inertia_bodies:
-        mass, inertia, ipos, iquat = self._body_inertial(b, body, vals,
-                                                         geom_vals, get,
-                                                         local_pos, local_quat)
+        mass, inertia, ipos, iquat = self._body_inertial(
+            b, body, vals, geom_vals, get, local_pos, local_quat
+        )
         put('body_mass', b, mass)
         put('body_inertia', b, inertia)
         put('body_ipos', b, ipos)
         put('body_iquat', b, iquat)
       if 'pos' in vals or 'quat' in vals:
-        frame = _frame_between(m.body_pos[b], m.body_quat[b], body.pos,
-                               body.quat)
-        pos, quat = _apply_frame(frame, pos=local_pos, quat=vals.get(
-            'quat', jnp.asarray(body.quat, dtype)))
+        frame = _frame_between(
+            m.body_pos[b], m.body_quat[b], body.pos, body.quat
+        )
+        pos, quat = _apply_frame(
+            frame,
+            pos=local_pos,
+            quat=vals.get('quat', jnp.asarray(body.quat, dtype)),
+        )
         put('body_pos', b, pos)
         put('body_quat', b, quat)
         # A free joint's qpos0 (and qpos_spring) is the body's pose.
@@ -1010,8 +1230,9 @@ class ModelCompiler:
             put('qpos0', slice(adr, adr + 7), pose)
             put('qpos_spring', slice(adr, adr + 7), pose)
 
-  def _body_inertial(self, b, body, vals, geom_vals, get, local_pos,
-                     local_quat):
+  def _body_inertial(
+      self, b, body, vals, geom_vals, get, local_pos, local_quat
+  ):
     """(mass, inertia, ipos, iquat) as mjCBody::Compile sets them."""
     m = self._m
     dtype = jnp.float32
@@ -1029,14 +1250,17 @@ class ModelCompiler:
     else:
       iquat = _normalize_quat(jnp.asarray(body.iquat, dtype))
     mode = compiler.inertiafromgeom
-    infers = (mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE or
-              (mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO and
-               not explicit_ipos))
+    infers = mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_TRUE or (
+        mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
+        and not explicit_ipos
+    )
     defined = jnp.asarray(explicit_ipos)
     if infers:
-      selected = [g for g in self._body_geoms.get(b, ())
-                  if _geom_in_inertia_group(self._handles['geom'][g],
-                                            compiler)]
+      selected = [
+          g
+          for g in self._body_geoms.get(b, ())
+          if _geom_in_inertia_group(self._handles['geom'][g], compiler)
+      ]
       if selected:
         parts = [self._geom_inertial(g, geom_vals, get) for g in selected]
         gm = jnp.stack([p[0] for p in parts])
@@ -1055,13 +1279,16 @@ class ModelCompiler:
         rots = jax.vmap(_quat_to_mat)(gq)
         local = jnp.einsum('nij,nj,nkj->nik', rots, gi, rots)
         d = gp - com
-        off = w[:, None, None] * (jnp.sum(d * d, -1)[:, None, None] *
-                                  jnp.eye(3) - d[:, :, None] * d[:, None, :])
+        off = w[:, None, None] * (
+            jnp.sum(d * d, -1)[:, None, None] * jnp.eye(3)
+            - d[:, :, None] * d[:, None, :]
+        )
         full = jnp.sum(jnp.where(use[:, None, None], local + off, 0.0), 0)
         eigval, eigquat = eig3(full)
         many = (total, eigval, com, eigquat)
-        pick = lambda a, b_, c: jnp.where(count == 1, a,
-                                          jnp.where(count > 1, b_, c))
+        pick = lambda a, b_, c: jnp.where(
+            count == 1, a, jnp.where(count > 1, b_, c)
+        )
         mass = pick(one[0], many[0], mass)
         inertia = pick(one[1], many[1], inertia)
         ipos = pick(one[2], many[2], ipos)
@@ -1073,9 +1300,11 @@ class ModelCompiler:
     mass = jnp.maximum(mass, compiler.boundmass)
     inertia = jnp.maximum(inertia, compiler.boundinertia)
     if compiler.balanceinertia:
-      bad = ((inertia[0] + inertia[1] < inertia[2]) |
-             (inertia[0] + inertia[2] < inertia[1]) |
-             (inertia[1] + inertia[2] < inertia[0]))
+      bad = (
+          (inertia[0] + inertia[1] < inertia[2])
+          | (inertia[0] + inertia[2] < inertia[1])
+          | (inertia[1] + inertia[2] < inertia[0])
+      )
       inertia = jnp.where(bad, jnp.mean(inertia), inertia)
     return mass, inertia, ipos, iquat
 
@@ -1108,8 +1337,7 @@ class ModelCompiler:
       d = mjx.crb(mx, d)
       full = mjx.full_m(mx, d)
       chol = jax.scipy.linalg.cho_factor(full)
-      minv = jax.scipy.linalg.cho_solve(
-          chol, jnp.eye(nv, dtype=full.dtype))
+      minv = jax.scipy.linalg.cho_solve(chol, jnp.eye(nv, dtype=full.dtype))
       diag_m = jnp.diagonal(full)
     if m.ntendon:
       d = mjx.tendon(mx, d)
@@ -1117,8 +1345,8 @@ class ModelCompiler:
       d = mjx.transmission(mx, d)
 
     # Which groups of quantities can change (decided statically).
-    geometry = self._kinematics_changed        # positions at qpos0
-    moments = geometry or self._gear           # transmissions
+    geometry = self._kinematics_changed  # positions at qpos0
+    moments = geometry or self._gear  # transmissions
     if self._m_changed and nv:
       fields['dof_M0'] = diag_m
       fields['body_invweight0'] = self._body_invweight0(mx, d, minv)
@@ -1126,8 +1354,9 @@ class ModelCompiler:
     if m.ntendon and (self._m_changed or geometry):
       ten_j = d._impl.ten_J  # pylint: disable=protected-access
       if nv:
-        fields['tendon_invweight0'] = jnp.einsum('ti,ij,tj->t', ten_j, minv,
-                                                 ten_j)
+        fields['tendon_invweight0'] = jnp.einsum(
+            'ti,ij,tj->t', ten_j, minv, ten_j
+        )
       if geometry:
         fields['tendon_length0'] = d.ten_length
         self._tendon_spring(mx, fields)
@@ -1145,12 +1374,11 @@ class ModelCompiler:
 
   def _body_invweight0(self, mx, d, minv):
     m = self._m
-    mask = jnp.asarray(_dof_ancestor_mask(m), d.cdof.dtype)   # (nbody, nv)
+    mask = jnp.asarray(_dof_ancestor_mask(m), d.cdof.dtype)  # (nbody, nv)
     root_com = d.subtree_com[np.asarray(m.body_rootid)]
-    offset = d.xipos - root_com                              # (nbody, 3)
-    cdof = d.cdof                                            # (nv, 6)
-    jacp = cdof[None, :, 3:] + jnp.cross(cdof[None, :, :3],
-                                         offset[:, None, :])
+    offset = d.xipos - root_com  # (nbody, 3)
+    cdof = d.cdof  # (nv, 6)
+    jacp = cdof[None, :, 3:] + jnp.cross(cdof[None, :, :3], offset[:, None, :])
     jacr = jnp.broadcast_to(cdof[None, :, :3], jacp.shape)
     jac = jnp.concatenate([jacp, jacr], -1) * mask[:, :, None]  # (nb, nv, 6)
     a = jnp.einsum('bik,ij,bjl->bkl', jac, minv, jac)
@@ -1161,8 +1389,11 @@ class ModelCompiler:
     static = np.asarray(m.body_dofnum)[weld] == 0
     simple2 = np.asarray(m.body_simple) == 2
     inv_mass = 1 / jnp.maximum(mx.body_mass, _MINVAL)
-    out = jnp.where(simple2[:, None], jnp.stack(
-        [inv_mass, jnp.zeros_like(inv_mass)], -1), out)
+    out = jnp.where(
+        simple2[:, None],
+        jnp.stack([inv_mass, jnp.zeros_like(inv_mass)], -1),
+        out,
+    )
     out = jnp.where(static[:, None], 0.0, out)
     return out.at[0].set(0.0)
 
@@ -1172,8 +1403,7 @@ class ModelCompiler:
     group = jnp.asarray(_dof_group_matrix(m), diag.dtype)
     out = group @ diag
     simple2 = np.asarray(m.body_simple)[np.asarray(m.dof_bodyid)] == 2
-    inv_mass = 1 / jnp.maximum(mx.body_mass[np.asarray(m.dof_bodyid)],
-                               _MINVAL)
+    inv_mass = 1 / jnp.maximum(mx.body_mass[np.asarray(m.dof_bodyid)], _MINVAL)
     return jnp.where(simple2, inv_mass, out)
 
   def _tendon_spring(self, mx, fields):
@@ -1182,8 +1412,11 @@ class ModelCompiler:
     auto = []
     for t in range(m.ntendon):
       tendon = self._handles['tendon'].get(t)
-      if tendon is not None and tendon.springlength[0] == -1 and (
-          tendon.springlength[1] == -1):
+      if (
+          tendon is not None
+          and tendon.springlength[0] == -1
+          and (tendon.springlength[1] == -1)
+      ):
         auto.append(t)
     if not auto:
       return
@@ -1195,7 +1428,8 @@ class ModelCompiler:
     length = d.ten_length[idx]
     spring = mx.tendon_lengthspring
     fields['tendon_lengthspring'] = spring.at[idx].set(
-        jnp.stack([length, length], -1))
+        jnp.stack([length, length], -1)
+    )
 
   def _dampratio(self, d, minv, actuators, fields, get, act_vals):
     """biasprm[2] of position actuators whose spec sets a dampratio.
@@ -1259,7 +1493,7 @@ class ModelCompiler:
         changed = True
       elif m.eq_type[e] == mujoco.mjtEq.mjEQ_WELD:
         if eq is None or np.any(np.asarray(eq.data)[6:10] != 0):
-          continue   # the spec gives the relative pose
+          continue  # the spec gives the relative pose
         anchor = jnp.asarray(m.eq_data[e, 0:3], data.dtype)
         pos = d.xpos[id2] + d.xmat[id2] @ anchor
         data = data.at[e, 3:6].set(d.xmat[id1].T @ (pos - d.xpos[id1]))
@@ -1290,9 +1524,12 @@ class ModelCompiler:
       if auto['center']:
         updates['center'] = center
     if updates:
-      fields['stat'] = stat.replace(**{
-          k: jnp.asarray(v, getattr(stat, k).dtype)
-          for k, v in updates.items()})
+      fields['stat'] = stat.replace(
+          **{
+              k: jnp.asarray(v, getattr(stat, k).dtype)
+              for k, v in updates.items()
+          }
+      )
 
   def _geometry_stat(self, mx, d):
     m = self._m
@@ -1301,13 +1538,19 @@ class ModelCompiler:
     size = mx.geom_size
     gtype = np.asarray(m.geom_type)
     plane = gtype == _Geom.mjGEOM_PLANE
-    plane_r = jnp.where((size[:, 0] != 0) | (size[:, 1] != 0),
-                        jnp.maximum(size[:, 0], size[:, 1]) * 0.1, 0.01)
+    plane_r = jnp.where(
+        (size[:, 0] != 0) | (size[:, 1] != 0),
+        jnp.maximum(size[:, 0], size[:, 1]) * 0.1,
+        0.01,
+    )
     hfield_r = np.zeros(m.ngeom)
     for g in np.nonzero(gtype == _Geom.mjGEOM_HFIELD)[0]:
       hfield_r[g] = np.max(m.hfield_size[m.geom_dataid[g]]) * 0.1
-    radius = jnp.where(rbound > 0, rbound,
-                       jnp.where(plane, plane_r, jnp.asarray(hfield_r, dtype)))
+    radius = jnp.where(
+        rbound > 0,
+        rbound,
+        jnp.where(plane, plane_r, jnp.asarray(hfield_r, dtype)),
+    )
     points = [d.xpos[1:], d.xipos[1:], d.xanchor, d.site_xpos]
     lows = [p for p in points if p.shape[0]]
     highs = list(lows)
@@ -1317,9 +1560,11 @@ class ModelCompiler:
     xmin = jnp.min(jnp.concatenate(lows), axis=0)
     xmax = jnp.max(jnp.concatenate(highs), axis=0)
     center = 0.5 * (xmin + xmax)
-    extent = jnp.where(xmax[0] > xmin[0],
-                       jnp.maximum(1e-5, jnp.max(xmax - xmin)),
-                       mx.stat.extent)
+    extent = jnp.where(
+        xmax[0] > xmin[0],
+        jnp.maximum(1e-5, jnp.max(xmax - xmin)),
+        mx.stat.extent,
+    )
     # Body sizes: farthest joint anchor (own and children's), then geoms.
     body = jnp.zeros(m.nbody, dtype)
     jb = np.asarray(m.jnt_bodyid)
@@ -1384,7 +1629,7 @@ def _dof_group_matrix(m) -> np.ndarray:
     groups = {0: [(0, 3), (3, 6)], 1: [(0, 3)], 2: [(0, 1)], 3: [(0, 1)]}
     for lo, hi in groups[jtype]:
       for r in range(adr + lo, adr + hi):
-        g[r, adr + lo:adr + hi] = 1.0 / (hi - lo)
+        g[r, adr + lo : adr + hi] = 1.0 / (hi - lo)
   return g
 
 
@@ -1408,14 +1653,25 @@ def _auto_stat(compiler) -> dict:
   full = np.zeros((m.nv, m.nv))
   if m.nv:
     mujoco.mj_fullM(m, data, full)
-  model = _HostView(geom_rbound=m.geom_rbound, geom_size=m.geom_size,
-                    stat=_HostView(extent=m.stat.extent))
-  kin = _HostView(xpos=data.xpos, xipos=data.xipos, xanchor=data.xanchor,
-                  site_xpos=data.site_xpos, geom_xpos=data.geom_xpos)
+  model = _HostView(
+      geom_rbound=m.geom_rbound,
+      geom_size=m.geom_size,
+      stat=_HostView(extent=m.stat.extent),
+  )
+  kin = _HostView(
+      xpos=data.xpos,
+      xipos=data.xipos,
+      xanchor=data.xanchor,
+      site_xpos=data.site_xpos,
+      geom_xpos=data.geom_xpos,
+  )
   with jax.ensure_compile_time_eval():
     center, extent, meansize = compiler._geometry_stat(model, kin)  # pylint: disable=protected-access
-    center, extent, meansize = (np.asarray(center), float(extent),
-                                float(meansize))
+    center, extent, meansize = (
+        np.asarray(center),
+        float(extent),
+        float(meansize),
+    )
   auto = {
       'meaninertia': np.mean(np.diagonal(full)) if m.nv else m.stat.meaninertia,
       'meanmass': np.mean(m.body_mass[1:]) if m.nbody > 1 else m.stat.meanmass,
@@ -1424,8 +1680,12 @@ def _auto_stat(compiler) -> dict:
       'center': center,
   }
   # `_geometry_stat` computes in float32: compare at that precision.
-  return {name: bool(np.allclose(auto[name], getattr(m.stat, name),
-                                 rtol=1e-5, atol=1e-7)) for name in auto}
+  return {
+      name: bool(
+          np.allclose(auto[name], getattr(m.stat, name), rtol=1e-5, atol=1e-7)
+      )
+      for name in auto
+  }
 
 
 def _handles_by_id(index) -> dict[str, dict[int, Any]]:
@@ -1442,8 +1702,11 @@ def _handles_by_id(index) -> dict[str, dict[int, Any]]:
     idx = mujoco.mj_name2id(m, kind.obj, full_name)
     if idx < 0:
       continue
-    if kind_name == 'body' and idx != 0 and getattr(handle, 'name', '') == (
-        'world'):
-      continue   # a child's worldbody: its attachment frame has the handle
+    if (
+        kind_name == 'body'
+        and idx != 0
+        and getattr(handle, 'name', '') == ('world')
+    ):
+      continue  # a child's worldbody: its attachment frame has the handle
     out[kind_name][idx] = handle
   return out

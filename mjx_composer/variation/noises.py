@@ -12,50 +12,50 @@ from mjx_composer.variation import base
 
 
 class _Noise(base.CompositeVariation):
-    """`base (op) amount`, base being the initial or the current value."""
+  """`base (op) amount`, base being the initial or the current value."""
 
-    _SYMBOL = "?"
+  _SYMBOL = "?"
 
-    def __init__(self, variation, cumulative=False):
-        """Initializes the noise.
+  def __init__(self, variation, cumulative=False):
+    """Initializes the noise.
 
-        Args:
-          variation: the amount: a variation, a constant, or a structure of
-            them. It is evaluated with the same initial and current value, so
-            a distribution is drawn in the shape of the value being varied.
-          cumulative: act on `current_value` instead of `initial_value`.
-        """
-        self._variation = variation
-        self._cumulative = bool(cumulative)
-        self._operands = (variation,)
+    Args:
+      variation: the amount: a variation, a constant, or a structure of
+        them. It is evaluated with the same initial and current value, so
+        a distribution is drawn in the shape of the value being varied.
+      cumulative: act on `current_value` instead of `initial_value`.
+    """
+    self._variation = variation
+    self._cumulative = bool(cumulative)
+    self._operands = (variation,)
 
-    def _combine(self, value, amount):
-        raise NotImplementedError
+  def _combine(self, value, amount):
+    raise NotImplementedError
 
-    def _apply(self, values, key, initial_value, current_value):
-        value = current_value if self._cumulative else initial_value
-        if value is None:
-            which = "current_value" if self._cumulative else "initial_value"
-            raise ValueError(f"{self!r} acts on {which}, but {which} is None.")
-        return self._combine(jnp.asarray(value), base.as_array(values[0]))
+  def _apply(self, values, key, initial_value, current_value):
+    value = current_value if self._cumulative else initial_value
+    if value is None:
+      which = "current_value" if self._cumulative else "initial_value"
+      raise ValueError(f"{self!r} acts on {which}, but {which} is None.")
+    return self._combine(jnp.asarray(value), base.as_array(values[0]))
 
-    def _eq_fields(self):
-        return (self._variation, self._cumulative)
+  def _eq_fields(self):
+    return (self._variation, self._cumulative)
 
-    def __repr__(self):
-        extra = {"cumulative": True} if self._cumulative else {}
-        return base.format_call(type(self).__name__, self._variation, **extra)
+  def __repr__(self):
+    extra = {"cumulative": True} if self._cumulative else {}
+    return base.format_call(type(self).__name__, self._variation, **extra)
 
 
 class Additive(_Noise):
-    """Adds the amount: `(current if cumulative else initial) + amount`."""
+  """Adds the amount: `(current if cumulative else initial) + amount`."""
 
-    def _combine(self, value, amount):
-        return value + amount
+  def _combine(self, value, amount):
+    return value + amount
 
 
 class Multiplicative(_Noise):
-    """Multiplies by the amount: `(current if cumulative else initial) * amount`."""
+  """Multiplies by the amount: `(current if cumulative else initial) * amount`."""
 
-    def _combine(self, value, amount):
-        return value * amount
+  def _combine(self, value, amount):
+    return value * amount

@@ -44,8 +44,14 @@ SPEC_OPTION = type(mujoco.MjSpec().option)
 # Option fields a variator may write: the physical ones. `timestep` is
 # static for the environment (its control timestep), flags and solver
 # settings are static in MJX.
-OPTION_FIELDS = ('gravity', 'wind', 'magnetic', 'density', 'viscosity',
-                 'impratio')
+OPTION_FIELDS = (
+    'gravity',
+    'wind',
+    'magnetic',
+    'density',
+    'viscosity',
+    'impratio',
+)
 # MJX decides at put_model time, statically, whether fluid forces exist.
 FLUID_FIELDS = ('density', 'viscosity', 'wind')
 
@@ -58,7 +64,8 @@ def option_has_fluid(opt) -> bool:
 @dataclasses.dataclass
 class _Target:
   """Where one binding writes: a model field slice or an option field."""
-  address: Any          # physics._Address, or None for the option
+
+  address: Any  # physics._Address, or None for the option
   option_field: str | None
 
 
@@ -78,15 +85,21 @@ class _Plan:
               f'{variator.persistent_name}: cannot vary option {attr}: the '
               'compiled model has no fluid forces (density, viscosity and '
               'wind are all zero), and MJX decides that statically. Give the '
-              'root spec a nonzero option density or viscosity.')
+              'root spec a nonzero option density or viscosity.'
+          )
         compiled = np.asarray(getattr(mj_model.opt, attr), np.float64)
-        if not np.allclose(np.asarray(getattr(element, attr), np.float64),
-                           compiled, rtol=1e-9, atol=1e-12):
+        if not np.allclose(
+            np.asarray(getattr(element, attr), np.float64),
+            compiled,
+            rtol=1e-9,
+            atol=1e-12,
+        ):
           raise ValueError(
               f'{variator.persistent_name}: the MjOption bound to {attr} does '
-              'not hold the compiled model\'s values: bind the root '
-              'entity\'s `mjcf_model.option` (options of attached entities '
-              'are not compiled).')
+              "not hold the compiled model's values: bind the root "
+              "entity's `mjcf_model.option` (options of attached entities "
+              'are not compiled).'
+          )
         field = getattr(physics.model.opt, attr)
         initial = compiled.astype(field.dtype)
         self.targets.append(_Target(None, attr))
@@ -95,20 +108,24 @@ class _Plan:
       try:
         kind, ids, is_seq = index.resolve(element)
       except (ValueError, KeyError) as e:
-        raise ValueError(f'{variator.persistent_name}: cannot apply the '
-                         f'variation bound to {binding.describe()}: {e}') from e
+        raise ValueError(
+            f'{variator.persistent_name}: cannot apply the '
+            f'variation bound to {binding.describe()}: {e}'
+        ) from e
       address = index.address(kind, _short_name(kind, attr), ids, is_seq)
       if address.source != 'model':
         raise ValueError(
             f'{variator.persistent_name}: {binding.describe()} is a data '
             f'field ({address.field}); a PhysicsVariator varies compiled '
-            'model fields. Write data in initialize_episode instead.')
+            'model fields. Write data in initialize_episode instead.'
+        )
       field = getattr(physics.model, address.field)
       if not hasattr(field, 'dtype') or isinstance(field, np.ndarray):
         raise ValueError(
             f'{variator.persistent_name}: model field {address.field} is '
             'static in MJX (part of the compiled structure) and cannot vary '
-            'per world.')
+            'per world.'
+        )
       host = np.asarray(getattr(mj_model, address.field))
       host = host.reshape(field.shape).astype(field.dtype)
       self.targets.append(_Target(address, None))
@@ -134,7 +151,8 @@ class _Plan:
     if opt_updates:
       model = physics.model
       physics = physics.replace(
-          model=model.replace(opt=model.opt.replace(**opt_updates)))
+          model=model.replace(opt=model.opt.replace(**opt_updates))
+      )
     return physics, {}
 
 
@@ -143,7 +161,7 @@ def _short_name(kind, attr: str) -> str:
   prefixes = (kind.prefix, 'dof') if kind.name == 'joint' else (kind.prefix,)
   for prefix in prefixes:
     if attr.startswith(prefix + '_') and physics_lib.hasattr_model(attr):
-      return attr[len(prefix) + 1:]
+      return attr[len(prefix) + 1 :]
   return attr
 
 
@@ -161,15 +179,17 @@ class PhysicsVariator(variator_base.Variator):
       if attr not in OPTION_FIELDS:
         raise ValueError(
             f'Cannot vary option attribute {attr!r} per world. Supported '
-            f'option attributes: {list(OPTION_FIELDS)}.')
+            f'option attributes: {list(OPTION_FIELDS)}.'
+        )
       return
-    kind = physics_lib.element_kind(element)   # TypeError for non-elements.
+    kind = physics_lib.element_kind(element)  # TypeError for non-elements.
     short = _short_name(kind, attr)
     valid = _model_attributes(kind)
     if short not in valid:
       raise ValueError(
           f'A {kind.name} has no compiled model attribute {attr!r} that can '
-          f'vary per world. Valid attributes: {sorted(valid)}.')
+          f'vary per world. Valid attributes: {sorted(valid)}.'
+      )
 
   def _prepare(self, physics):
     return _Plan(self, physics)
@@ -180,10 +200,10 @@ def _model_attributes(kind) -> set[str]:
   names = set()
   for field in dataclasses.fields(mjx.Model):
     if field.type is not jax.Array:
-      continue   # static numpy metadata: structure, not variable per world
+      continue  # static numpy metadata: structure, not variable per world
     name = field.name
     if name.startswith(kind.prefix + '_'):
-      names.add(name[len(kind.prefix) + 1:])
+      names.add(name[len(kind.prefix) + 1 :])
     elif kind.name == 'joint' and name.startswith('dof_'):
       names.add(name[4:])
     elif kind.name == 'joint' and name in ('qpos0', 'qpos_spring'):

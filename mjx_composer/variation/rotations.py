@@ -25,184 +25,190 @@ _EPS = 1e-12
 
 
 def _quat_mul(a, b):
-    """Hamilton product `a * b` of (..., 4) quaternions, (w, x, y, z) order."""
-    aw, ax, ay, az = (a[..., i] for i in range(4))
-    bw, bx, by, bz = (b[..., i] for i in range(4))
-    return jnp.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
+  """Hamilton product `a * b` of (..., 4) quaternions, (w, x, y, z) order."""
+  aw, ax, ay, az = (a[..., i] for i in range(4))
+  bw, bx, by, bz = (b[..., i] for i in range(4))
+  return jnp.stack(
+      [
+          aw * bw - ax * bx - ay * by - az * bz,
+          aw * bx + ax * bw + ay * bz - az * by,
+          aw * by - ax * bz + ay * bw + az * bx,
+          aw * bz + ax * by - ay * bx + az * bw,
+      ],
+      axis=-1,
+  )
 
 
 def _quat_conj(q):
-    return q * jnp.asarray([1.0, -1.0, -1.0, -1.0], q.dtype)
+  return q * jnp.asarray([1.0, -1.0, -1.0, -1.0], q.dtype)
 
 
 def _quat_rotate(q, vec):
-    """Rotates (..., 3) `vec` by (..., 4) `q` as `(q * [0, vec] * conj(q))[1:]`."""
-    vec = jnp.asarray(vec)
-    pure = jnp.concatenate([jnp.zeros_like(vec[..., :1]), vec], axis=-1)
-    q = jnp.asarray(q, pure.dtype)
-    return _quat_mul(_quat_mul(q, pure), _quat_conj(q))[..., 1:]
+  """Rotates (..., 3) `vec` by (..., 4) `q` as `(q * [0, vec] * conj(q))[1:]`."""
+  vec = jnp.asarray(vec)
+  pure = jnp.concatenate([jnp.zeros_like(vec[..., :1]), vec], axis=-1)
+  q = jnp.asarray(q, pure.dtype)
+  return _quat_mul(_quat_mul(q, pure), _quat_conj(q))[..., 1:]
 
 
 def _axisangle_to_quat(rotation_vector):
-    """Quaternion of the rotation by `|r|` around `r / |r|` (identity at 0).
+  """Quaternion of the rotation by `|r|` around `r / |r|` (identity at 0).
 
-    Like dm_control's `transformations.axisangle_to_quat`, the axis is not
-    assumed to be unit length: the angle is the norm of `axis * angle`.
-    """
-    r = jnp.asarray(rotation_vector, base.float_dtype(rotation_vector))
-    angle = jnp.linalg.norm(r, axis=-1, keepdims=True)
-    small = angle < _EPS
-    safe_angle = jnp.where(small, 1.0, angle)
-    axis = jnp.where(small, 0.0, r / safe_angle)
-    w = jnp.where(small, 1.0, jnp.cos(angle / 2))
-    xyz = axis * jnp.where(small, 0.0, jnp.sin(angle / 2))
-    return jnp.concatenate([w, xyz], axis=-1)
+  Like dm_control's `transformations.axisangle_to_quat`, the axis is not
+  assumed to be unit length: the angle is the norm of `axis * angle`.
+  """
+  r = jnp.asarray(rotation_vector, base.float_dtype(rotation_vector))
+  angle = jnp.linalg.norm(r, axis=-1, keepdims=True)
+  small = angle < _EPS
+  safe_angle = jnp.where(small, 1.0, angle)
+  axis = jnp.where(small, 0.0, r / safe_angle)
+  w = jnp.where(small, 1.0, jnp.cos(angle / 2))
+  xyz = axis * jnp.where(small, 0.0, jnp.sin(angle / 2))
+  return jnp.concatenate([w, xyz], axis=-1)
 
 
 class UniformQuaternion(base.Variation):
-    """Unit quaternions uniformly distributed over all rotations (shape (4,)).
+  """Unit quaternions uniformly distributed over all rotations (shape (4,)).
 
-    Uses composer's construction from three uniforms (Shoemake's method);
-    like composer it ignores the initial value and returns one quaternion.
-    """
+  Uses composer's construction from three uniforms (Shoemake's method);
+  like composer it ignores the initial value and returns one quaternion.
+  """
 
-    def _sample(self, state, key, initial_value, current_value):
-        self._require_key(key)
-        dtype = base.float_dtype()
-        u1, u2, u3 = jax.random.uniform(key, (3,), dtype) * jnp.asarray(
-            [1.0, 2 * np.pi, 2 * np.pi], dtype
-        )
-        a, b = jnp.sqrt(1.0 - u1), jnp.sqrt(u1)
-        quat = jnp.stack([a * jnp.sin(u2), a * jnp.cos(u2), b * jnp.sin(u3), b * jnp.cos(u3)])
-        return quat, state
+  def _sample(self, state, key, initial_value, current_value):
+    self._require_key(key)
+    dtype = base.float_dtype()
+    u1, u2, u3 = jax.random.uniform(key, (3,), dtype) * jnp.asarray(
+        [1.0, 2 * np.pi, 2 * np.pi], dtype
+    )
+    a, b = jnp.sqrt(1.0 - u1), jnp.sqrt(u1)
+    quat = jnp.stack(
+        [a * jnp.sin(u2), a * jnp.cos(u2), b * jnp.sin(u3), b * jnp.cos(u3)]
+    )
+    return quat, state
 
-    def static_bounds(self):
-        return np.asarray(-1.0), np.asarray(1.0)
+  def static_bounds(self):
+    return np.asarray(-1.0), np.asarray(1.0)
 
-    def _eq_fields(self):
-        return ()
+  def _eq_fields(self):
+    return ()
 
 
 class QuaternionFromAxisAngle(base.CompositeVariation):
-    """The quaternion rotating by `angle` around `axis`.
+  """The quaternion rotating by `angle` around `axis`.
 
-    Computes `axisangle_to_quat(axis * angle)`, as composer: a non-unit axis
-    scales the angle by its norm.
+  Computes `axisangle_to_quat(axis * angle)`, as composer: a non-unit axis
+  scales the angle by its norm.
+  """
+
+  def __init__(self, axis, angle):
+    """Initializes a `QuaternionFromAxisAngle`.
+
+    Args:
+      axis: (3,) rotation axis: constant or variation (e.g.
+        `UniformPointOnSphere()`).
+      angle: angle in radians: constant or variation.
     """
+    self._axis, self._angle = axis, angle
+    self._operands = (axis, angle)
 
-    def __init__(self, axis, angle):
-        """Initializes a `QuaternionFromAxisAngle`.
+  def _operand_inputs(self, initial_value, current_value):
+    return [(None, None)] * 2  # See the module docstring.
 
-        Args:
-          axis: (3,) rotation axis: constant or variation (e.g.
-            `UniformPointOnSphere()`).
-          angle: angle in radians: constant or variation.
-        """
-        self._axis, self._angle = axis, angle
-        self._operands = (axis, angle)
+  def _apply(self, values, key, initial_value, current_value):
+    axis, angle = (base.as_array(v) for v in values)
+    return _axisangle_to_quat(axis * angle)
 
-    def _operand_inputs(self, initial_value, current_value):
-        return [(None, None)] * 2  # See the module docstring.
+  def _eq_fields(self):
+    return (self._axis, self._angle)
 
-    def _apply(self, values, key, initial_value, current_value):
-        axis, angle = (base.as_array(v) for v in values)
-        return _axisangle_to_quat(axis * angle)
-
-    def _eq_fields(self):
-        return (self._axis, self._angle)
-
-    def __repr__(self):
-        return base.format_call(type(self).__name__, axis=self._axis, angle=self._angle)
+  def __repr__(self):
+    return base.format_call(
+        type(self).__name__, axis=self._axis, angle=self._angle
+    )
 
 
 class QuaternionPreMultiply(base.CompositeVariation):
-    """`quat * (current if cumulative else initial)`: rotates an orientation.
+  """`quat * (current if cumulative else initial)`: rotates an orientation.
 
-    Pre-multiplication applies `quat` in the parent (world) frame after the
-    existing rotation.
+  Pre-multiplication applies `quat` in the parent (world) frame after the
+  existing rotation.
+  """
+
+  def __init__(self, quat, cumulative=False):
+    """Initializes a `QuaternionPreMultiply`.
+
+    Args:
+      quat: (4,) quaternion: constant or variation.
+      cumulative: multiply `current_value` instead of `initial_value`.
     """
+    self._quat = quat
+    self._cumulative = bool(cumulative)
+    self._operands = (quat,)
 
-    def __init__(self, quat, cumulative=False):
-        """Initializes a `QuaternionPreMultiply`.
+  def _operand_inputs(self, initial_value, current_value):
+    return [(None, None)]  # See the module docstring.
 
-        Args:
-          quat: (4,) quaternion: constant or variation.
-          cumulative: multiply `current_value` instead of `initial_value`.
-        """
-        self._quat = quat
-        self._cumulative = bool(cumulative)
-        self._operands = (quat,)
+  def _apply(self, values, key, initial_value, current_value):
+    base_quat = current_value if self._cumulative else initial_value
+    if base_quat is None:
+      which = "current_value" if self._cumulative else "initial_value"
+      raise ValueError(f"{self!r} multiplies {which}, but {which} is None.")
+    quat = base.as_array(values[0])
+    base_quat = jnp.asarray(base_quat)
+    dtype = base.float_dtype(quat, base_quat)
+    return _quat_mul(quat.astype(dtype), base_quat.astype(dtype))
 
-    def _operand_inputs(self, initial_value, current_value):
-        return [(None, None)]  # See the module docstring.
+  def _eq_fields(self):
+    return (self._quat, self._cumulative)
 
-    def _apply(self, values, key, initial_value, current_value):
-        base_quat = current_value if self._cumulative else initial_value
-        if base_quat is None:
-            which = "current_value" if self._cumulative else "initial_value"
-            raise ValueError(f"{self!r} multiplies {which}, but {which} is None.")
-        quat = base.as_array(values[0])
-        base_quat = jnp.asarray(base_quat)
-        dtype = base.float_dtype(quat, base_quat)
-        return _quat_mul(quat.astype(dtype), base_quat.astype(dtype))
-
-    def _eq_fields(self):
-        return (self._quat, self._cumulative)
-
-    def __repr__(self):
-        extra = {"cumulative": True} if self._cumulative else {}
-        return base.format_call(type(self).__name__, self._quat, **extra)
+  def __repr__(self):
+    extra = {"cumulative": True} if self._cumulative else {}
+    return base.format_call(type(self).__name__, self._quat, **extra)
 
 
 class QuaternionRotate(base.CompositeVariation):
-    """Rotates a 3-vector by `quat`.
+  """Rotates a 3-vector by `quat`.
 
-    The vector is `vec` if given (a constant or variation, evaluated with the
-    initial and current value), otherwise the value being varied:
-    `current_value` if `cumulative` else `initial_value`.
+  The vector is `vec` if given (a constant or variation, evaluated with the
+  initial and current value), otherwise the value being varied:
+  `current_value` if `cumulative` else `initial_value`.
+  """
+
+  def __init__(self, quat, vec=None, cumulative=False):
+    """Initializes a `QuaternionRotate`.
+
+    Args:
+      quat: (4,) quaternion: constant or variation.
+      vec: (..., 3) vector to rotate, or `None` for the varied value.
+      cumulative: when `vec` is None, rotate `current_value` instead of
+        `initial_value`.
     """
+    self._quat, self._vec = quat, vec
+    self._cumulative = bool(cumulative)
+    self._operands = (quat, vec)
 
-    def __init__(self, quat, vec=None, cumulative=False):
-        """Initializes a `QuaternionRotate`.
+  def _operand_inputs(self, initial_value, current_value):
+    return [(None, None), (initial_value, current_value)]
 
-        Args:
-          quat: (4,) quaternion: constant or variation.
-          vec: (..., 3) vector to rotate, or `None` for the varied value.
-          cumulative: when `vec` is None, rotate `current_value` instead of
-            `initial_value`.
-        """
-        self._quat, self._vec = quat, vec
-        self._cumulative = bool(cumulative)
-        self._operands = (quat, vec)
+  def _apply(self, values, key, initial_value, current_value):
+    quat, vec = values
+    if self._vec is None:
+      vec = current_value if self._cumulative else initial_value
+      if vec is None:
+        which = "current_value" if self._cumulative else "initial_value"
+        raise ValueError(
+            f"{self!r} rotates {which} (no vec given), but {which} is None."
+        )
+    vec = jnp.asarray(vec)
+    return _quat_rotate(base.as_array(quat), vec.astype(base.float_dtype(vec)))
 
-    def _operand_inputs(self, initial_value, current_value):
-        return [(None, None), (initial_value, current_value)]
+  def _eq_fields(self):
+    return (self._quat, self._vec, self._cumulative)
 
-    def _apply(self, values, key, initial_value, current_value):
-        quat, vec = values
-        if self._vec is None:
-            vec = current_value if self._cumulative else initial_value
-            if vec is None:
-                which = "current_value" if self._cumulative else "initial_value"
-                raise ValueError(f"{self!r} rotates {which} (no vec given), but {which} is None.")
-        vec = jnp.asarray(vec)
-        return _quat_rotate(base.as_array(quat), vec.astype(base.float_dtype(vec)))
-
-    def _eq_fields(self):
-        return (self._quat, self._vec, self._cumulative)
-
-    def __repr__(self):
-        kwargs = {}
-        if self._vec is not None:
-            kwargs["vec"] = self._vec
-        if self._cumulative:
-            kwargs["cumulative"] = True
-        return base.format_call(type(self).__name__, self._quat, **kwargs)
+  def __repr__(self):
+    kwargs = {}
+    if self._vec is not None:
+      kwargs["vec"] = self._vec
+    if self._cumulative:
+      kwargs["cumulative"] = True
+    return base.format_call(type(self).__name__, self._quat, **kwargs)

@@ -35,61 +35,61 @@ _SALT = 0x62726F61
 
 
 class VariationBroadcaster:
-    """Wraps a variation so that several proxies share each of its draws."""
+  """Wraps a variation so that several proxies share each of its draws."""
 
-    def __init__(self, wrapped_variation):
-        """Initializes a `VariationBroadcaster`.
+  def __init__(self, wrapped_variation):
+    """Initializes a `VariationBroadcaster`.
 
-        Args:
-          wrapped_variation: the variation (or structure of variations) whose
-            value is shared.
-        """
-        self._wrapped_variation = wrapped_variation
+    Args:
+      wrapped_variation: the variation (or structure of variations) whose
+        value is shared.
+    """
+    self._wrapped_variation = wrapped_variation
 
-    @property
-    def wrapped_variation(self):
-        return self._wrapped_variation
+  @property
+  def wrapped_variation(self):
+    return self._wrapped_variation
 
-    def get_proxy(self) -> base.Variation:
-        """Returns a `Variation` to use in place of the wrapped variation."""
-        return _BroadcastedValueProxy(self)
+  def get_proxy(self) -> base.Variation:
+    """Returns a `Variation` to use in place of the wrapped variation."""
+    return _BroadcastedValueProxy(self)
 
-    def _round_key(self, key):
-        """The key of this broadcaster's draw in the current round."""
-        current = base._current_round()
-        if current is None or current.key is None:
-            return key
-        slot = current.slot(self)
-        return jax.random.fold_in(jax.random.fold_in(current.key, _SALT), slot)
+  def _round_key(self, key):
+    """The key of this broadcaster's draw in the current round."""
+    current = base._current_round()
+    if current is None or current.key is None:
+      return key
+    slot = current.slot(self)
+    return jax.random.fold_in(jax.random.fold_in(current.key, _SALT), slot)
 
-    def __repr__(self):
-        return base.format_call(type(self).__name__, self._wrapped_variation)
+  def __repr__(self):
+    return base.format_call(type(self).__name__, self._wrapped_variation)
 
 
 class _BroadcastedValueProxy(base.Variation):
-    """Returns the broadcaster's value for the current round."""
+  """Returns the broadcaster's value for the current round."""
 
-    def __init__(self, broadcaster):
-        self._broadcaster = broadcaster
+  def __init__(self, broadcaster):
+    self._broadcaster = broadcaster
 
-    def initial_state(self, initial_value=None):
-        del initial_value  # The wrapped variation is evaluated without one.
-        return base._structure_initial_state(
-            self._broadcaster.wrapped_variation, None, per_leaf=False
-        )
+  def initial_state(self, initial_value=None):
+    del initial_value  # The wrapped variation is evaluated without one.
+    return base._structure_initial_state(
+        self._broadcaster.wrapped_variation, None, per_leaf=False
+    )
 
-    def _sample(self, state, key, initial_value, current_value):
-        return base._sample_structure(
-            self._broadcaster.wrapped_variation,
-            state,
-            self._broadcaster._round_key(key),
-            None,
-            None,
-            per_leaf=False,
-        )
+  def _sample(self, state, key, initial_value, current_value):
+    return base._sample_structure(
+        self._broadcaster.wrapped_variation,
+        state,
+        self._broadcaster._round_key(key),
+        None,
+        None,
+        per_leaf=False,
+    )
 
-    def static_bounds(self):
-        return base.static_bounds(self._broadcaster.wrapped_variation)
+  def static_bounds(self):
+    return base.static_bounds(self._broadcaster.wrapped_variation)
 
-    def __repr__(self):
-        return f"BroadcastedValueProxy({self._broadcaster!r})"
+  def __repr__(self):
+    return f"BroadcastedValueProxy({self._broadcaster!r})"

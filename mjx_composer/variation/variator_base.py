@@ -54,18 +54,24 @@ class Schedule:
   Build one with `Schedule.per_episode()`, `Schedule.once_per_world()` or
   `Schedule.every_steps(k)`.
   """
+
   mode: str = 'episode'
   interval: int = 0
 
   def __post_init__(self):
     if self.mode not in ('episode', 'world', 'steps'):
-      raise ValueError(f'Unknown schedule mode {self.mode!r}: use '
-                       'Schedule.per_episode(), Schedule.once_per_world() or '
-                       'Schedule.every_steps(k).')
-    if self.mode == 'steps' and (int(self.interval) != self.interval
-                                 or self.interval < 1):
-      raise ValueError('Schedule.every_steps(k) needs a positive integer k, '
-                       f'got {self.interval!r}.')
+      raise ValueError(
+          f'Unknown schedule mode {self.mode!r}: use '
+          'Schedule.per_episode(), Schedule.once_per_world() or '
+          'Schedule.every_steps(k).'
+      )
+    if self.mode == 'steps' and (
+        int(self.interval) != self.interval or self.interval < 1
+    ):
+      raise ValueError(
+          'Schedule.every_steps(k) needs a positive integer k, '
+          f'got {self.interval!r}.'
+      )
 
   @classmethod
   def per_episode(cls) -> 'Schedule':
@@ -85,8 +91,10 @@ class Schedule:
   def __str__(self):
     if self.mode == 'steps':
       return f'Schedule.every_steps({self.interval})'
-    return {'episode': 'Schedule.per_episode()',
-            'world': 'Schedule.once_per_world()'}[self.mode]
+    return {
+        'episode': 'Schedule.per_episode()',
+        'world': 'Schedule.once_per_world()',
+    }[self.mode]
 
 
 @dataclasses.dataclass
@@ -101,6 +109,7 @@ class Binding:
       `fold_in(key, slot)`, so (un)binding other attributes never changes
       the values this one draws.
   """
+
   element: Any
   attr: str
   variation: Any
@@ -145,9 +154,11 @@ class Variator:
     if schedule is None:
       schedule = Schedule.per_episode()
     if not isinstance(schedule, Schedule):
-      raise TypeError('schedule must be a variation.Schedule (e.g. '
-                      'Schedule.every_steps(10)), got '
-                      f'{type(schedule).__name__}.')
+      raise TypeError(
+          'schedule must be a variation.Schedule (e.g. '
+          'Schedule.every_steps(10)), got '
+          f'{type(schedule).__name__}.'
+      )
     self._schedule = schedule
     self._name = name or f'{type(self).__name__}_{next(_COUNTER)}'
     self._bindings: dict[tuple[int, str], Binding] = {}
@@ -191,8 +202,7 @@ class Variator:
       if old is not None:
         old.variation = variation
       else:
-        self._bindings[key] = Binding(element, attr, variation,
-                                      self._next_slot)
+        self._bindings[key] = Binding(element, attr, variation, self._next_slot)
         self._next_slot += 1
     self._plans.clear()
 
@@ -243,27 +253,33 @@ class Variator:
         raise ValueError(
             f'{name}: apply_variations(..., in_step=True) only applies to '
             f'Schedule.every_steps(k); this variator draws on '
-            f'{schedule}. Call it from initialize_episode only.')
+            f'{schedule}. Call it from initialize_episode only.'
+        )
       if entry is None:
         raise ValueError(
             f'{name}: call apply_variations(physics, key) from '
             'initialize_episode as well: it creates the step counter that '
-            'the in-step calls advance.')
+            'the in-step calls advance.'
+        )
     plan = self._plan(physics)
     bindings = self.bindings
     initial = plan.initial_values
     current = plan.read_current(physics, entry)
     fresh_states = tuple(
         base.initial_state(b.variation, initial[i])
-        for i, b in enumerate(bindings))
-    states = (fresh_states if entry is None or 'states' not in entry
-              else entry['states'])
+        for i, b in enumerate(bindings)
+    )
+    states = (
+        fresh_states
+        if entry is None or 'states' not in entry
+        else entry['states']
+    )
 
     new_entry = {}
     if schedule.mode == 'episode':
       draw = True
     elif schedule.mode == 'world':
-      applied = (jnp.zeros((), bool) if entry is None else entry['applied'])
+      applied = jnp.zeros((), bool) if entry is None else entry['applied']
       draw = jnp.logical_not(applied)
       new_entry['applied'] = jnp.ones((), bool)
     else:
@@ -279,16 +295,21 @@ class Variator:
     values, new_states = [], []
     with base.evaluation_round(key):
       for i, binding in enumerate(bindings):
-        value, state = base.sample(binding.variation, states[i],
-                                   jax.random.fold_in(key, binding.slot),
-                                   initial[i], current[i])
+        value, state = base.sample(
+            binding.variation,
+            states[i],
+            jax.random.fold_in(key, binding.slot),
+            initial[i],
+            current[i],
+        )
         values.append(_conform(value, initial[i], binding, self._name))
         new_states.append(state)
     new_states = tuple(new_states)
     if draw is not True:
       values = [jnp.where(draw, v, c) for v, c in zip(values, current)]
-      new_states = jax.tree.map(lambda a, b: jnp.where(draw, a, b),
-                                new_states, tuple(states))
+      new_states = jax.tree.map(
+          lambda a, b: jnp.where(draw, a, b), new_states, tuple(states)
+      )
     new_entry['states'] = new_states
     physics, extra = plan.write(physics, values)
     new_entry.update(extra)
@@ -302,12 +323,14 @@ def _conform(value, initial: np.ndarray, binding: Binding, owner: str):
   except (TypeError, ValueError) as e:
     raise ValueError(
         f'{owner}: the variation bound to {binding.describe()} gave '
-        f'{value!r}, which is not an array of numbers.') from e
+        f'{value!r}, which is not an array of numbers.'
+    ) from e
   shape = np.shape(initial)
   if not _broadcasts(array.shape, shape):
     raise ValueError(
         f'{owner}: the variation bound to {binding.describe()} gives values '
-        f'of shape {array.shape}, but the attribute has shape {shape}.')
+        f'of shape {array.shape}, but the attribute has shape {shape}.'
+    )
   return jnp.broadcast_to(array, shape)
 
 
@@ -318,8 +341,9 @@ def _broadcasts(source: tuple, target: tuple) -> bool:
     return False
 
 
-def check_static_shape(variation, initial: np.ndarray, describe: str,
-                       owner: str):
+def check_static_shape(
+    variation, initial: np.ndarray, describe: str, owner: str
+):
   """Bind-time shape check when the attribute's value is known.
 
   Evaluates the shape of the variation's output abstractly (no sampling)
@@ -328,24 +352,29 @@ def check_static_shape(variation, initial: np.ndarray, describe: str,
   shape = np.shape(initial)
 
   def draw(key):
-    value, _ = base.sample(variation, base.initial_state(variation, initial),
-                           key, initial, initial)
+    value, _ = base.sample(
+        variation, base.initial_state(variation, initial), key, initial, initial
+    )
     return jnp.asarray(value)
 
   try:
     out = jax.eval_shape(draw, jax.random.key(0))
-  except (jax.errors.ConcretizationTypeError,
-          jax.errors.TracerArrayConversionError,
-          jax.errors.TracerBoolConversionError,
-          jax.errors.TracerIntegerConversionError):
+  except (
+      jax.errors.ConcretizationTypeError,
+      jax.errors.TracerArrayConversionError,
+      jax.errors.TracerBoolConversionError,
+      jax.errors.TracerIntegerConversionError,
+  ):
     # Needs concrete values (e.g. a numpy callable): the shape is checked
     # when reset is traced.
     return
   except (TypeError, ValueError) as e:
     raise ValueError(
         f'{owner}: the variation bound to {describe} cannot give a value for '
-        f'an attribute of shape {shape}: {e}') from e
+        f'an attribute of shape {shape}: {e}'
+    ) from e
   if not _broadcasts(out.shape, shape):
     raise ValueError(
         f'{owner}: the variation bound to {describe} gives values of shape '
-        f'{out.shape}, but the attribute has shape {shape}.')
+        f'{out.shape}, but the attribute has shape {shape}.'
+    )

@@ -34,8 +34,7 @@ class Aggregator:
       input's bounds, so that the observation spec may keep them.
   """
 
-  def __init__(self, name: str, fn: Callable[..., Any],
-               preserves_bounds: bool):
+  def __init__(self, name: str, fn: Callable[..., Any], preserves_bounds: bool):
     self.name = name
     self._fn = fn
     self.preserves_bounds = preserves_bounds
@@ -58,8 +57,15 @@ AGGREGATORS = {
 # The options that `Observable.configure` and `Observables.set_options`
 # accept when applied to every observable at once.
 OPTION_NAMES = frozenset(
-    ['update_interval', 'buffer_size', 'delay', 'aggregator', 'corruptor',
-     'enabled'])
+    [
+        'update_interval',
+        'buffer_size',
+        'delay',
+        'aggregator',
+        'corruptor',
+        'enabled',
+    ]
+)
 
 
 def _get_aggregator(name_or_callable):
@@ -71,7 +77,8 @@ def _get_aggregator(name_or_callable):
   except (KeyError, TypeError):
     raise KeyError(
         f'Unrecognized aggregator name: {name_or_callable!r}. Valid names: '
-        f'{sorted(AGGREGATORS)}.') from None
+        f'{sorted(AGGREGATORS)}.'
+    ) from None
 
 
 class Observable(abc.ABC):
@@ -91,8 +98,9 @@ class Observable(abc.ABC):
     enabled: whether the environment observes it. False on a new observable.
   """
 
-  def __init__(self, update_interval, buffer_size, delay, aggregator,
-               corruptor):
+  def __init__(
+      self, update_interval, buffer_size, delay, aggregator, corruptor
+  ):
     self._update_interval = update_interval
     self._buffer_size = buffer_size
     self._delay = delay
@@ -175,7 +183,8 @@ class Observable(abc.ABC):
     if key is None:
       raise ValueError(
           'This observable has a corruptor, which needs a PRNG key: call it '
-          'with `key=jax.random.key(...)`.')
+          'with `key=jax.random.key(...)`.'
+      )
     return lambda: corruptor(raw(), key)
 
   def __call__(self, physics, key=None):
@@ -199,13 +208,19 @@ class Generic(Observable):
   without one the spec is inferred by tracing `fn`.
   """
 
-  def __init__(self, raw_observation_callable, update_interval=1,
-               buffer_size=None, delay=None, aggregator=None, corruptor=None,
-               array_spec=None):
+  def __init__(
+      self,
+      raw_observation_callable,
+      update_interval=1,
+      buffer_size=None,
+      delay=None,
+      aggregator=None,
+      corruptor=None,
+      array_spec=None,
+  ):
     self._raw = raw_observation_callable
     self._array_spec = array_spec
-    super().__init__(update_interval, buffer_size, delay, aggregator,
-                     corruptor)
+    super().__init__(update_interval, buffer_size, delay, aggregator, corruptor)
 
   @property
   def array_spec(self):
@@ -223,15 +238,25 @@ class MujocoFeature(Observable):
   every sample, here it is evaluated while tracing (names must be static).
   """
 
-  def __init__(self, kind, feature_name, update_interval=1, buffer_size=None,
-               delay=None, aggregator=None, corruptor=None):
+  def __init__(
+      self,
+      kind,
+      feature_name,
+      update_interval=1,
+      buffer_size=None,
+      delay=None,
+      aggregator=None,
+      corruptor=None,
+  ):
     self._kind = kind
     self._feature_name = feature_name
-    super().__init__(update_interval, buffer_size, delay, aggregator,
-                     corruptor)
+    super().__init__(update_interval, buffer_size, delay, aggregator, corruptor)
 
   def _callable(self, physics):
-    names = (self._feature_name() if callable(self._feature_name)
-             else self._feature_name)
+    names = (
+        self._feature_name()
+        if callable(self._feature_name)
+        else self._feature_name
+    )
     field = getattr(physics.named.data, self._kind)
     return lambda: field[names]

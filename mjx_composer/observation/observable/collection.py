@@ -31,7 +31,8 @@ def _prefix(entity) -> str:
   except (AttributeError, ReferenceError) as e:
     raise ValueError(
         'cannot retrieve the full identifier of the entity that owns these '
-        'observables') from e
+        'observables'
+    ) from e
   if identifier and not identifier.endswith('/'):
     identifier += '/'
   return identifier
@@ -96,14 +97,15 @@ class Observables:
       return collections.OrderedDict(self._observables)
     prefix = _prefix(self._entity)
     return collections.OrderedDict(
-        (prefix + name, obs) for name, obs in self._observables.items())
+        (prefix + name, obs) for name, obs in self._observables.items()
+    )
 
   def get_observable(self, name, name_fully_qualified=False):
     """The observable named `name` (bare, or qualified if requested)."""
     if name_fully_qualified:
       prefix = _prefix(self._entity)
       if prefix and name.startswith(prefix):
-        name = name[len(prefix):]
+        name = name[len(prefix) :]
     return self._observables[name]
 
   def set_options(self, options):

@@ -11,8 +11,10 @@ from mjx_composer.observation.observable import base
 # options, orientations, defaults) are not elements one can observe.
 _NOT_ELEMENTS = ('MjsCompiler', 'MjsOrientation', 'MjsDefault', 'MjsElement')
 _ELEMENT_TYPES = tuple(
-    getattr(mujoco, name) for name in dir(mujoco)
-    if name.startswith('Mjs') and name not in _NOT_ELEMENTS)
+    getattr(mujoco, name)
+    for name in dir(mujoco)
+    if name.startswith('Mjs') and name not in _NOT_ELEMENTS
+)
 
 
 def _is_element(obj) -> bool:
@@ -32,26 +34,39 @@ class MJCFFeature(base.Observable):
   so a sample costs one gather (composer re-binds once per episode instead).
   """
 
-  def __init__(self, kind, mjcf_element, update_interval=1, buffer_size=None,
-               delay=None, aggregator=None, corruptor=None, index=None):
+  def __init__(
+      self,
+      kind,
+      mjcf_element,
+      update_interval=1,
+      buffer_size=None,
+      delay=None,
+      aggregator=None,
+      corruptor=None,
+      index=None,
+  ):
     is_element = _is_element(mjcf_element)
     if not is_element:
       try:
         elements = list(mjcf_element)
       except TypeError:
         elements = None
-      if (elements is None or isinstance(mjcf_element, str) or not elements
-          or not all(_is_element(e) for e in elements)):
+      if (
+          elements is None
+          or isinstance(mjcf_element, str)
+          or not elements
+          or not all(_is_element(e) for e in elements)
+      ):
         raise ValueError(
             'expected an `mjcf.Element` (an MjSpec element handle such as '
             '`mujoco.MjsSite`) or a non-empty iterable of them: got '
-            f'{type(mjcf_element).__name__} {mjcf_element!r}.')
+            f'{type(mjcf_element).__name__} {mjcf_element!r}.'
+        )
       mjcf_element = elements
     self._kind = kind
     self._mjcf_element = mjcf_element
     self._index = index
-    super().__init__(update_interval, buffer_size, delay, aggregator,
-                     corruptor)
+    super().__init__(update_interval, buffer_size, delay, aggregator, corruptor)
 
   @property
   def kind(self):
@@ -78,7 +93,8 @@ class MJCFFeature(base.Observable):
   def __getitem__(self, key):
     if self._index is not None:
       raise NotImplementedError(
-          'slicing an already indexed observable is not yet supported')
+          'slicing an already indexed observable is not yet supported'
+      )
     indexed = copy.copy(self)
     indexed._index = key  # pylint: disable=protected-access
     return indexed
