@@ -33,7 +33,7 @@ from typing import Iterator
 import jax.numpy as jnp
 import mujoco
 
-from mjx_composer import physics as physics_lib
+from mjx_composer import element_index
 from mjx_composer.utils import transformations as tr
 
 _DEFAULT_SPEC_NAME = 'MuJoCo Model'
@@ -245,8 +245,8 @@ class Entity(abc.ABC):
     spec = self.mjcf_model.copy()
     handles = {}
     for (kind, original), (_, copied) in zip(
-        physics_lib.iter_elements(self.mjcf_model),
-        physics_lib.iter_elements(spec),
+        element_index.iter_elements(self.mjcf_model),
+        element_index.iter_elements(spec),
     ):
       if kind == 'body' and copied is spec.worldbody:
         pass

@@ -76,6 +76,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer import element_index
 from mjx_composer import physics as physics_lib
 from mjx_composer.observation import updater as updater_lib
 from mjx_composer.observation.updater import ObservationPadding  # pylint: disable=unused-import
@@ -262,7 +263,7 @@ class Environment:
       )
     if time_limit <= 0:
       raise ValueError(f'time_limit must be positive, got {time_limit}.')
-    unknown = set(per_world_model_fields) - physics_lib._MODEL_FIELDS  # pylint: disable=protected-access
+    unknown = set(per_world_model_fields) - element_index.MODEL_FIELDS
     if unknown:
       raise ValueError(
           f'Unknown mjx.Model fields {sorted(unknown)} in '
@@ -292,7 +293,7 @@ class Environment:
         key: (original, kind, composed.name)
         for key, (original, kind, composed) in handles.items()
     }
-    self._index = physics_lib.ElementIndex(self._mj_model, handle_names)
+    self._index = element_index.ElementIndex(self._mj_model, handle_names)
     self._mjx_model = mjx.put_model(self._mj_model)
     self._data0 = mjx.make_data(self._mjx_model)
 

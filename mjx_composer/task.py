@@ -118,7 +118,7 @@ class Task(abc.ABC):
 
     Unlimited actuators get ±mjMAXVAL, like `mujoco.action_spec`.
     """
-    model = physics.index.model
+    model = physics.mj_model
     limited = np.asarray(model.actuator_ctrllimited, bool)
     ctrlrange = np.asarray(model.actuator_ctrlrange, float).reshape(-1, 2)
     minimum = np.where(limited, ctrlrange[:, 0], -_MJMAXVAL)

@@ -9,6 +9,7 @@ from mujoco import mjx
 import numpy as np
 import pytest
 
+from mjx_composer import element_index
 from mjx_composer import physics as physics_lib
 from mjx_composer.observation import updater as updater_lib
 from mjx_composer.observation.observable import base
@@ -69,7 +70,7 @@ class _Model:
         ('sensor', self.hand_pos),
         ('sensor', self.shoulder_pos),
     ]
-    self.index = physics_lib.ElementIndex(
+    self.index = element_index.ElementIndex(
         self.model, {id(h): (h, kind, h.name) for kind, h in handles}
     )
     self.data = mujoco.MjData(self.model)

@@ -59,7 +59,7 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer import initializer
-from mjx_composer import physics as physics_lib
+from mjx_composer import element_index
 from mjx_composer.initializers import contacts
 from mjx_composer.variation import base as variation_base
 from mjx_composer.variation import rotations
@@ -67,8 +67,6 @@ from mjx_composer.variation import rotations
 _SETTLE_QVEL_TOL = 1e-3
 _SETTLE_QACC_TOL = 1e-2
 _NAMES = itertools.count()
-_QPOS_WIDTH = {0: 7, 1: 4, 2: 1, 3: 1}  # mjtJoint: free, ball, slide, hinge
-_DOF_WIDTH = {0: 6, 1: 3, 2: 1, 3: 1}
 
 
 class _Single(NamedTuple):
@@ -122,9 +120,9 @@ def _joint_addresses(model, joint_ids):
   for j in joint_ids:
     kind = int(model.jnt_type[j])
     start = int(model.jnt_qposadr[j])
-    qpos.extend(range(start, start + _QPOS_WIDTH[kind]))
+    qpos.extend(range(start, start + element_index.QPOS_WIDTH[kind]))
     start = int(model.jnt_dofadr[j])
-    dofs.extend(range(start, start + _DOF_WIDTH[kind]))
+    dofs.extend(range(start, start + element_index.DOF_WIDTH[kind]))
   return np.asarray(qpos, np.int32), np.asarray(dofs, np.int32)
 
 
@@ -261,10 +259,10 @@ class PropPlacer(initializer.Initializer):
     cached = self._tables.get(cache_key)
     if cached is not None and cached.index is index:
       return cached
-    model = index.model
-    geom_kind = physics_lib.KINDS_BY_NAME['geom']
-    joint_kind = physics_lib.KINDS_BY_NAME['joint']
-    body_kind = physics_lib.KINDS_BY_NAME['body']
+    model = index.mj_model
+    geom_kind = element_index.KINDS_BY_NAME['geom']
+    joint_kind = element_index.KINDS_BY_NAME['joint']
+    body_kind = element_index.KINDS_BY_NAME['body']
 
     def geoms_of(entity):
       return np.asarray(
@@ -607,7 +605,7 @@ class PropPlacer(initializer.Initializer):
   def _settle(self, physics, tables):
     """Steps with non-prop joints held; returns (physics, settled)."""
     model, start = physics.model, physics.data
-    timestep = float(tables.index.model.opt.timestep)
+    timestep = float(tables.index.mj_model.opt.timestep)
     max_steps = max(
         1, math.ceil(self._max_settle_physics_time / timestep - 1e-9)
     )

@@ -46,7 +46,6 @@ inertia with (nearly) equal principal moments.
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 from typing import Any, Sequence
@@ -57,7 +56,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import physics as physics_lib
+from mjx_composer import element_index
 
 _EPS = 1e-14  # mjEPS (user_util.h)
 _MINVAL = 1e-15  # mjMINVAL
@@ -124,7 +123,7 @@ def kind_of(element) -> str:
   if isinstance(element, SPEC_OPTION):
     return 'option'
   try:
-    kind = physics_lib.element_kind(element).name
+    kind = element_index.element_kind(element).name
   except TypeError as e:
     raise TypeError(
         f'MJCFVariator cannot bind {element!r}: expected an MjSpec element '
@@ -770,15 +769,15 @@ class ModelCompiler:
       owner: str = 'MJCFVariator',
   ):
     self._owner = owner
-    self._m = index.model
-    self._handles = _handles_by_id(index)
+    self._m = index.mj_model
+    self._handles = index.handles_by_id()
     self._bound = []
     for element, attr, describe in bindings:
       kind = kind_of(element)
       obj_id = -1
       if kind != 'option':
         try:
-          obj_id = index.element_id(physics_lib.KINDS_BY_NAME[kind], element)
+          obj_id = index.element_id(element_index.KINDS_BY_NAME[kind], element)
         except (ValueError, KeyError) as e:
           raise ValueError(
               f'{owner}: cannot apply the variation bound to '
@@ -1686,27 +1685,3 @@ def _auto_stat(compiler) -> dict:
       )
       for name in auto
   }
-
-
-def _handles_by_id(index) -> dict[str, dict[int, Any]]:
-  """`{kind name: {compiled id: element handle}}` for the composed model.
-
-  Uses the index's handle table. A child entity's worldbody stands for its
-  attachment frame there; the frame body's own handle is preferred.
-  """
-  m = index.model
-  out = {name: {} for name in physics_lib.KINDS_BY_NAME}
-  entries = index._handles.values()  # pylint: disable=protected-access
-  for handle, kind_name, full_name in entries:
-    kind = physics_lib.KINDS_BY_NAME[kind_name]
-    idx = mujoco.mj_name2id(m, kind.obj, full_name)
-    if idx < 0:
-      continue
-    if (
-        kind_name == 'body'
-        and idx != 0
-        and getattr(handle, 'name', '') == ('world')
-    ):
-      continue  # a child's worldbody: its attachment frame has the handle
-    out[kind_name][idx] = handle
-  return out

@@ -36,7 +36,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import physics as physics_lib
+from mjx_composer import element_index
 from mjx_composer.variation import variator_base
 
 # The class of `MjSpec.option` (not `mujoco.MjOption`, the compiled struct).
@@ -74,7 +74,7 @@ class _Plan:
 
   def __init__(self, variator, physics):
     index = physics.index
-    mj_model = index.model
+    mj_model = index.mj_model
     self.targets = []
     self.initial_values = []
     for binding in variator.bindings:
@@ -160,7 +160,7 @@ def _short_name(kind, attr: str) -> str:
   """`body_mass` -> `mass` for a body, `dof_damping` -> `damping` for joints."""
   prefixes = (kind.prefix, 'dof') if kind.name == 'joint' else (kind.prefix,)
   for prefix in prefixes:
-    if attr.startswith(prefix + '_') and physics_lib.hasattr_model(attr):
+    if attr.startswith(prefix + '_') and element_index.hasattr_model(attr):
       return attr[len(prefix) + 1 :]
   return attr
 
@@ -182,7 +182,7 @@ class PhysicsVariator(variator_base.Variator):
             f'option attributes: {list(OPTION_FIELDS)}.'
         )
       return
-    kind = physics_lib.element_kind(element)  # TypeError for non-elements.
+    kind = element_index.element_kind(element)  # TypeError for non-elements.
     short = _short_name(kind, attr)
     valid = _model_attributes(kind)
     if short not in valid:
