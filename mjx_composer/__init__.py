@@ -5,6 +5,43 @@ entities on MjSpec, compose them under a task, and get pure, batched
 `reset(key)` / `step(state, action)` functions from `Environment`.
 """
 
+
+def _import_mjx_quietly():
+  """Imports `mujoco.mjx` without its Warp probe's output.
+
+  On first import, MJX tries to import its optional Warp backend and prints
+  "Failed to import warp: ..." and "Failed to import mujoco_warp: ..." to
+  stdout when it is absent. Those two lines go to this package's logger at
+  DEBUG level instead; any other output is passed through. Asking MJX for the
+  Warp backend (`impl='warp'`) still raises MJX's own error.
+  """
+  # pylint: disable=g-import-not-at-top
+  import contextlib
+  import io
+  import logging
+  import sys
+
+  if 'mujoco.mjx.warp' in sys.modules:
+    return  # Already imported (and printed, if it did) before us.
+  captured = io.StringIO()
+  try:
+    with contextlib.redirect_stdout(captured):
+      import mujoco.mjx  # pylint: disable=unused-import
+  finally:
+    for line in captured.getvalue().splitlines(keepends=True):
+      if line.startswith(
+          ('Failed to import warp:', 'Failed to import mujoco_warp:')
+      ):
+        logging.getLogger(__name__).debug(
+            'MJX Warp backend unavailable: %s', line.rstrip()
+        )
+      else:
+        sys.stdout.write(line)
+
+
+_import_mjx_quietly()
+
+# pylint: disable=g-import-not-at-top,wrong-import-position
 from mjx_composer.arena import Arena
 from mjx_composer.constants import SENSOR_SITES_GROUP
 from mjx_composer.define import cached_property

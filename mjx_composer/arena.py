@@ -55,5 +55,18 @@ class Arena(entity.Entity):
     return ()
 
   def regenerate(self, random_state):
-    """Regenerates the arena's layout at build time (no-op by default)."""
+    """Regenerates the arena's layout at build time (no-op by default).
+
+    Composer's hook: it edits the spec on the host, before the one compile.
+    """
     del random_state
+
+  def regenerate_world(self, physics, key):
+    """Samples one world's layout on the device (identity by default).
+
+    The per-world counterpart of `regenerate`: write the model fields a
+    regenerated spec would have compiled to, and return the physics. Call it
+    from `initialize_episode`.
+    """
+    del key
+    return physics

@@ -33,6 +33,7 @@ from typing import Iterator
 import jax.numpy as jnp
 import mujoco
 
+from mjx_composer import composition_checks
 from mjx_composer import element_index
 from mjx_composer.utils import transformations as tr
 
@@ -97,6 +98,20 @@ class Entity(abc.ABC):
   @property
   def observables(self):
     return self._observables
+
+  # -- per-world state -----------------------------------------------------
+
+  def initial_state(self):
+    """This entity's per-episode state at the start of an episode, or None.
+
+    Like `Task.initial_task_state`: a pytree (usually a dict of arrays) whose
+    structure, shapes and dtypes are fixed for the environment's life, one
+    copy per world, reset at every episode. Read it with
+    `physics.entity_state(self)` and write it with
+    `physics.update_entity_state(self, **values)`. State that must outlive
+    an episode goes in persistent entries (`physics.set_persistent`).
+    """
+    return None
 
   # -- hooks ---------------------------------------------------------------
   # Build time (host). `random_state` is a numpy RandomState.
@@ -243,6 +258,8 @@ class Entity(abc.ABC):
       the composed spec (its `.name` is the fully qualified name).
     """
     spec = self.mjcf_model.copy()
+    # copy() and attach() silently drop elements with dangling references.
+    composition_checks.check_copy(self, self.mjcf_model, spec)
     handles = {}
     for (kind, original), (_, copied) in zip(
         element_index.iter_elements(self.mjcf_model),
@@ -256,8 +273,10 @@ class Entity(abc.ABC):
       handles[id(original)] = (original, kind, copied)
     for child in self._attached:
       child_spec, child_handles = child.compose()
-      frame = handles[id(child._attachment_frame)][2]  # pylint: disable=protected-access
+      frame = handles[id(child.attachment_frame)][2]
+      counts = composition_checks.count_elements(spec)
       spec.attach(child_spec, prefix=child.name + '/', frame=frame.add_frame())
+      composition_checks.check_attach(child, child_spec, counts, spec)
       # The child's own worldbody stands for its attachment frame.
       child_world = child.mjcf_model.worldbody
       child_handles[id(child_world)] = (child_world, 'body', frame)
@@ -289,7 +308,9 @@ class Entity(abc.ABC):
     self_xmat = physics.bind(self.root_body).xmat.reshape(3, 3)
     return (self_xmat.T @ xmat.reshape(3, 3)).reshape(xmat.shape)
 
-  def _freejoint(self):
+  @property
+  def freejoint(self) -> mujoco.MjsJoint | None:
+    """The freejoint of this entity's attachment frame, if it has one."""
     frame = self._attachment_frame
     if frame is None:
       return None
@@ -310,7 +331,7 @@ class Entity(abc.ABC):
     attachment frame's model pose relative to its parent body.
     """
     frame = self._require_frame()
-    joint = self._freejoint()
+    joint = self.freejoint
     if joint is not None:
       qpos = physics.bind(joint).qpos
       return qpos[:3], qpos[3:]
@@ -326,7 +347,7 @@ class Entity(abc.ABC):
     derived quantities.
     """
     frame = self._require_frame()
-    joint = self._freejoint()
+    joint = self.freejoint
     if joint is not None:
       qpos = physics.bind(joint).qpos
       if position is not None:
@@ -358,7 +379,7 @@ class Entity(abc.ABC):
     if quaternion is not None:
       quaternion = jnp.asarray(quaternion, current_quat.dtype)
       new_quat = tr.quat_mul(quaternion, current_quat)
-      if rotate_velocity and self._freejoint() is not None:
+      if rotate_velocity and self.freejoint is not None:
         linear, _ = self.get_velocity(physics)
         physics = self.set_velocity(
             physics, velocity=tr.rotate_vec(tr.normalize(quaternion), linear)
@@ -367,7 +388,7 @@ class Entity(abc.ABC):
 
   def get_velocity(self, physics):
     """Returns `(linear (3,), angular (3,))` of a free entity's freejoint."""
-    joint = self._freejoint()
+    joint = self.freejoint
     if joint is None:
       raise ValueError(
           'get_velocity needs a free entity (a freejoint on its '
@@ -378,7 +399,7 @@ class Entity(abc.ABC):
 
   def set_velocity(self, physics, velocity=None, angular_velocity=None):
     """Writes a free entity's freejoint qvel; a no-op (with a warning) else."""
-    joint = self._freejoint()
+    joint = self.freejoint
     if joint is None:
       import logging  # pylint: disable=g-import-not-at-top
 

@@ -41,22 +41,27 @@ from mjx_composer import element_index
 
 @struct.dataclass
 class Physics:
-  """One world: the (possibly per-world) model, the data and the task state.
+  """One world: its (possibly per-world) model, its data and its state.
 
   Attributes:
     model: the `mjx.Model`. Fields that no variation or hook changes are the
       environment's shared compiled constants.
     data: this world's `mjx.Data`.
-    task_state: a pytree of per-world task/entity state declared by the task
-      (`Task.initial_task_state`), e.g. a sampled target position.
-    index: static tables resolving elements and names (see `element_index.ElementIndex`).
-    persistent: per-world state that survives episodes (auto-resets), keyed
-      by owner, e.g. a variator's `Sequence` counter. Entries are created in
-      `initialize_episode` (see `get_persistent`/`set_persistent`).
+    task_state: the task's per-episode state (`Task.initial_task_state`),
+      e.g. a sampled target position.
+    index: static tables resolving elements and names (see
+      `element_index.ElementIndex`).
+    persistent: per-world entries that survive episodes (auto-resets), keyed
+      by their owner's name, e.g. a variator's `Sequence` counter. Entries
+      are created in `initialize_episode` (`get_persistent`/`set_persistent`).
     initialization_failed: a bool scalar; an initializer that cannot
       initialize the episode sets it (`fail_initialization`) and the
       environment resamples the episode with a fresh key, up to
       `max_reset_attempts` times (composer's `EpisodeInitializationError`).
+    entity_states: each entity's per-episode state (`Entity.initial_state`),
+      keyed by the entity's full identifier (`entity_state(entity)`).
+    scheduled_hooks: `(name, hook)` pairs registered with
+      `schedule_before_step` (static).
   """
 
   model: mjx.Model
@@ -67,6 +72,31 @@ class Physics:
   )
   persistent: Any = None
   initialization_failed: Any = None
+  entity_states: Any = None
+  scheduled_hooks: tuple = struct.field(pytree_node=False, default=())
+
+  @property
+  def mj_model(self) -> mujoco.MjModel:
+    """The compiled host model (shared by every world; read it at trace time)."""
+    return self.index.mj_model
+
+  def carry(self, model_fields) -> 'PhysicsCarry':
+    """The per-world parts of this physics, for a scan, a loop or a `State`.
+
+    Args:
+      model_fields: names of the model fields that are per-world; the rest
+        of the model is the shared constant that `PhysicsCarry.restore`
+        takes back.
+    """
+    return PhysicsCarry(
+        data=self.data,
+        task_state=self.task_state,
+        entity_states=self.entity_states,
+        model_fields={f: getattr(self.model, f) for f in model_fields},
+        persistent=self.persistent,
+        initialization_failed=self.initialization_failed,
+        scheduled_hooks=self.scheduled_hooks,
+    )
 
   # -- dm_control-style accessors -------------------------------------------
 
@@ -79,11 +109,6 @@ class Physics:
   def named(self) -> '_NamedAccess':
     """`physics.named.data.<field>[name]` and `physics.named.model....`."""
     return _NamedAccess(self)
-
-  @property
-  def mj_model(self) -> mujoco.MjModel:
-    """The compiled host model (shared by every world; read it at trace time)."""
-    return self.index.mj_model
 
   def time(self) -> jax.Array:
     return self.data.time
@@ -119,21 +144,24 @@ class Physics:
 
   def update_task_state(self, **values) -> 'Physics':
     """Returns a copy with entries of the (dict) task state replaced."""
-    if not isinstance(self.task_state, dict):
-      raise TypeError('update_task_state needs a dict task state.')
-    unknown = set(values) - set(self.task_state)
-    if unknown:
-      raise KeyError(
-          f'Unknown task state entries {sorted(unknown)}; declare '
-          'them in Task.initial_task_state().'
-      )
-    new = dict(self.task_state)
-    for k, v in values.items():
-      old = new[k]
-      new[k] = jnp.asarray(v, dtype=jnp.asarray(old).dtype).reshape(
-          jnp.shape(old)
-      )
-    return self.replace(task_state=new)
+    return self.replace(
+        task_state=_updated(
+            self.task_state, values, 'Task.initial_task_state()'
+        )
+    )
+
+  def entity_state(self, entity):
+    """`entity`'s per-episode state (declared by `Entity.initial_state`)."""
+    return self.entity_states[_entity_key(entity, self.entity_states)]
+
+  def update_entity_state(self, entity, **values) -> 'Physics':
+    """Returns a copy with entries of `entity`'s (dict) state replaced."""
+    key = _entity_key(entity, self.entity_states)
+    new = dict(self.entity_states)
+    new[key] = _updated(
+        new[key], values, f'{type(entity).__name__}' '.initial_state()'
+    )
+    return self.replace(entity_states=new)
 
   # -- state that outlives an episode, and initialization failures ---------
 
@@ -158,6 +186,32 @@ class Physics:
     persistent = dict(self.persistent or {})
     persistent[name] = value
     return self.replace(persistent=persistent)
+
+  def schedule_before_step(self, name: str, hook) -> 'Physics':
+    """Registers `hook(physics, key) -> physics` to run at every control step.
+
+    Scheduled hooks run at the start of each `step`, before the task's
+    `before_step`, for the rest of the world's life (they survive
+    auto-resets with the persistent entries); each gets a key derived from
+    `name`. This is how `variation.Schedule.every_steps(k)` registers its
+    variator: call it from `initialize_episode`, at trace time. Registering
+    the same `(name, hook)` again does nothing.
+
+    Args:
+      name: a name unique among scheduled hooks, stable across runs (e.g.
+        the owner's persistent entry name).
+      hook: a hashable callable, e.g. a bound method (part of the `State`'s
+        static structure).
+    """
+    for known, known_hook in self.scheduled_hooks:
+      if known == name:
+        if known_hook != hook:
+          raise ValueError(
+              f'Another hook is already scheduled under the name {name!r}: '
+              'give each scheduled hook its own name.'
+          )
+        return self
+    return self.replace(scheduled_hooks=self.scheduled_hooks + ((name, hook),))
 
   def fail_initialization(self, failed=True) -> 'Physics':
     """Marks this episode's initialization as failed where `failed` is true.
@@ -191,6 +245,70 @@ class Physics:
     if address.source == 'data':
       return self.replace(data=self.data.replace(**{address.field: new}))
     return self.replace(model=self.model.replace(**{address.field: new}))
+
+
+@struct.dataclass
+class PhysicsCarry:
+  """The per-world parts of a `Physics`, without the shared model constants.
+
+  What a `lax.scan` over sub-steps, a reset's retry loop or a `State`
+  carries; `restore` rebuilds the `Physics`. Made by `Physics.carry`.
+  """
+
+  data: mjx.Data
+  task_state: Any
+  entity_states: Any
+  model_fields: dict
+  persistent: Any
+  initialization_failed: Any
+  scheduled_hooks: tuple = struct.field(pytree_node=False, default=())
+
+  def restore(
+      self, model: mjx.Model, index: element_index.ElementIndex
+  ) -> Physics:
+    """The `Physics` with these parts over the shared `model`."""
+    if self.model_fields:
+      model = model.replace(**self.model_fields)
+    return Physics(
+        model=model,
+        data=self.data,
+        task_state=self.task_state,
+        index=index,
+        persistent=self.persistent,
+        initialization_failed=self.initialization_failed,
+        entity_states=self.entity_states,
+        scheduled_hooks=self.scheduled_hooks,
+    )
+
+
+def _entity_key(entity, entity_states) -> str:
+  key = entity.full_identifier
+  if entity_states is None or key not in entity_states:
+    raise KeyError(
+        f'{type(entity).__name__} {entity.name!r} has no per-episode state: '
+        'declare it by overriding Entity.initial_state() (and attach the '
+        'entity before building the Environment).'
+    )
+  return key
+
+
+def _updated(state, values: dict, declared_in: str) -> dict:
+  """`state` (a dict) with `values` written, keeping shapes and dtypes."""
+  if not isinstance(state, dict):
+    raise TypeError(f'Updating entries needs a dict state from {declared_in}.')
+  unknown = set(values) - set(state)
+  if unknown:
+    raise KeyError(
+        f'Unknown state entries {sorted(unknown)}; declare them in '
+        f'{declared_in}.'
+    )
+  new = dict(state)
+  for k, v in values.items():
+    old = new[k]
+    new[k] = jnp.asarray(v, dtype=jnp.asarray(old).dtype).reshape(
+        jnp.shape(old)
+    )
+  return new
 
 
 class Binding:

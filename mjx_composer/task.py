@@ -12,6 +12,7 @@ or write it through `physics.task_state` / `physics.update_task_state(...)`.
 
 import abc
 import collections
+import math
 
 from dm_env import specs
 import mujoco
@@ -21,8 +22,34 @@ _MJMAXVAL = 1e10  # mujoco.mjMAXVAL: the bound of unlimited controls.
 _DEFAULT_PHYSICS_TIMESTEP = 0.002
 
 
+def check_timestep(name, value) -> float:
+  """Returns `value` as float seconds; raises unless positive and finite."""
+  try:
+    if isinstance(value, (bool, str, bytes)):
+      raise TypeError
+    seconds = float(value)
+  except (TypeError, ValueError):
+    raise TypeError(
+        f'{name} must be a number of seconds, got {type(value).__name__} '
+        f'{value!r}.'
+    ) from None
+  if not math.isfinite(seconds) or seconds <= 0:
+    raise ValueError(
+        f'{name} must be a positive, finite number of seconds, got {value!r}. '
+        'Set both timesteps with e.g. task.set_timesteps(control_timestep=0.02,'
+        ' physics_timestep=0.002): the control timestep an integer multiple of'
+        ' the physics timestep.'
+    )
+  return seconds
+
+
 def check_timesteps_divisible(control_timestep, physics_timestep) -> int:
-  """Returns control/physics as an int, or raises composer's ValueError."""
+  """Returns control/physics as an int, or raises composer's ValueError.
+
+  Both must be positive, finite numbers of seconds (ValueError otherwise).
+  """
+  physics_timestep = check_timestep('physics_timestep', physics_timestep)
+  control_timestep = check_timestep('control_timestep', control_timestep)
   num_steps = control_timestep / physics_timestep
   rounded = int(round(num_steps))
   if abs(num_steps - rounded) > 1e-6 or rounded < 1:
@@ -64,6 +91,15 @@ class Task(abc.ABC):
     """Task-level observables `{name: Observable}` (names not prefixed)."""
     return collections.OrderedDict()
 
+  def observation_groups(self):
+    """Observation groups `Environment` uses when given none (or None).
+
+    E.g. `{'policy': ObservationGroup(keys=[...]), 'critic': ...}` (see
+    `observation.groups`). None: the observation is one dict of every
+    enabled observable.
+    """
+    return None
+
   # -- timesteps -----------------------------------------------------------
 
   def _check_root_entity(self):
@@ -83,6 +119,7 @@ class Task(abc.ABC):
 
   @physics_timestep.setter
   def physics_timestep(self, value):
+    check_timestep('physics_timestep', value)
     if getattr(self, '_control_timestep', None) is not None:
       check_timesteps_divisible(self._control_timestep, value)
     self._check_root_entity().mjcf_model.option.timestep = value

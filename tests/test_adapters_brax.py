@@ -207,6 +207,7 @@ def test_replicated_state_matches_what_pmapped_training_returns():
   # adapter on JAX >= 0.10) replicates must be typed and sharded like what
   # Brax's training epoch, pmapped over axis 'i', returns: any difference
   # makes every jitted function those arrays reach compile twice.
+  brax_adapter.install_jax_compat()
   devices = jax.local_devices()[:1]
   tree = {'w': jnp.ones((2, 3)), 'scale': 2.0}  # 2.: a weakly typed leaf
   replicated = jax.device_put_replicated(tree, devices)

@@ -35,7 +35,7 @@ def test_floor():
   assert floor.regenerate(np.random.RandomState(0)) is None
   assert floor.regenerate() is None
   sentinel = object()
-  assert floor.regenerate(sentinel, jax.random.key(0)) is sentinel
+  assert floor.regenerate_world(sentinel, jax.random.key(0)) is sentinel
 
 
 def test_walls_face_inwards_and_contain_props():
@@ -117,4 +117,4 @@ def test_regenerate_without_a_variation_is_a_no_op():
   assert arena.size_variation is None
   assert arena.regenerate(np.random.RandomState(0)) is None
   sentinel = object()
-  assert arena.regenerate(sentinel, jax.random.key(0)) is sentinel
+  assert arena.regenerate_world(sentinel, jax.random.key(0)) is sentinel

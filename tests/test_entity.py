@@ -1,7 +1,6 @@
 """Entity: attach/detach, iteration order, frames and poses (inventory 8.2)."""
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest

@@ -9,9 +9,7 @@ model's forward pass on a CPU takes minutes, and placement is what is new.
 import copy
 
 import jax
-import jax.numpy as jnp
 import mujoco
-from mujoco import mjx
 import numpy as np
 import pytest
 
@@ -24,26 +22,7 @@ _WORLDS = 256
 
 def _fresh_physics(env):
   """One world's physics as `reset` starts it (model defaults, qpos0)."""
-  zero = jnp.zeros(())
-  state = composer.State(
-      data=mjx.make_data(env.mjx_model),
-      task_state=env.task.initial_task_state(),
-      model_fields={},
-      obs_state=None,
-      observation=None,
-      reward=zero,
-      discount=zero,
-      step_type=zero,
-      terminated=zero,
-      truncated=zero,
-      final_observation=None,
-      metrics={},
-      key=None,
-      steps=zero,
-      episode_return=zero,
-      persistent={},
-  )
-  return env.physics(state)
+  return env.initial_physics()
 
 
 @pytest.fixture(scope='module')

@@ -1,9 +1,9 @@
 """MJCFVariator in an Environment: bind, apply, schedules, state, errors.
 
 Field-by-field compile-equivalence of every attribute is tested in
-test_variation_model_compiler.py; here the variator's plumbing is tested on
-one small environment (compiled once), plus a recompile check of what the
-environment carries per world.
+test_compiler.py; here the variator's plumbing is tested on one small
+environment (compiled once), plus a recompile check of what the environment
+carries per world.
 """
 
 import functools
@@ -16,11 +16,10 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import physics as physics_lib
 from mjx_composer import variation
+from mjx_composer.compiler import attributes
 from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
-from mjx_composer.variation import model_compiler
 from mjx_composer.variation import noises
 
 _J = mujoco.mjtJoint
@@ -134,10 +133,6 @@ class VariedTask(composer.Task):
     physics = self.per_episode.apply_variations(physics, keys[0])
     physics = self.once.apply_variations(physics, keys[1])
     return self.every.apply_variations(physics, keys[2])
-
-  def before_step(self, physics, action, key):
-    physics = super().before_step(physics, action, key)
-    return self.every.apply_variations(physics, key, in_step=True)
 
   def get_reward(self, physics):
     return 0.0
@@ -405,14 +400,7 @@ def _trace_reset(task, in_step=False):
   passes to every trace.)
   """
   env = composer.Environment(task)
-  model = env.mjx_model
-  physics = physics_lib.Physics(
-      model=model,
-      data=mjx.make_data(model),
-      task_state={},
-      index=env._index,
-      persistent={},
-  )  # pylint: disable=protected-access
+  physics = env.initial_physics()
   apply = functools.partial(task.variator.apply_variations, in_step=in_step)
   return jax.eval_shape(apply, physics, jax.random.key(0))
 
@@ -487,6 +475,6 @@ def test_schedule_validation():
 
 
 def test_supported_attributes_table_is_documented():
-  text = model_compiler.supported_text()
+  text = attributes.supported_text()
   for kind in ('geom', 'body', 'site', 'joint', 'actuator', 'option'):
     assert kind in text

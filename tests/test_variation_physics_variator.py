@@ -3,12 +3,10 @@
 import jax
 import jax.numpy as jnp
 import mujoco
-from mujoco import mjx
 import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import physics as physics_lib
 from mjx_composer import variation
 from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
@@ -77,15 +75,7 @@ def env():
 
 def _physics(env):
   """A fresh world's Physics (no reset needed to test the variator)."""
-  model = env.mjx_model
-  index = env._index  # pylint: disable=protected-access
-  return physics_lib.Physics(
-      model=model,
-      data=mjx.make_data(model),
-      task_state={},
-      index=index,
-      persistent={},
-  )
+  return env.initial_physics()
 
 
 KEY = jax.random.key(0)
@@ -262,3 +252,29 @@ def test_trace_time_errors():
   variator.bind_attributes(task.arena.mjcf_model.option, density=1.0)
   with pytest.raises(ValueError, match='no fluid forces'):
     trace(variator)
+
+
+def test_persistent_names_do_not_depend_on_construction_order(env):
+  arm = env.task.arm
+  physics = env.initial_physics()
+
+  def named(order):
+    variators = {}
+    for which in order:
+      variator = variation.PhysicsVariator()
+      if which == 'friction':
+        variator.bind_attributes(arm.geom, friction=distributions.Uniform())
+      else:
+        variator.bind_attributes(arm.joint, damping=distributions.Uniform())
+      jax.eval_shape(variator.apply_variations, physics, KEY)
+      variators[which] = variator.persistent_name
+    return variators
+
+  assert named(['friction', 'damping']) == named(['damping', 'friction'])
+  names = named(['friction', 'damping'])
+  assert names['friction'] != names['damping']
+  assert 'arm/link' in names['friction'] and 'arm/hinge' in names['damping']
+  # An explicit name wins; an unapplied variator says how to get one.
+  assert variation.PhysicsVariator(name='mine').persistent_name == 'mine'
+  with pytest.raises(ValueError, match='not been applied yet'):
+    _ = variation.PhysicsVariator().persistent_name

@@ -55,6 +55,7 @@ What a Brax `State` holds (per world; batched under vmap):
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Mapping, Sequence, Union
 
@@ -66,8 +67,12 @@ import numpy as np
 ObsKey = Union[None, str, Sequence[str]]
 
 
-def _install_jax_compat():
+def install_jax_compat():
   """Gives JAX >= 0.10 back `jax.device_put_replicated` for Brax 0.14.
+
+  `BraxEnv` calls it when it is built (importing this module changes
+  nothing); call it yourself before using Brax's training code without a
+  `BraxEnv`.
 
   Brax 0.14.2 (the latest release) replicates its training state with
   `jax.device_put_replicated`, which JAX 0.10 removed (google/brax#671), so
@@ -96,10 +101,12 @@ def _install_jax_compat():
 
     return jax.tree.map(put, x)
 
+  logging.info(
+      'mjx_composer.adapters.brax: installed jax.device_put_replicated for '
+      'Brax (removed in JAX 0.10, google/brax#671).'
+  )
   jax.device_put_replicated = device_put_replicated
 
-
-_install_jax_compat()
 
 # Keys that Brax's own AutoResetWrapper adds to `info`.
 _BRAX_AUTO_RESET_KEYS = ('first_pipeline_state', 'first_obs')
@@ -131,7 +138,8 @@ class BraxEnv(brax_base.Env):
       episode_length: int | None = None,
       rescale_actions: bool = False,
   ):
-    auto_reset = getattr(environment, '_auto_reset', 'same_step')
+    install_jax_compat()
+    auto_reset = environment.auto_reset
     if auto_reset != 'same_step':
       raise ValueError(
           "BraxEnv needs an Environment built with auto_reset='same_step' "
@@ -167,12 +175,7 @@ class BraxEnv(brax_base.Env):
             'The environment has no time limit: pass '
             "episode_length for Brax's evaluator."
         )
-      episode_length = max(
-          1,
-          math.ceil(
-              environment.time_limit / environment.control_timestep() - 1e-9
-          ),
-      )
+      episode_length = environment.step_limit
     self._episode_length = int(episode_length)
     self._abstract_state_cache = None
 

@@ -2,9 +2,11 @@
 
 `Floor` is locomotion's flat checkered floor; `WalledArena` adds four walls
 around it. Where a composer arena's `regenerate` changed the MJCF and needed a
-recompile every episode, here `regenerate(physics, key)` writes the
+recompile every episode, here `regenerate_world(physics, key)` writes the
 equivalent per-world model fields instead (the arena's `initialize_episode`
 calls it), so a world matches the model compiled with the sampled layout.
+Composer's host-side `regenerate(random_state)` keeps its meaning: a build
+time edit of the spec (a no-op for these arenas).
 """
 
 import jax.numpy as jnp
@@ -15,13 +17,6 @@ from mjx_composer import arena
 from mjx_composer.variation import base as variation_base
 
 _GROUNDPLANE_QUAD_SIZE = 0.25
-
-
-def _host_call(physics, key):
-  """True for composer's host-side `regenerate(random_state)` call."""
-  return key is None and (
-      physics is None or isinstance(physics, np.random.RandomState)
-  )
 
 
 class Floor(arena.Arena):
@@ -100,14 +95,13 @@ class Floor(arena.Arena):
   def top_camera(self):
     return self._top_camera
 
-  def regenerate(self, physics=None, key=None):
-    """A flat floor has nothing to regenerate (composer's is a no-op too).
+  def regenerate(self, random_state=None):
+    """Composer's build-time layout change: a flat floor has none."""
+    del random_state
 
-    Called as `regenerate(physics, key)` it returns the physics unchanged;
-    composer's host-side `regenerate(random_state)` returns None.
-    """
-    if _host_call(physics, key):
-      return None
+  def regenerate_world(self, physics, key):
+    """This world's layout: a flat floor has nothing to sample."""
+    del key
     return physics
 
 
@@ -209,16 +203,13 @@ class WalledArena(Floor):
     pos = physics.bind([self._walls[0], self._walls[2]]).pos
     return jnp.stack([pos[0, 0], pos[1, 1]])
 
-  def regenerate(self, physics=None, key=None):
+  def regenerate_world(self, physics, key):
     """Samples this world's layout from `size_variation` (if any).
 
     Returns the physics with the walls moved and the walls and floor resized
     (planes collide as infinite planes, so only `geom_pos` changes what
-    collides; the sizes are what would be rendered). Composer's host-side
-    `regenerate(random_state)` call is a no-op returning None.
+    collides; the sizes are what would be rendered).
     """
-    if _host_call(physics, key):
-      return None
     if self._size_variation is None:
       return physics
     nominal = jnp.asarray(self._size, jnp.float32)
@@ -240,4 +231,4 @@ class WalledArena(Floor):
     return physics.bind(self._ground).set(size=ground.at[:2].set(size))
 
   def initialize_episode(self, physics, key):
-    return self.regenerate(physics, key)
+    return self.regenerate_world(physics, key)

@@ -21,8 +21,8 @@ Differences from composer:
 * Without `retain_substep_detections` detection is computed from the current
   geom positions whenever it is read, which is what composer's state holds
   after the last sub-step. With it, the per-step "seen at any sub-step" flags
-  are kept in the world's persistent entries (cleared in `before_step`, OR-ed
-  in `after_substep`, reset at `initialize_episode`).
+  are the detector's per-episode entity state (`initial_state`: cleared in
+  `before_step`, OR-ed in `after_substep`, set at `initialize_episode`).
 * The zone site does not change colour on detection: that would be a
   per-step model write for rendering only. Detection (`detected` observable)
   is what policies and rewards use.
@@ -249,15 +249,24 @@ class PositionDetector(entity.Entity):
       flags.append(jnp.any(inside != self._inverted))
     return jnp.stack(flags)
 
-  def _state_name(self):
-    return f'PositionDetector:{self.full_identifier}detected'
+  def initial_state(self):
+    """The per-step "seen at any sub-step" flags, when they are retained."""
+    if not self._retain_substep_detections:
+      return None
+    return {'detected': np.zeros((len(self._entities),), bool)}
+
+  def _retained(self, physics):
+    states = physics.entity_states
+    if states is None or self.full_identifier not in states:
+      return None
+    return physics.entity_state(self)['detected']
 
   def detected_entities(self, physics):
     """A bool array: is each registered entity detected (in order)."""
     if self._retain_substep_detections:
-      stored = physics.get_persistent(self._state_name())
-      if stored is not None:
-        return stored
+      retained = self._retained(physics)
+      if retained is not None:
+        return retained
     return self._instantaneous(physics)
 
   def activated(self, physics):
@@ -268,25 +277,26 @@ class PositionDetector(entity.Entity):
     del key
     if not self._retain_substep_detections:
       return physics
-    return physics.set_persistent(
-        self._state_name(), self._instantaneous(physics)
+    return physics.update_entity_state(
+        self, detected=self._instantaneous(physics)
     )
 
   def before_step(self, physics, key):
     del key
     if not self._retain_substep_detections:
       return physics
-    return physics.set_persistent(
-        self._state_name(), jnp.zeros((len(self._entities),), bool)
+    return physics.update_entity_state(
+        self, detected=jnp.zeros((len(self._entities),), bool)
     )
 
   def after_substep(self, physics, key):
     del key
     if not self._retain_substep_detections:
       return physics
-    stored = physics.get_persistent(self._state_name())
-    detected = jnp.logical_or(stored, self._instantaneous(physics))
-    return physics.set_persistent(self._state_name(), detected)
+    detected = jnp.logical_or(
+        self._retained(physics), self._instantaneous(physics)
+    )
+    return physics.update_entity_state(self, detected=detected)
 
   # -- composer's static accessors ------------------------------------------
 

@@ -49,7 +49,6 @@ the physics' persistent entries.
 
 from __future__ import annotations
 
-import itertools
 import math
 from typing import Any, NamedTuple
 
@@ -66,7 +65,6 @@ from mjx_composer.variation import rotations
 
 _SETTLE_QVEL_TOL = 1e-3
 _SETTLE_QACC_TOL = 1e-2
-_NAMES = itertools.count()
 
 
 class _Single(NamedTuple):
@@ -243,13 +241,21 @@ class PropPlacer(initializer.Initializer):
     self._raise_exception_on_settle_failure = bool(
         raise_exception_on_settle_failure
     )
-    # Per-world state of stateful variations lives under these names.
-    self._state_name = f'PropPlacer{next(_NAMES)}'
     self._tables: dict = {}
 
   @property
   def props(self):
     return self._props
+
+  @property
+  def persistent_name(self) -> str:
+    """The prefix of this placer's persistent entries (stateful variations).
+
+    Derived from its props' full identifiers, so it does not depend on the
+    order in which placers were built.
+    """
+    names = ','.join(p.full_identifier or p.name for p in self._props)
+    return f'PropPlacer[{names}]'
 
   # -- static tables (host, at trace time) ----------------------------------
 
@@ -288,7 +294,7 @@ class PropPlacer(initializer.Initializer):
           index.element_id(joint_kind, j)
           for j in _entity_elements(prop, 'joints')
       ]
-      freejoint = prop._freejoint()  # pylint: disable=protected-access
+      freejoint = prop.freejoint
       free_id = (
           None if freejoint is None else index.element_id(joint_kind, freejoint)
       )
@@ -389,7 +395,7 @@ class PropPlacer(initializer.Initializer):
       initial = variation_base.initial_state(structure, jnp.zeros(size))
       if initial is not None:
         initial = physics.get_persistent(
-            f'{self._state_name}/{suffix}', initial
+            f'{self.persistent_name}/{suffix}', initial
         )
       states.append(initial)
     return tuple(states)
@@ -397,7 +403,9 @@ class PropPlacer(initializer.Initializer):
   def _store_states(self, physics, states):
     for suffix, state in zip(('position', 'quaternion'), states):
       if state is not None:
-        physics = physics.set_persistent(f'{self._state_name}/{suffix}', state)
+        physics = physics.set_persistent(
+            f'{self.persistent_name}/{suffix}', state
+        )
     return physics
 
   def _sample_pose(self, states, key, initial, current):
@@ -552,16 +560,10 @@ class PropPlacer(initializer.Initializer):
     fields = tables.fixed_fields
 
     def unpack(carry):
-      _, _, _, data, model_fields, persistent, _ = carry
-      model = (
-          physics.model.replace(**model_fields)
-          if model_fields
-          else physics.model
-      )
-      return physics.replace(model=model, data=data, persistent=persistent)
+      return carry[3].restore(physics.model, physics.index)
 
     def one_round(carry):
-      n, _, placement_failed, _, _, _, states = carry
+      n, _, placement_failed, _, states = carry
       current = unpack(carry)
       current, states, failed = self._place_props(
           current, jax.random.fold_in(key, n), tables, states
@@ -571,9 +573,7 @@ class PropPlacer(initializer.Initializer):
           n + 1,
           settled,
           jnp.logical_or(placement_failed, failed),
-          current.data,
-          {f: getattr(current.model, f) for f in fields},
-          current.persistent,
+          current.carry(fields),
           states,
       )
 
@@ -591,13 +591,11 @@ class PropPlacer(initializer.Initializer):
         jnp.zeros((), jnp.int32),
         jnp.zeros((), bool),
         jnp.zeros((), bool),
-        physics.data,
-        {f: getattr(physics.model, f) for f in fields},
-        physics.persistent,
+        physics.carry(fields),
         states,
     )
     carry = jax.lax.while_loop(unsettled, one_round, carry)
-    _, settled, failed, *_, states = carry
+    _, settled, failed, _, states = carry
     if self._raise_exception_on_settle_failure:
       failed = jnp.logical_or(failed, jnp.logical_not(settled))
     return unpack(carry), states, failed

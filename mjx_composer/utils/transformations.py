@@ -1,13 +1,18 @@
-"""Quaternion helpers in MuJoCo's (w, x, y, z) convention, as pure jnp functions."""
+"""Quaternion helpers in MuJoCo's (w, x, y, z) convention.
+
+Pure functions that act on the last axis and broadcast over leading axes.
+They compute with `jax.numpy` by default; functions that take `xp` compute
+with `numpy` given `xp=np` (e.g. float64 constants computed on the host).
+"""
 
 import jax.numpy as jnp
 
 
-def quat_mul(a, b):
+def quat_mul(a, b, xp=jnp):
   """Hamilton product `a ⊗ b` (apply `b`, then `a`), like `mju_mulQuat`."""
-  aw, ax, ay, az = jnp.moveaxis(jnp.asarray(a), -1, 0)
-  bw, bx, by, bz = jnp.moveaxis(jnp.asarray(b), -1, 0)
-  return jnp.stack(
+  aw, ax, ay, az = xp.moveaxis(xp.asarray(a), -1, 0)
+  bw, bx, by, bz = xp.moveaxis(xp.asarray(b), -1, 0)
+  return xp.stack(
       [
           aw * bw - ax * bx - ay * by - az * bz,
           aw * bx + ax * bw + ay * bz - az * by,
@@ -18,9 +23,9 @@ def quat_mul(a, b):
   )
 
 
-def quat_conj(q):
-  q = jnp.asarray(q)
-  return q * jnp.array([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
+def quat_conj(q, xp=jnp):
+  q = xp.asarray(q)
+  return q * xp.asarray([1.0, -1.0, -1.0, -1.0], dtype=q.dtype)
 
 
 def rotate_vec(quat, vec):
@@ -30,6 +35,30 @@ def rotate_vec(quat, vec):
   return quat_mul(quat_mul(quat, vq), quat_conj(quat))[..., 1:]
 
 
-def normalize(q):
-  q = jnp.asarray(q)
-  return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+def quat_to_mat(q, xp=jnp):
+  """The (..., 3, 3) rotation matrix of unit quaternions, like `mju_quat2Mat`."""
+  w, x, y, z = xp.moveaxis(xp.asarray(q), -1, 0)
+  rows = (
+      (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+      (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+      (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+  )
+  return xp.stack([xp.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def normalize(q, tolerance=None, xp=jnp):
+  """`q / |q|` along the last axis.
+
+  Args:
+    q: the vectors (quaternions) to normalize.
+    tolerance: if given, MuJoCo's compiler rule (`mjuu_normvec`): vectors
+      whose norm is below `tolerance`, or within `tolerance` of 1, are left
+      as they are.
+    xp: `jax.numpy` (default) or `numpy`.
+  """
+  q = xp.asarray(q)
+  norm = xp.linalg.norm(q, axis=-1, keepdims=True)
+  if tolerance is None:
+    return q / norm
+  keep = (norm < tolerance) | (xp.abs(norm - 1) <= tolerance)
+  return q * xp.where(keep, 1.0, 1.0 / xp.maximum(norm, tolerance))

@@ -18,7 +18,7 @@ compile once, so the variator maps each supported attribute onto the
 compiled model fields it sets and re-derives on the device everything that
 MuJoCo's compiler computes from it (inertia from geom sizes and densities,
 `body_subtreemass`, `geom_rbound`, `mj_setConst`'s `*_invweight0`, ...; see
-`model_compiler`). A world varied this way equals, to float32 precision, the
+`mjx_composer.compiler`). A world varied this way equals, to float32 precision, the
 model you get by setting the same values on the MjSpec and recompiling.
 
 Elements are the handles of your entities' own specs (geoms, bodies, sites,
@@ -26,8 +26,8 @@ joints, actuators) and the root entity's `mjcf_model.option`. Values are in
 spec units (e.g. degrees for the joint ranges of a spec whose compiler uses
 degrees). Position actuators also take `kp` (gainprm[0], with
 biasprm[1] = -kp) and `kv` (biasprm[2] = -kv). Attributes that cannot be
-made equal are refused with a message (`model_compiler.ATTRIBUTES` lists the
-supported ones).
+made equal are refused with a message (`compiler.attributes.CATALOGUE` lists
+the supported ones).
 
 Differences from composer:
 
@@ -51,7 +51,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from mjx_composer.variation import model_compiler
+from mjx_composer import compiler
 from mjx_composer.variation import variator_base
 
 
@@ -60,10 +60,10 @@ class _Plan:
 
   def __init__(self, variator, physics):
     bindings = variator.bindings
-    self._compiler = model_compiler.ModelCompiler(
+    self._compiler = compiler.ModelCompiler(
         physics.index,
         [(b.element, b.attr, b.describe()) for b in bindings],
-        owner=variator.persistent_name,
+        owner=variator.label,
     )
     self.initial_values = self._compiler.initial_values
 
@@ -84,17 +84,18 @@ class MJCFVariator(variator_base.Variator):
 
   Args:
     schedule: when to draw (`variation.Schedule`); every episode by default.
-    name: the name of this variator's persistent entry (unique by default).
+    name: the name of this variator's persistent entry (derived from its
+      bindings by default).
   """
 
   def _check_binding(self, element, attr, variation):
-    kind = model_compiler.check_attribute(element, attr)
-    initial = model_compiler.spec_value(element, kind, attr)
+    kind = compiler.check_attribute(element, attr)
+    initial = compiler.spec_value(element, kind, attr)
     variator_base.check_static_shape(
         variation,
         initial,
         variator_base.describe_element(element) + '.' + attr,
-        self.persistent_name,
+        self.label,
     )
 
   def _prepare(self, physics):

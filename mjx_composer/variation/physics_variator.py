@@ -32,15 +32,13 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
-import mujoco
 from mujoco import mjx
 import numpy as np
 
 from mjx_composer import element_index
+from mjx_composer.compiler import options
 from mjx_composer.variation import variator_base
 
-# The class of `MjSpec.option` (not `mujoco.MjOption`, the compiled struct).
-SPEC_OPTION = type(mujoco.MjSpec().option)
 # Option fields a variator may write: the physical ones. `timestep` is
 # static for the environment (its control timestep), flags and solver
 # settings are static in MJX.
@@ -52,13 +50,6 @@ OPTION_FIELDS = (
     'viscosity',
     'impratio',
 )
-# MJX decides at put_model time, statically, whether fluid forces exist.
-FLUID_FIELDS = ('density', 'viscosity', 'wind')
-
-
-def option_has_fluid(opt) -> bool:
-  """MJX's static `has_fluid_params` rule (`mjx/_src/io.py`)."""
-  return bool(opt.density > 0 or opt.viscosity > 0 or np.any(opt.wind))
 
 
 @dataclasses.dataclass
@@ -79,10 +70,12 @@ class _Plan:
     self.initial_values = []
     for binding in variator.bindings:
       element, attr = binding.element, binding.attr
-      if isinstance(element, SPEC_OPTION):
-        if attr in FLUID_FIELDS and not option_has_fluid(mj_model.opt):
+      if isinstance(element, options.SPEC_OPTION):
+        if attr in options.FLUID_FIELDS and not options.option_has_fluid(
+            mj_model.opt
+        ):
           raise ValueError(
-              f'{variator.persistent_name}: cannot vary option {attr}: the '
+              f'{variator.label}: cannot vary option {attr}: the '
               'compiled model has no fluid forces (density, viscosity and '
               'wind are all zero), and MJX decides that statically. Give the '
               'root spec a nonzero option density or viscosity.'
@@ -95,7 +88,7 @@ class _Plan:
             atol=1e-12,
         ):
           raise ValueError(
-              f'{variator.persistent_name}: the MjOption bound to {attr} does '
+              f'{variator.label}: the MjOption bound to {attr} does '
               "not hold the compiled model's values: bind the root "
               "entity's `mjcf_model.option` (options of attached entities "
               'are not compiled).'
@@ -109,20 +102,20 @@ class _Plan:
         kind, ids, is_seq = index.resolve(element)
       except (ValueError, KeyError) as e:
         raise ValueError(
-            f'{variator.persistent_name}: cannot apply the '
+            f'{variator.label}: cannot apply the '
             f'variation bound to {binding.describe()}: {e}'
         ) from e
       address = index.address(kind, _short_name(kind, attr), ids, is_seq)
       if address.source != 'model':
         raise ValueError(
-            f'{variator.persistent_name}: {binding.describe()} is a data '
+            f'{variator.label}: {binding.describe()} is a data '
             f'field ({address.field}); a PhysicsVariator varies compiled '
             'model fields. Write data in initialize_episode instead.'
         )
       field = getattr(physics.model, address.field)
       if not hasattr(field, 'dtype') or isinstance(field, np.ndarray):
         raise ValueError(
-            f'{variator.persistent_name}: model field {address.field} is '
+            f'{variator.label}: model field {address.field} is '
             'static in MJX (part of the compiled structure) and cannot vary '
             'per world.'
         )
@@ -170,12 +163,13 @@ class PhysicsVariator(variator_base.Variator):
 
   Args:
     schedule: when to draw (`variation.Schedule`); every episode by default.
-    name: the name of this variator's persistent entry (unique by default).
+    name: the name of this variator's persistent entry (derived from its
+      bindings by default).
   """
 
   def _check_binding(self, element, attr, variation):
     del variation  # Shapes are known once the model is compiled.
-    if isinstance(element, SPEC_OPTION):
+    if isinstance(element, options.SPEC_OPTION):
       if attr not in OPTION_FIELDS:
         raise ValueError(
             f'Cannot vary option attribute {attr!r} per world. Supported '

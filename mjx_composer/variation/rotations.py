@@ -17,38 +17,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_composer.utils import transformations as tr
 from mjx_composer.variation import base
 
 IDENTITY_QUATERNION = np.array([1.0, 0.0, 0.0, 0.0])
 
 _EPS = 1e-12
-
-
-def _quat_mul(a, b):
-  """Hamilton product `a * b` of (..., 4) quaternions, (w, x, y, z) order."""
-  aw, ax, ay, az = (a[..., i] for i in range(4))
-  bw, bx, by, bz = (b[..., i] for i in range(4))
-  return jnp.stack(
-      [
-          aw * bw - ax * bx - ay * by - az * bz,
-          aw * bx + ax * bw + ay * bz - az * by,
-          aw * by - ax * bz + ay * bw + az * bx,
-          aw * bz + ax * by - ay * bx + az * bw,
-      ],
-      axis=-1,
-  )
-
-
-def _quat_conj(q):
-  return q * jnp.asarray([1.0, -1.0, -1.0, -1.0], q.dtype)
-
-
-def _quat_rotate(q, vec):
-  """Rotates (..., 3) `vec` by (..., 4) `q` as `(q * [0, vec] * conj(q))[1:]`."""
-  vec = jnp.asarray(vec)
-  pure = jnp.concatenate([jnp.zeros_like(vec[..., :1]), vec], axis=-1)
-  q = jnp.asarray(q, pure.dtype)
-  return _quat_mul(_quat_mul(q, pure), _quat_conj(q))[..., 1:]
 
 
 def _axisangle_to_quat(rotation_vector):
@@ -156,7 +130,7 @@ class QuaternionPreMultiply(base.CompositeVariation):
     quat = base.as_array(values[0])
     base_quat = jnp.asarray(base_quat)
     dtype = base.float_dtype(quat, base_quat)
-    return _quat_mul(quat.astype(dtype), base_quat.astype(dtype))
+    return tr.quat_mul(quat.astype(dtype), base_quat.astype(dtype))
 
   def _eq_fields(self):
     return (self._quat, self._cumulative)
@@ -200,7 +174,8 @@ class QuaternionRotate(base.CompositeVariation):
             f"{self!r} rotates {which} (no vec given), but {which} is None."
         )
     vec = jnp.asarray(vec)
-    return _quat_rotate(base.as_array(quat), vec.astype(base.float_dtype(vec)))
+    vec = vec.astype(base.float_dtype(vec))
+    return tr.rotate_vec(jnp.asarray(base.as_array(quat), vec.dtype), vec)
 
   def _eq_fields(self):
     return (self._quat, self._vec, self._cumulative)

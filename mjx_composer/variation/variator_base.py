@@ -6,7 +6,9 @@ Everything that must outlive an episode (when to resample, the state of
 stateful variations such as `deterministic.Sequence`, the current values of
 MJCF attributes) is kept in the world's persistent entries
 (`Physics.get_persistent`), under one entry per variator, created at reset
-with its final shapes.
+with its final shapes. The entry's name derives from what the variator
+binds (its class, and the compiled names and attributes of its bindings),
+so it does not depend on construction order; pass `name=` to choose it.
 
 Schedules (`Schedule`) say when a variator resamples:
 
@@ -16,11 +18,13 @@ Schedules (`Schedule`) say when a variator resamples:
 * `Schedule.once_per_world()`: the first reset of a world draws; later
   (auto-)resets keep the world's values. `Environment.reset(key)` starts a
   world afresh, so it draws again.
-* `Schedule.every_steps(k)`: the reset call draws and restarts the count;
-  call `apply_variations(physics, key, in_step=True)` from `before_step` too,
-  and it draws again every k control steps: at the start of control steps
-  k+1, 2k+1, ... of the episode (so every draw holds for k steps, the last
-  one until the episode ends).
+* `Schedule.every_steps(k)`: the reset call draws, restarts the count and
+  schedules the variator to run at every control step
+  (`Physics.schedule_before_step`, before the task's `before_step`); it
+  draws again every k control steps: at the start of control steps k+1,
+  2k+1, ... of the episode (so every draw holds for k steps, the last one
+  until the episode ends). Outside an `Environment`, make that per-step call
+  yourself: `apply_variations(physics, key, in_step=True)`.
 
 Inside jit a skipped draw is a `jnp.where` between the new and the current
 values: the sampling (and, for an `MJCFVariator`, the re-derivation of
@@ -37,8 +41,8 @@ episode), so non-cumulative variations never compound across episodes;
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from typing import Any
+import zlib
 
 import jax
 import jax.numpy as jnp
@@ -119,13 +123,19 @@ class Binding:
     return f'{describe_element(self.element)}.{self.attr}'
 
 
+def _compiled_name(element, index) -> str:
+  """`kind:full name` of a bound element (the option has no name)."""
+  kind = type(element).__name__
+  try:
+    return f'{kind}:{index.full_name(element)}'
+  except (ValueError, TypeError, AttributeError):
+    return kind
+
+
 def describe_element(element) -> str:
   name = getattr(element, 'name', '')
   kind = type(element).__name__
   return f'{kind}({name!r})' if name else kind
-
-
-_COUNTER = itertools.count()
 
 
 class Variator:
@@ -147,9 +157,8 @@ class Variator:
 
     Args:
       schedule: when to draw (a `Schedule`); defaults to every episode.
-      name: the name of this variator's persistent entry. Defaults to a
-        unique name; give one explicitly if several environments built in
-        different orders must agree on it.
+      name: the name of this variator's persistent entry. Defaults to one
+        derived from its bindings (see the module docstring).
     """
     if schedule is None:
       schedule = Schedule.per_episode()
@@ -160,7 +169,8 @@ class Variator:
           f'{type(schedule).__name__}.'
       )
     self._schedule = schedule
-    self._name = name or f'{type(self).__name__}_{next(_COUNTER)}'
+    self._name = name
+    self._derived_name = None
     self._bindings: dict[tuple[int, str], Binding] = {}
     self._next_slot = 0
     self._plans: dict[int, Any] = {}
@@ -171,8 +181,38 @@ class Variator:
 
   @property
   def persistent_name(self) -> str:
-    """The key of this variator's entry in `physics.persistent`."""
-    return self._name
+    """The key of this variator's entry in `physics.persistent`.
+
+    Without an explicit `name`, it is known once the variator has been
+    applied to an environment's physics (its bindings' compiled names).
+    """
+    if self._name is not None:
+      return self._name
+    if self._derived_name is None:
+      raise ValueError(
+          f'This {type(self).__name__} has not been applied yet, so its '
+          "persistent name (derived from its bindings' compiled names) is "
+          'not known: apply it (trace reset) first, or pass name=.'
+      )
+    return self._derived_name
+
+  @property
+  def label(self) -> str:
+    """How error messages name this variator (its name once known)."""
+    return self._name or self._derived_name or type(self).__name__
+
+  def _persistent_name(self, physics) -> str:
+    """The entry name for this physics' compiled model."""
+    if self._name is not None:
+      return self._name
+    parts = sorted(
+        f'{_compiled_name(b.element, physics.index)}.{b.attr}'
+        for b in self.bindings
+    )
+    digest = zlib.crc32('|'.join(parts).encode())
+    more = f',+{len(parts) - 1}' if len(parts) > 1 else ''
+    self._derived_name = f'{type(self).__name__}[{parts[0]}{more}]#{digest:08x}'
+    return self._derived_name
 
   @property
   def bindings(self) -> tuple[Binding, ...]:
@@ -231,13 +271,14 @@ class Variator:
   def apply_variations(self, physics, key, *, in_step: bool = False):
     """Samples the bound attributes for this world, per the schedule.
 
-    Call it from `initialize_episode` (every schedule), and for
-    `Schedule.every_steps(k)` also from `before_step` with `in_step=True`.
+    Call it from `initialize_episode`. With `Schedule.every_steps(k)` that
+    call also schedules the per-step draws (see the module docstring).
 
     Args:
       physics: the world's `Physics`.
       key: a JAX PRNG key (the hook's key).
-      in_step: True when called from a step hook.
+      in_step: True for the per-control-step call of an every-k-steps
+        schedule; an `Environment` makes it itself.
 
     Returns:
       The `Physics` with the varied model fields and this variator's
@@ -246,7 +287,7 @@ class Variator:
     if not self._bindings:
       return physics
     schedule = self._schedule
-    name = self._name
+    name = self._persistent_name(physics)
     entry = physics.get_persistent(name)
     if in_step:
       if schedule.mode != 'steps':
@@ -302,7 +343,7 @@ class Variator:
             initial[i],
             current[i],
         )
-        values.append(_conform(value, initial[i], binding, self._name))
+        values.append(_conform(value, initial[i], binding, name))
         new_states.append(state)
     new_states = tuple(new_states)
     if draw is not True:
@@ -313,7 +354,14 @@ class Variator:
     new_entry['states'] = new_states
     physics, extra = plan.write(physics, values)
     new_entry.update(extra)
-    return physics.set_persistent(name, new_entry)
+    physics = physics.set_persistent(name, new_entry)
+    if schedule.mode == 'steps' and not in_step:
+      physics = physics.schedule_before_step(name, self._draw_in_step)
+    return physics
+
+  def _draw_in_step(self, physics, key):
+    """The per-control-step call of an every-k-steps schedule."""
+    return self.apply_variations(physics, key, in_step=True)
 
 
 def _conform(value, initial: np.ndarray, binding: Binding, owner: str):

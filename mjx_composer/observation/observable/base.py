@@ -169,6 +169,14 @@ class Observable(abc.ABC):
     the returned callable only indexes arrays.
     """
 
+  def raw_observation_callable(self, physics) -> Callable[[], Any]:
+    """A zero-argument callable returning the uncorrupted value.
+
+    Subclasses implement `_callable` (composer's protected hook); callers
+    outside the class use this.
+    """
+    return self._callable(physics)
+
   def observation_callable(self, physics, key=None) -> Callable[[], Any]:
     """A zero-argument callable returning the (corrupted) observation.
 
@@ -176,7 +184,7 @@ class Observable(abc.ABC):
       physics: the `Physics` to read.
       key: the PRNG key handed to the corruptor. Required when there is one.
     """
-    raw = self._callable(physics)
+    raw = self.raw_observation_callable(physics)
     corruptor = self._corruptor
     if corruptor is None:
       return raw

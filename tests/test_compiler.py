@@ -1,4 +1,4 @@
-"""Compile-equivalence of MJCF variations (variation.model_compiler).
+"""Compile-equivalence of MJCF variations (mjx_composer.compiler).
 
 For every supported attribute, sampled worlds are compared field by field
 (every leaf of the mjx.Model pytree, and its static metadata) with the model
@@ -21,7 +21,9 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.variation import model_compiler
+from mjx_composer.compiler import attributes
+from mjx_composer.compiler import inertia
+from mjx_composer.compiler import planner
 
 _J = mujoco.mjtJoint
 _G = mujoco.mjtGeom
@@ -380,13 +382,12 @@ def scene():
   env = composer.Environment(task)
   groups = _groups(task)
   bindings = [(e, a, g) for g, items in groups.items() for e, a in items]
-  compiler = model_compiler.ModelCompiler(
-      env._index,  # pylint: disable=protected-access
+  compiler = planner.ModelCompiler(
+      env.initial_physics().index,
       [(e, a, f'{g}:{a}') for e, a, g in bindings],
   )
   defaults = [
-      model_compiler.spec_value(e, model_compiler.kind_of(e), a)
-      for e, a, _ in bindings
+      attributes.spec_value(e, attributes.kind_of(e), a) for e, a, _ in bindings
   ]
   rng = np.random.RandomState(0)
   worlds = {'defaults': list(defaults)}
@@ -425,17 +426,16 @@ def _recompiled(scene, values):
   """mjx.put_model of the spec recompiled with `values` set (then restored)."""
   task, bindings = scene['task'], scene['bindings']
   saved = [
-      model_compiler.spec_value(e, model_compiler.kind_of(e), a)
-      for e, a, _ in bindings
+      attributes.spec_value(e, attributes.kind_of(e), a) for e, a, _ in bindings
   ]
   try:
     for (e, a, _), v in zip(bindings, values):
-      model_compiler.set_spec_value(e, model_compiler.kind_of(e), a, v)
+      attributes.set_spec_value(e, attributes.kind_of(e), a, v)
     spec, _ = task.root_entity.compose()
     return mjx.put_model(spec.compile())
   finally:
     for (e, a, _), v in zip(bindings, saved):
-      model_compiler.set_spec_value(e, model_compiler.kind_of(e), a, v)
+      attributes.set_spec_value(e, attributes.kind_of(e), a, v)
 
 
 # Static metadata that MJX never reads (checked below against its source),
@@ -550,11 +550,11 @@ def test_unused_static_fields_are_not_read_by_mjx():
 def test_refusals_that_depend_on_the_composed_model():
   task = SceneTask()
   env = composer.Environment(task)
-  index = env._index  # pylint: disable=protected-access
+  index = env.initial_physics().index
 
   def build(element, attr):
-    model_compiler.check_attribute(element, attr)
-    return model_compiler.ModelCompiler(index, [(element, attr, attr)])
+    attributes.check_attribute(element, attr)
+    return planner.ModelCompiler(index, [(element, attr, attr)])
 
   # The slider's frame body gets the entity's worldbody geom (the rail):
   # its handle has no geoms, but the compiled body infers its inertia.
@@ -673,7 +673,7 @@ def test_eig3_matches_mujoco_principal_axes():
     m = spec.compile()
     matrices.append(full)
     refs.append((m.body_inertia[1].copy(), m.body_iquat[1].copy()))
-  values, quats = jax.jit(jax.vmap(model_compiler.eig3))(
+  values, quats = jax.jit(jax.vmap(inertia.eig3))(
       jnp.asarray(np.stack(matrices), jnp.float32)
   )
   for (ref_i, ref_q), i, q, full in zip(
@@ -691,7 +691,7 @@ def test_eig3_matches_mujoco_principal_axes():
 def test_eig3_degenerate_moments_give_the_same_tensor():
   """Equal moments: any eigenbasis is right; the tensor must match."""
   full = np.diag([2e-3, 2e-3, 1e-3])
-  values, quat = jax.jit(model_compiler.eig3)(jnp.asarray(full, jnp.float32))
+  values, quat = jax.jit(inertia.eig3)(jnp.asarray(full, jnp.float32))
   rot = np.zeros(9)
   mujoco.mju_quat2Mat(rot, np.asarray(quat, np.float64))
   rot = rot.reshape(3, 3)
@@ -709,8 +709,8 @@ def test_statistics_set_in_the_spec_are_kept():
   prop = Prop()
   arena.add_free_entity(prop)
   env = composer.Environment(composer.NullTask(arena))
-  compiler = model_compiler.ModelCompiler(
-      env._index, [(prop.sphere, 'size', 'size')]
+  compiler = planner.ModelCompiler(
+      env.initial_physics().index, [(prop.sphere, 'size', 'size')]
   )  # pylint: disable=protected-access
   fields = jax.jit(compiler)(env.mjx_model, [jnp.asarray([0.08, 0, 0])])
   saved = np.array(prop.sphere.size)

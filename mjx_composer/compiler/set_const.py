@@ -1,0 +1,409 @@
+"""MuJoCo's `mj_setConst` at qpos0, with MJX's kinematics, per world.
+
+`dof_M0`, `body_invweight0`, `dof_invweight0`, `tendon_invweight0`,
+`actuator_acc0`, `tendon_length0`, automatic tendon spring lengths, camera
+and light `*_pos0/_poscom0/_mat0/_dir0`, body connect/weld `eq_data`,
+`biasprm[2]` of position actuators given a `dampratio` (MuJoCo 3.17 uses
+the reflected inertia `1 / (moment . M^-1 . moment)`), and the statistics
+(`meaninertia`, `meanmass`, `meansize`, `extent`, `center`) unless the spec
+sets them. Follows `engine_setconst.c`; only the quantities that the plan
+says can change are computed.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+import numpy as np
+
+from mjx_composer.compiler import frames
+from mjx_composer.compiler import inertia
+from mjx_composer.utils import transformations as tr
+
+_Geom = mujoco.mjtGeom
+
+
+def _mjx_jax_data(d):
+  """MJX's implementation data (`mjx.Data._impl`, a `DataJAX`).
+
+  Only it holds the tendon Jacobian (`ten_J`) and the actuator moments
+  (`actuator_moment`): MJX 3.17 has no public accessor for them, and its
+  deprecation message for `Data.<field>` points here. The one place this
+  package reads MJX internals.
+  """
+  return d._impl  # pylint: disable=protected-access
+
+
+def update(host, plan, fields, auto_stat):
+  """Adds the `mj_setConst` quantities that the bound attributes can change.
+
+  Args:
+    host: the `context.Host`.
+    plan: the `planner.Plan` (which groups of quantities can change).
+    fields: the `context.Fields` of this call (read and extended).
+    auto_stat: `() -> {statistic: bool}`, whether the compiler computed
+      each statistic (see `auto_stat`).
+  """
+  m = host.m
+  nv = m.nv
+  model = fields.model
+  mx = model.replace(**fields.fields)
+  d = mjx.make_data(mx).replace(qpos=mx.qpos0)
+  d = mjx.kinematics(mx, d)
+  d = mjx.com_pos(mx, d)
+  diag_m = minv = None
+  if nv:
+    d = mjx.crb(mx, d)
+    full = mjx.full_m(mx, d)
+    chol = jax.scipy.linalg.cho_factor(full)
+    minv = jax.scipy.linalg.cho_solve(chol, jnp.eye(nv, dtype=full.dtype))
+    diag_m = jnp.diagonal(full)
+  if m.ntendon:
+    d = mjx.tendon(mx, d)
+  if m.nu:
+    d = mjx.transmission(mx, d)
+
+  out = fields.fields
+  geometry = plan.kinematics  # positions at qpos0
+  moments = plan.moments  # transmissions
+  if plan.mass_matrix and nv:
+    out['dof_M0'] = diag_m
+    out['body_invweight0'] = _body_invweight0(m, mx, d, minv)
+    out['dof_invweight0'] = _dof_invweight0(m, mx, minv)
+  if m.ntendon and (plan.mass_matrix or geometry):
+    ten_j = _mjx_jax_data(d).ten_J
+    if nv:
+      out['tendon_invweight0'] = jnp.einsum('ti,ij,tj->t', ten_j, minv, ten_j)
+    if geometry:
+      out['tendon_length0'] = d.ten_length
+      _tendon_spring(host, mx, out)
+  if m.nu and nv and (plan.mass_matrix or moments):
+    moment = _mjx_jax_data(d).actuator_moment
+    out['actuator_acc0'] = jnp.linalg.norm(moment @ minv, axis=1)
+  if plan.dampratio_actuators and nv and plan.dampratios:
+    _dampratio(host, plan.dampratio_actuators, d, minv, fields)
+  if plan.body_frames or plan.inertia:
+    _camlight(m, mx, d, out)
+  if plan.body_frames:
+    _eq_data(host, d, fields)
+  _stat(m, plan, mx, d, diag_m, fields, auto_stat)
+
+
+def _body_invweight0(m, mx, d, minv):
+  # mask[b, v] = 1 if dof v moves body b (its body is an ancestor of b).
+  mask = inertia.ancestor_matrix(m)[np.asarray(m.dof_bodyid)].T
+  mask = jnp.asarray(mask, d.cdof.dtype)  # (nbody, nv)
+  root_com = d.subtree_com[np.asarray(m.body_rootid)]
+  offset = d.xipos - root_com  # (nbody, 3)
+  cdof = d.cdof  # (nv, 6)
+  jacp = cdof[None, :, 3:] + jnp.cross(cdof[None, :, :3], offset[:, None, :])
+  jacr = jnp.broadcast_to(cdof[None, :, :3], jacp.shape)
+  jac = jnp.concatenate([jacp, jacr], -1) * mask[:, :, None]  # (nb, nv, 6)
+  a = jnp.einsum('bik,ij,bjl->bkl', jac, minv, jac)
+  tran = jnp.trace(a[:, :3, :3], axis1=1, axis2=2) / 3
+  rot = jnp.trace(a[:, 3:, 3:], axis1=1, axis2=2) / 3
+  out = jnp.stack([tran, rot], -1)
+  weld = np.asarray(m.body_weldid)
+  static = np.asarray(m.body_dofnum)[weld] == 0
+  simple2 = np.asarray(m.body_simple) == 2
+  inv_mass = 1 / jnp.maximum(mx.body_mass, frames.MINVAL)
+  out = jnp.where(
+      simple2[:, None],
+      jnp.stack([inv_mass, jnp.zeros_like(inv_mass)], -1),
+      out,
+  )
+  out = jnp.where(static[:, None], 0.0, out)
+  return out.at[0].set(0.0)
+
+
+def _dof_group_matrix(m) -> np.ndarray:
+  """Averages inverse-inertia diagonals per joint as mj_setConst does.
+
+  Over the translations and over the rotations of a free joint, the
+  rotations of a ball joint, the one dof of a slide or hinge.
+  """
+  g = np.zeros((m.nv, m.nv))
+  for j in range(m.njnt):
+    adr = int(m.jnt_dofadr[j])
+    jtype = int(m.jnt_type[j])
+    groups = {0: [(0, 3), (3, 6)], 1: [(0, 3)], 2: [(0, 1)], 3: [(0, 1)]}
+    for lo, hi in groups[jtype]:
+      for r in range(adr + lo, adr + hi):
+        g[r, adr + lo : adr + hi] = 1.0 / (hi - lo)
+  return g
+
+
+def _dof_invweight0(m, mx, minv):
+  diag = jnp.diagonal(minv)
+  group = jnp.asarray(_dof_group_matrix(m), diag.dtype)
+  out = group @ diag
+  simple2 = np.asarray(m.body_simple)[np.asarray(m.dof_bodyid)] == 2
+  inv_mass = 1 / jnp.maximum(
+      mx.body_mass[np.asarray(m.dof_bodyid)], frames.MINVAL
+  )
+  return jnp.where(simple2, inv_mass, out)
+
+
+def _tendon_spring(host, mx, out):
+  """Tendons with automatic spring length take their length at qpos_spring."""
+  m = host.m
+  auto = []
+  for t in range(m.ntendon):
+    tendon = host.handles['tendon'].get(t)
+    if (
+        tendon is not None
+        and tendon.springlength[0] == -1
+        and (tendon.springlength[1] == -1)
+    ):
+      auto.append(t)
+  if not auto:
+    return
+  d = mjx.make_data(mx).replace(qpos=mx.qpos_spring)
+  d = mjx.kinematics(mx, d)
+  d = mjx.com_pos(mx, d)
+  d = mjx.tendon(mx, d)
+  idx = np.asarray(auto)
+  length = d.ten_length[idx]
+  spring = mx.tendon_lengthspring
+  out['tendon_lengthspring'] = spring.at[idx].set(
+      jnp.stack([length, length], -1)
+  )
+
+
+def dampratio_actuators(host) -> list[int]:
+  """Actuators whose spec biasprm[2] > 0 may be a dampratio."""
+  out = []
+  for a in range(host.m.nu):
+    act = host.handles['actuator'].get(a)
+    if act is not None and act.biasprm[2] > 0:
+      out.append(a)
+  return out
+
+
+def _spec_biasprm2(act, vals):
+  """An actuator's biasprm[2] as bound, else as the spec sets it.
+
+  That is, before the compiler turns a dampratio into a damping.
+  """
+  if 'biasprm' in vals:
+    return jnp.asarray(vals['biasprm'], jnp.float32)[2]
+  if 'kv' in vals:
+    return -jnp.asarray(vals['kv'], jnp.float32)
+  return jnp.asarray(act.biasprm[2], jnp.float32)
+
+
+def _dampratio(host, actuators, d, minv, fields):
+  """biasprm[2] of position actuators whose spec sets a dampratio.
+
+  MuJoCo 3.17 uses the inertia reflected through the transmission,
+  `1 / (moment . M^-1 . moment)` at qpos0 (checked against the compiler).
+  """
+  moment = _mjx_jax_data(d).actuator_moment
+  gainprm = fields.get('actuator_gainprm')
+  biasprm = fields.get('actuator_biasprm')
+  out = biasprm
+  for a in actuators:
+    act = host.handles['actuator'][a]
+    spec_b2 = _spec_biasprm2(act, fields.bound('actuator', a))
+    is_pid = act.gaintype == mujoco.mjtGain.mjGAIN_PID
+    position_like = jnp.asarray(is_pid) | (gainprm[a, 0] == -biasprm[a, 1])
+    inv_mass = moment[a] @ minv @ moment[a]
+    mass = 1.0 / jnp.maximum(inv_mass, frames.MINVAL)
+    kp = -biasprm[a, 1] if is_pid else gainprm[a, 0]
+    damping = spec_b2 * 2 * jnp.sqrt(jnp.maximum(kp * mass, 0.0))
+    use = position_like & (spec_b2 > 0)
+    out = out.at[a, 2].set(jnp.where(use, -damping, spec_b2))
+  fields.fields['actuator_biasprm'] = out
+
+
+def _camlight(m, mx, d, out):
+  if m.ncam:
+    body = np.asarray(m.cam_bodyid)
+    target = np.asarray(m.cam_targetbodyid)
+    xmat = d.xmat[body]
+    cam_xpos = d.xpos[body] + jnp.einsum('cij,cj->ci', xmat, mx.cam_pos)
+    cam_xmat = xmat @ tr.quat_to_mat(mx.cam_quat)
+    com_body = np.where(target >= 0, target, body)
+    out['cam_pos0'] = cam_xpos - d.xpos[body]
+    out['cam_poscom0'] = cam_xpos - d.subtree_com[com_body]
+    out['cam_mat0'] = cam_xmat.reshape(mx.cam_mat0.shape)
+  if m.nlight:
+    body = np.asarray(m.light_bodyid)
+    target = np.asarray(m.light_targetbodyid)
+    xmat = d.xmat[body]
+    light_xpos = d.xpos[body] + jnp.einsum('lij,lj->li', xmat, mx.light_pos)
+    light_xdir = jnp.einsum('lij,lj->li', xmat, mx.light_dir)
+    com_body = np.where(target >= 0, target, body)
+    out['light_pos0'] = light_xpos - d.xpos[body]
+    out['light_poscom0'] = light_xpos - d.subtree_com[com_body]
+    out['light_dir0'] = light_xdir
+
+
+def _eq_data(host, d, fields):
+  """Connect/weld data that the compiler computes from poses at qpos0."""
+  m = host.m
+  data = fields.get('eq_data')
+  changed = False
+  for e in range(m.neq):
+    if m.eq_objtype[e] != mujoco.mjtObj.mjOBJ_BODY:
+      continue
+    id1, id2 = int(m.eq_obj1id[e]), int(m.eq_obj2id[e])
+    eq = host.handles['equality'].get(e)
+    if m.eq_type[e] == mujoco.mjtEq.mjEQ_CONNECT:
+      anchor = jnp.asarray(m.eq_data[e, 0:3], data.dtype)
+      pos = d.xpos[id1] + d.xmat[id1] @ anchor
+      data = data.at[e, 3:6].set(d.xmat[id2].T @ (pos - d.xpos[id2]))
+      changed = True
+    elif m.eq_type[e] == mujoco.mjtEq.mjEQ_WELD:
+      if eq is None or np.any(np.asarray(eq.data)[6:10] != 0):
+        continue  # the spec gives the relative pose
+      anchor = jnp.asarray(m.eq_data[e, 0:3], data.dtype)
+      pos = d.xpos[id2] + d.xmat[id2] @ anchor
+      data = data.at[e, 3:6].set(d.xmat[id1].T @ (pos - d.xpos[id1]))
+      relative = tr.quat_mul(tr.quat_conj(d.xquat[id1]), d.xquat[id2])
+      data = data.at[e, 6:10].set(relative)
+      changed = True
+  if changed:
+    fields.fields['eq_data'] = data
+
+
+def _stat(m, plan, mx, d, diag_m, fields, auto_stat):
+  """mjModel.stat, except values the spec sets (kept as compiled)."""
+  stat = fields.model.stat
+  updates = {}
+  if diag_m is not None and plan.mass_matrix and auto_stat()['meaninertia']:
+    updates['meaninertia'] = jnp.mean(diag_m)
+  if plan.inertia and auto_stat()['meanmass'] and m.nbody > 1:
+    updates['meanmass'] = jnp.mean(mx.body_mass[1:])
+  if plan.kinematics:
+    center, extent, meansize = geometry_stat(m, mx, d)
+    if auto_stat()['meansize'] and m.nbody > 1:
+      updates['meansize'] = meansize
+    if auto_stat()['extent']:
+      updates['extent'] = extent
+    if auto_stat()['center']:
+      updates['center'] = center
+  if updates:
+    fields.fields['stat'] = stat.replace(
+        **{
+            k: jnp.asarray(v, getattr(stat, k).dtype)
+            for k, v in updates.items()
+        }
+    )
+
+
+def geometry_stat(m, mx, d):
+  """(center, extent, meansize) of the statistics, as mj_setConst.
+
+  Args:
+    m: the compiled host model (static structure).
+    mx: the model (`geom_rbound`, `geom_size`, `stat.extent`).
+    d: kinematics at qpos0 (`xpos`, `xipos`, `xanchor`, `site_xpos`,
+      `geom_xpos`).
+  """
+  dtype = jnp.result_type(d.xpos)
+  rbound = mx.geom_rbound
+  size = mx.geom_size
+  gtype = np.asarray(m.geom_type)
+  plane = gtype == _Geom.mjGEOM_PLANE
+  plane_r = jnp.where(
+      (size[:, 0] != 0) | (size[:, 1] != 0),
+      jnp.maximum(size[:, 0], size[:, 1]) * 0.1,
+      0.01,
+  )
+  hfield_r = np.zeros(m.ngeom)
+  for g in np.nonzero(gtype == _Geom.mjGEOM_HFIELD)[0]:
+    hfield_r[g] = np.max(m.hfield_size[m.geom_dataid[g]]) * 0.1
+  radius = jnp.where(
+      rbound > 0,
+      rbound,
+      jnp.where(plane, plane_r, jnp.asarray(hfield_r, dtype)),
+  )
+  points = [d.xpos[1:], d.xipos[1:], d.xanchor, d.site_xpos]
+  lows = [p for p in points if p.shape[0]]
+  highs = list(lows)
+  if m.ngeom:
+    lows.append(d.geom_xpos - radius[:, None])
+    highs.append(d.geom_xpos + radius[:, None])
+  xmin = jnp.min(jnp.concatenate(lows), axis=0)
+  xmax = jnp.max(jnp.concatenate(highs), axis=0)
+  center = 0.5 * (xmin + xmax)
+  extent = jnp.where(
+      xmax[0] > xmin[0],
+      jnp.maximum(1e-5, jnp.max(xmax - xmin)),
+      mx.stat.extent,
+  )
+  # Body sizes: farthest joint anchor (own and children's), then geoms.
+  body = jnp.zeros(m.nbody, dtype)
+  jb = np.asarray(m.jnt_bodyid)
+  if m.njnt:
+    dist = jnp.linalg.norm(d.xipos[jb] - d.xanchor, axis=1)
+    body = body.at[jb].max(dist)
+    parent = np.asarray(m.body_parentid)[jb]
+    dist = jnp.linalg.norm(d.xipos[parent] - d.xanchor, axis=1)
+    body = body.at[parent].max(dist)
+  body = body.at[0].set(0.0)
+  if m.ngeom:
+    gb = np.asarray(m.geom_bodyid)
+    reach = rbound + jnp.linalg.norm(d.xipos[gb] - d.geom_xpos, axis=1)
+    reach = jnp.where((rbound > 0) & (gb > 0), reach, 0.0)
+    body = body.at[gb].max(reach)
+  meansize = jnp.mean(jnp.maximum(body[1:], 1e-5)) if m.nbody > 1 else 0.0
+  extent = jnp.maximum(extent, 2 * meansize)
+  return center, extent, meansize
+
+
+class _HostView:
+  """Attribute access to host arrays, for running `geometry_stat` on them."""
+
+  def __init__(self, **arrays):
+    self.__dict__.update(arrays)
+
+
+def auto_stat(m) -> dict[str, bool]:
+  """Which statistics the compiler computed (the spec did not set them).
+
+  Recomputes them on the host, at qpos0, with the same functions the device
+  uses; a compiled value that differs was set in the spec and must stay.
+  """
+  data = mujoco.MjData(m)
+  data.qpos[:] = m.qpos0
+  mujoco.mj_forward(m, data)
+  full = np.zeros((m.nv, m.nv))
+  if m.nv:
+    mujoco.mj_fullM(m, data, full)
+  model = _HostView(
+      geom_rbound=m.geom_rbound,
+      geom_size=m.geom_size,
+      stat=_HostView(extent=m.stat.extent),
+  )
+  kin = _HostView(
+      xpos=data.xpos,
+      xipos=data.xipos,
+      xanchor=data.xanchor,
+      site_xpos=data.site_xpos,
+      geom_xpos=data.geom_xpos,
+  )
+  with jax.ensure_compile_time_eval():
+    center, extent, meansize = geometry_stat(m, model, kin)
+    center, extent, meansize = (
+        np.asarray(center),
+        float(extent),
+        float(meansize),
+    )
+  auto = {
+      'meaninertia': np.mean(np.diagonal(full)) if m.nv else m.stat.meaninertia,
+      'meanmass': np.mean(m.body_mass[1:]) if m.nbody > 1 else m.stat.meanmass,
+      'meansize': meansize if m.nbody > 1 else m.stat.meansize,
+      'extent': extent,
+      'center': center,
+  }
+  # `geometry_stat` computes in float32: compare at that precision.
+  return {
+      name: bool(
+          np.allclose(auto[name], getattr(m.stat, name), rtol=1e-5, atol=1e-7)
+      )
+      for name in auto
+  }

@@ -1,0 +1,203 @@
+"""Episode rules: termination, truncation, divergence, metrics, auto-reset.
+
+What ends an episode (`step_type == LAST`), for one world:
+
+* termination (`task.should_terminate_episode`): discount from the task;
+* truncation at the time limit: LAST with the task's discount (dm_env's
+  convention), `truncated=True`. The limit counts control steps
+  (`step_limit`), not float32 time;
+* divergence (any non-finite qpos, qvel, qacc or act after the step): LAST
+  with reward 0 and discount 0, `metrics['diverged'] = 1`. Only that world is
+  affected; its next reset replaces all of its data.
+
+Auto-reset, per world (`select_reset` computes it):
+
+* `'next_step'` (composer): the step after a LAST ignores the action and
+  returns the FIRST state of a new episode.
+* `'same_step'` (training loops): a step that ends an episode returns LAST
+  with that transition's reward and discount, the new episode's first
+  observation in `observation`, and the ended episode's last observation in
+  `final_observation`; the next step continues the new episode.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.extend as jex
+import jax.numpy as jnp
+
+from mjx_composer import state as state_lib
+
+AUTO_RESET_MODES = ('next_step', 'same_step')
+
+
+def step_limit(time_limit: float, control_timestep: float) -> float:
+  """Control steps in an episode: `ceil(time_limit / control_timestep)`.
+
+  `math.inf` for an infinite time limit. The small tolerance keeps a limit
+  that is a whole number of control steps from rounding up.
+  """
+  if math.isinf(time_limit):
+    return math.inf
+  return max(1, math.ceil(time_limit / control_timestep - 1e-9))
+
+
+def diverged(data) -> jax.Array:
+  """Whether any of qpos, qvel, qacc or act is not finite."""
+  fields = [data.qpos, data.qvel, data.qacc, data.act]
+  return jnp.logical_not(
+      jnp.all(jnp.stack([jnp.all(jnp.isfinite(f)) for f in fields]))
+  )
+
+
+class EpisodeRules:
+  """Decides how each step ends, and keeps the per-world metrics.
+
+  Args:
+    task: the `Task` (reward, discount, termination, metrics).
+    step_limit: control steps before truncation (`step_limit`).
+    reward_shape: the shape of the reward (`Environment.reward_spec`).
+    discount_shape: the shape of the discount.
+  """
+
+  def __init__(self, task, step_limit_: float, reward_shape, discount_shape):
+    self._task = task
+    self.step_limit = step_limit_
+    self._reward_shape = tuple(reward_shape)
+    self._discount_shape = tuple(discount_shape)
+
+  def _task_metrics(self, physics) -> dict:
+    return {
+        name: jnp.asarray(value, jnp.float32)
+        for name, value in self._task.get_metrics(physics).items()
+    }
+
+  def start(self, physics, init_failures) -> dict:
+    """The `State` fields of an episode's FIRST timestep."""
+    metrics = {
+        'diverged': diverged(physics.data).astype(jnp.float32),
+        'episode_return': jnp.zeros((), jnp.float32),
+        'episode_length': jnp.zeros((), jnp.int32),
+        'init_failures': init_failures.astype(jnp.float32),
+        'init_failed': physics.initialization_failed.astype(jnp.float32),
+    }
+    metrics.update(self._task_metrics(physics))
+    return dict(
+        reward=jnp.zeros(self._reward_shape, jnp.float32),
+        discount=jnp.ones(self._discount_shape, jnp.float32),
+        step_type=jnp.asarray(state_lib.StepType.FIRST, jnp.int32),
+        terminated=jnp.zeros((), bool),
+        truncated=jnp.zeros((), bool),
+        metrics=metrics,
+        episode=state_lib.Episode(
+            length=jnp.zeros((), jnp.int32),
+            total_reward=jnp.zeros((), jnp.float32),
+        ),
+    )
+
+  def end_of_step(self, previous: state_lib.State, physics) -> dict:
+    """The `State` fields that say how the step from `previous` ended."""
+    is_diverged = diverged(physics.data)
+    reward = jnp.asarray(self._task.get_reward(physics), jnp.float32)
+    discount = jnp.asarray(self._task.get_discount(physics), jnp.float32)
+    reward = jnp.where(is_diverged, jnp.zeros_like(reward), reward)
+    discount = jnp.where(is_diverged, jnp.zeros_like(discount), discount)
+    length = previous.episode.length + 1
+    terminated = jnp.logical_or(
+        jnp.asarray(self._task.should_terminate_episode(physics), bool),
+        is_diverged,
+    )
+    truncated = jnp.logical_and(
+        jnp.logical_not(terminated), length >= self.step_limit
+    )
+    last = jnp.logical_or(terminated, truncated)
+    total_reward = previous.episode.total_reward + jnp.sum(reward)
+    metrics = {
+        'diverged': is_diverged.astype(jnp.float32),
+        'episode_return': total_reward,
+        'episode_length': length,
+        'init_failures': previous.metrics['init_failures'],
+        'init_failed': previous.metrics['init_failed'],
+    }
+    # A diverged world's task metrics are NaN-laden: report zeros instead.
+    metrics.update(
+        {
+            k: jnp.where(is_diverged, 0.0, v)
+            for k, v in self._task_metrics(physics).items()
+        }
+    )
+    step_type = jnp.where(
+        last, state_lib.StepType.LAST, state_lib.StepType.MID
+    ).astype(jnp.int32)
+    return dict(
+        reward=reward,
+        discount=discount,
+        step_type=step_type,
+        terminated=terminated,
+        truncated=truncated,
+        metrics=metrics,
+        episode=state_lib.Episode(length=length, total_reward=total_reward),
+    )
+
+
+def trace_once(fn, *args, return_shapes=False):
+  """`fn` traced once on `args`' shapes; returns a function that reuses it.
+
+  Calling the result emits the traced program again (or batches it, under
+  `vmap`) without running `fn`'s Python: what lets a reset that is needed in
+  two places (both branches of a batching rule, a first attempt and its
+  retries) be traced once. With `return_shapes`, also returns the output's
+  shapes (a pytree of `jax.ShapeDtypeStruct`).
+  """
+  closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*args)
+  evaluate = jex.core.jaxpr_as_fun(closed)
+  out_tree = jax.tree.structure(out_shape)
+
+  def traced(*call_args):
+    return jax.tree.unflatten(out_tree, evaluate(*jax.tree.leaves(call_args)))
+
+  if return_shapes:
+    return traced, out_shape
+  return traced
+
+
+def _tree_select(pred, on_true, on_false):
+  return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
+
+
+def select_reset(done, reset_fn, operands, stepped):
+  """`reset_fn(*operands)` where `done`, else `stepped`.
+
+  For one world this is a select. Under `jax.vmap` a select would compute the
+  reset of every world at every step; the batching rule instead computes the
+  batch's resets only when some world is done (`lax.cond` on `any(done)`),
+  then selects per world. Results are the same either way. The reset is
+  traced once and reused by both paths.
+  """
+  reset = trace_once(reset_fn, *operands)
+
+  def select(done, operands, stepped):
+    return _tree_select(done, reset(*operands), stepped)
+
+  select_or_skip = jax.custom_batching.custom_vmap(select)
+
+  @select_or_skip.def_vmap
+  def _batched(axis_size, in_batched, done, operands, stepped):
+    def batch(x, is_batched):
+      if is_batched:
+        return x
+      return jnp.broadcast_to(x, (axis_size,) + jnp.shape(x))
+
+    done, operands, stepped = jax.tree.map(
+        batch, (done, operands, stepped), tuple(in_batched)
+    )
+    out = jax.lax.cond(
+        jnp.any(done),
+        lambda: jax.vmap(select)(done, operands, stepped),
+        lambda: stepped,
+    )
+    return out, jax.tree.map(lambda _: True, out)
+
+  return select_or_skip(done, operands, stepped)

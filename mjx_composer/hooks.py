@@ -1,0 +1,221 @@
+"""`EnvironmentHooks`: the task's, the entities' and extra hooks, in order.
+
+Composer's `_EnvironmentHooks` gathers, once, every participant that
+overrides a hook and calls them in order: the task first, then the entities
+in depth-first attachment order, then hooks added with
+`Environment.add_extra_hook`. This is the same, with one named method per
+hook and pure device hooks:
+
+* build time (host, once): `initialize_episode_mjcf(random_state)` and
+  `after_compile(physics, random_state)`;
+* device (pure, traced): `initialize_episode(physics, key)`,
+  `before_step(physics, action, key)`, `before_substep(physics, action,
+  key)`, `after_substep(physics, key)`, `after_step(physics, key)`. The task
+  and extra hooks receive the action in `before_step`/`before_substep`;
+  entities never do.
+
+Keys: each participant's key is `fold_in(key, id)` where `id` is derived
+from a stable identity of the participant (the task; an entity's full
+identifier; an extra hook's registration slot), so overriding one more hook,
+or attaching another entity, never changes the draws of the others.
+
+Model fields: a device hook that writes a model field (a variator writing
+`geom_size`) makes that field per-world. The hooks record, at trace time,
+which participant wrote which field (`model_field_writers`), so that the
+environment can report why a field is carried per world.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable
+import zlib
+
+import jax
+from mujoco import mjx
+
+from mjx_composer import physics as physics_lib
+
+HOOK_NAMES = (
+    'initialize_episode_mjcf',
+    'after_compile',
+    'initialize_episode',
+    'before_step',
+    'before_substep',
+    'after_substep',
+    'after_step',
+)
+# Hooks through which the task (and extra hooks) receive the action.
+_ACTION_HOOKS = ('before_step', 'before_substep')
+_MODEL_FIELD_NAMES = tuple(f.name for f in dataclasses.fields(mjx.Model))
+
+
+def stable_id(identity: str) -> int:
+  """A 31-bit integer for `fold_in`, the same in every process and run."""
+  return zlib.crc32(identity.encode()) & 0x7FFFFFFF
+
+
+@dataclasses.dataclass(frozen=True)
+class Participant:
+  """One overridden hook of one owner.
+
+  Attributes:
+    identity: a stable identity of the owner ('task', 'entity:<full
+      identifier>', 'extra:<hook name>:<slot>'); the hook's key derives from
+      it.
+    describe: the owner as error messages and reports name it.
+    hook: the callable.
+    takes_action: whether the hook receives the action.
+  """
+
+  identity: str
+  describe: str
+  hook: Callable[..., Any]
+  takes_action: bool
+
+
+def _overrides(obj, name: str, base_cls) -> bool:
+  method = getattr(type(obj), name, None)
+  return method is not None and method is not getattr(base_cls, name, None)
+
+
+class EnvironmentHooks:
+  """Calls every participant's hook in composer's order.
+
+  Args:
+    task: the `Task`; its root entity's tree gives the entities.
+  """
+
+  def __init__(self, task):
+    self._task = task
+    self._extra: dict[str, list[Callable]] = {name: [] for name in HOOK_NAMES}
+    # Trace-time record: model field -> descriptions of the hooks writing it.
+    self._writers: dict[str, list[str]] = {}
+
+  def add_extra_hook(self, hook_name: str, hook: Callable):
+    """See `Environment.add_extra_hook`."""
+    if hook_name not in HOOK_NAMES:
+      raise ValueError(
+          f'{hook_name!r} is not a valid hook name. Valid hook '
+          f'names: {HOOK_NAMES}'
+      )
+    if not callable(hook):
+      raise ValueError(f'{hook!r} is not a callable.')
+    self._extra[hook_name].append(hook)
+
+  def participants(self, name: str) -> list[Participant]:
+    """The participants of hook `name`, in calling order."""
+    # pylint: disable=g-import-not-at-top
+    from mjx_composer import entity as entity_lib
+    from mjx_composer import task as task_lib
+
+    # pylint: enable=g-import-not-at-top
+    takes_action = name in _ACTION_HOOKS
+    out = []
+    # The task's before_step writes the action into ctrl even if not
+    # overridden; its other hooks run only where overridden.
+    if name == 'before_step' or _overrides(self._task, name, task_lib.Task):
+      out.append(
+          Participant(
+              'task',
+              type(self._task).__name__,
+              getattr(self._task, name),
+              takes_action,
+          )
+      )
+    for entity in self._task.root_entity.iter_entities():
+      if _overrides(entity, name, entity_lib.Entity):
+        out.append(
+            Participant(
+                f'entity:{entity.full_identifier}',
+                f'{type(entity).__name__}({entity.name!r})',
+                getattr(entity, name),
+                False,
+            )
+        )
+    for slot, hook in enumerate(self._extra[name]):
+      out.append(
+          Participant(
+              f'extra:{name}:{slot}',
+              getattr(hook, '__qualname__', repr(hook)),
+              hook,
+              takes_action,
+          )
+      )
+    return out
+
+  def has(self, name: str) -> bool:
+    return bool(self.participants(name))
+
+  @property
+  def model_field_writers(self) -> dict[str, tuple[str, ...]]:
+    """`{model field: hooks that wrote it}`, as recorded while tracing."""
+    return {f: tuple(w) for f, w in sorted(self._writers.items())}
+
+  # -- build time (host) ----------------------------------------------------
+
+  def initialize_episode_mjcf(self, random_state):
+    for participant in self._host_participants('initialize_episode_mjcf'):
+      participant(random_state)
+
+  def after_compile(self, physics, random_state):
+    """Runs `after_compile`; returns the physics the last hook returned."""
+    for participant in self._host_participants('after_compile'):
+      result = participant(physics, random_state)
+      if isinstance(result, physics_lib.Physics):
+        physics = result
+    return physics
+
+  def _host_participants(self, name):
+    # Composer calls build-time hooks on every participant (they are cheap
+    # no-ops by default).
+    owners = [self._task] + list(self._task.root_entity.iter_entities())
+    return [getattr(owner, name) for owner in owners] + self._extra[name]
+
+  # -- device (pure) ----------------------------------------------------------
+
+  def initialize_episode(self, physics, key):
+    return self._run('initialize_episode', physics, key)
+
+  def before_step(self, physics, action, key):
+    return self._run('before_step', physics, key, action)
+
+  def before_substep(self, physics, action, key):
+    return self._run('before_substep', physics, key, action)
+
+  def after_substep(self, physics, key):
+    return self._run('after_substep', physics, key)
+
+  def after_step(self, physics, key):
+    return self._run('after_step', physics, key)
+
+  def scheduled(self, physics, key):
+    """Runs the hooks registered with `Physics.schedule_before_step`."""
+    for name, hook in physics.scheduled_hooks:
+      participant = Participant(f'scheduled:{name}', name, hook, False)
+      physics = self._call(participant, 'scheduled', physics, key, None)
+    return physics
+
+  def _run(self, name, physics, key, action=None):
+    for participant in self.participants(name):
+      physics = self._call(participant, name, physics, key, action)
+    return physics
+
+  def _call(self, participant, name, physics, key, action):
+    hook_key = jax.random.fold_in(key, stable_id(participant.identity))
+    if participant.takes_action:
+      result = participant.hook(physics, action, hook_key)
+    else:
+      result = participant.hook(physics, hook_key)
+    if not isinstance(result, physics_lib.Physics):
+      raise TypeError(
+          f'{participant.describe}.{name} returned {type(result).__name__}: '
+          'device hooks are pure and must return the (new) Physics.'
+      )
+    for field in _MODEL_FIELD_NAMES:
+      if getattr(result.model, field) is not getattr(physics.model, field):
+        writers = self._writers.setdefault(field, [])
+        label = f'{participant.describe}.{name}'
+        if label not in writers:
+          writers.append(label)
+    return result

@@ -1,0 +1,186 @@
+"""Checks of a compiled `mujoco.MjModel` before it goes to MJX.
+
+`check_compiled_model` runs once, on the host, right after the composed spec
+compiles. It turns what would otherwise fail deep inside a traced step, fail
+with a terse message in `mjx.put_model`, or silently behave differently from
+MuJoCo into errors and warnings that say what to change:
+
+* errors (`ValueError`): a physics timestep that is not a positive, finite
+  number of seconds (MuJoCo's compiler accepts any value); a model with no
+  degrees of freedom (MJX's step fails with "Scan across Model with zero DoFs
+  unsupported");
+* errors (`NotImplementedError`, as `mjx.put_model` raises, with the fix):
+  an integrator, solver or enable flag that MJX does not implement;
+* one `MjxIgnoredOptionWarning` naming every option MJX's JAX backend accepts
+  but ignores (e.g. `noslip_iterations > 0`: MJX has no noslip solver).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import warnings
+
+import mujoco
+from mujoco import mjx
+
+
+class MjxIgnoredOptionWarning(UserWarning):
+  """A model option is set that MJX (JAX backend) ignores."""
+
+
+# Disable flags MJX does not implement whose MuJoCo behaviour MJX already has
+# (it never auto-resets, has no islands and no midphase to disable): setting
+# them changes nothing, so they are not worth a warning.
+_HARMLESS_DISABLE = frozenset(
+    int(getattr(mujoco.mjtDisableBit, name))
+    for name in ('mjDSBL_AUTORESET', 'mjDSBL_ISLAND', 'mjDSBL_MIDPHASE')
+    if hasattr(mujoco.mjtDisableBit, name)
+)
+# Enable flags `mjx.put_model` accepts but the JAX backend never reads.
+_IGNORED_ENABLE = frozenset(
+    int(getattr(mujoco.mjtEnableBit, name))
+    for name in ('mjENBL_SLEEP', 'mjENBL_IPC')
+    if hasattr(mujoco.mjtEnableBit, name)
+)
+# Numeric options the JAX backend never reads (MuJoCo's option names).
+_IGNORED_NUMERIC = (
+    ('ccd_iterations', 'its convex collision uses its own iteration limit'),
+    ('ccd_tolerance', 'its convex collision uses its own tolerance'),
+    ('sdf_iterations', 'SDF collision uses sdf_initpoints only'),
+)
+
+
+@functools.lru_cache(maxsize=1)
+def _default_option():
+  return mujoco.MjModel.from_xml_string('<mujoco/>').opt
+
+
+def _flag_names(enum_type, bits):
+  names = []
+  for bit in range(32):
+    if bits & (1 << bit):
+      try:
+        names.append(enum_type(1 << bit).name)
+      except ValueError:
+        names.append(f'bit {1 << bit}')
+  return names
+
+
+def _mjcf_flag(name):
+  """`mjDSBL_NATIVECCD` -> `<flag nativeccd="disable"/>`."""
+  prefix, _, flag = name.partition('_')
+  value = 'disable' if prefix == 'mjDSBL' else 'enable'
+  return f'<flag {flag.lower()}="{value}"/>'
+
+
+def check_compiled_model(mj_model: mujoco.MjModel):
+  """Raises on options MJX cannot run; warns once about options it ignores.
+
+  Call it once per build, right after compiling the composed spec.
+
+  Args:
+    mj_model: the compiled host model.
+
+  Raises:
+    ValueError: the timestep is not a positive, finite number, or the model
+      has no degrees of freedom.
+    NotImplementedError: an integrator, solver or enable flag that MJX does
+      not implement.
+  """
+  opt = mj_model.opt
+  timestep = float(opt.timestep)
+  if not math.isfinite(timestep) or timestep <= 0:
+    raise ValueError(
+        f"The compiled model's option.timestep is {timestep!r}: the physics "
+        'timestep must be a positive, finite number of seconds. Set it with '
+        'task.set_timesteps(control_timestep=..., physics_timestep=...) (or '
+        "task.physics_timestep = ...) rather than writing a spec's "
+        'option.timestep.'
+    )
+  if mj_model.nv == 0:
+    raise ValueError(
+        'The composed model has no degrees of freedom (nv == 0): nothing in '
+        "it can move, and MJX cannot step it ('Scan across Model with zero "
+        "DoFs unsupported'). Give a body a joint (body.add_joint(...)), or "
+        'make an entity free (arena.add_free_entity(entity), or '
+        'entity.attachment_frame.add_freejoint()).'
+    )
+  _check_rejected(opt)
+  ignored = ignored_options(mj_model)
+  if ignored:
+    warnings.warn(
+        'MJX ignores these options of the compiled model, so it will not '
+        'simulate what MuJoCo would: '
+        + '; '.join(ignored)
+        + '. Leave them at their defaults to silence this warning.',
+        MjxIgnoredOptionWarning,
+        stacklevel=2,
+    )
+
+
+def _check_rejected(opt):
+  """Clear versions of the option errors `mjx.put_model` raises."""
+  if opt.integrator not in set(mjx.IntegratorType):
+    raise NotImplementedError(
+        'MJX does not implement the integrator '
+        f'{mujoco.mjtIntegrator(opt.integrator).name}: set option.integrator '
+        'to implicitfast (the closest: mujoco.mjtIntegrator.mjINT_IMPLICITFAST'
+        ', MJCF <option integrator="implicitfast"/>), Euler or RK4.'
+    )
+  if opt.solver not in set(mjx.SolverType):
+    raise NotImplementedError(
+        'MJX does not implement the constraint solver '
+        f'{mujoco.mjtSolver(opt.solver).name}: set option.solver to Newton '
+        '(mujoco.mjtSolver.mjSOL_NEWTON, MJCF <option solver="Newton"/>) or '
+        'CG.'
+    )
+  supported = 0
+  for bit in mjx.EnableBit:
+    supported |= int(bit)
+  unsupported = int(opt.enableflags) & ~supported
+  if unsupported:
+    names = _flag_names(mujoco.mjtEnableBit, unsupported)
+    raise NotImplementedError(
+        f'MJX does not implement the enable flags {names}: clear them '
+        '(spec.option.enableflags &= ~flag, or remove '
+        + ', '.join(_mjcf_flag(n) for n in names if n.startswith('mj'))
+        + ' from the MJCF).'
+    )
+
+
+def ignored_options(mj_model: mujoco.MjModel) -> list[str]:
+  """Descriptions of the options set in `mj_model` that MJX ignores."""
+  opt = mj_model.opt
+  default = _default_option()
+  ignored = []
+  if opt.noslip_iterations > 0:
+    ignored.append(
+        f'option.noslip_iterations={opt.noslip_iterations} (MJX has no noslip '
+        'solver)'
+    )
+  for name, why in _IGNORED_NUMERIC:
+    value, default_value = getattr(opt, name), getattr(default, name)
+    if value != default_value:
+      ignored.append(
+          f'option.{name}={value} (MJX: {why}; default {default_value})'
+      )
+  if opt.disableactuator:
+    ignored.append(
+        f'option.disableactuator={opt.disableactuator} (MJCF '
+        'actuatorgroupdisable: MJX applies every actuator group)'
+    )
+  supported = 0
+  for bit in mjx.DisableBit:
+    supported |= int(bit)
+  for name in _flag_names(
+      mujoco.mjtDisableBit, int(opt.disableflags) & ~supported
+  ):
+    bit = getattr(mujoco.mjtDisableBit, name, None)
+    if bit is None or int(bit) not in _HARMLESS_DISABLE:
+      ignored.append(f'disable flag {name} ({_mjcf_flag(name)})')
+  for name in _flag_names(mujoco.mjtEnableBit, int(opt.enableflags)):
+    bit = getattr(mujoco.mjtEnableBit, name, None)
+    if bit is not None and int(bit) in _IGNORED_ENABLE:
+      ignored.append(f'enable flag {name} ({_mjcf_flag(name)})')
+  return ignored

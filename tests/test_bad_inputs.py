@@ -1,0 +1,449 @@
+"""Bad input is rejected early, with a message that says what to fix."""
+
+import functools
+import math
+import subprocess
+import sys
+import warnings
+
+import mujoco
+import numpy as np
+import pytest
+
+import mjx_composer as composer
+from mjx_composer import model_checks
+from mjx_composer import task as task_lib
+from tests import conftest
+
+_OBJ = mujoco.mjtObj
+
+# -- 1. composition never drops an element ------------------------------------
+
+
+class _Arm(composer.Entity):
+  """A one-joint arm; `edit(spec)` may add a faulty element."""
+
+  def _build(self, edit=None, name='arm'):
+    spec = mujoco.MjSpec()
+    spec.modelname = name
+    body = spec.worldbody.add_body(name='link')
+    body.add_joint(name='shoulder', type=mujoco.mjtJoint.mjJNT_HINGE)
+    body.add_geom(name='geom', size=[0.1, 0, 0])
+    body.add_site(name='tip')
+    spec.add_actuator(
+        name='motor', target='shoulder', trntype=mujoco.mjtTrn.mjTRN_JOINT
+    )
+    if edit is not None:
+      edit(spec)
+    self._spec = spec
+
+  @property
+  def mjcf_model(self):
+    return self._spec
+
+
+def _typo_actuator(spec):
+  spec.actuators[0].target = 'shoulderr'
+
+
+def _typo_sensor(spec):
+  spec.add_sensor(
+      name='touch',
+      type=mujoco.mjtSensor.mjSENS_TOUCH,
+      objtype=_OBJ.mjOBJ_SITE,
+      objname='tipp',
+  )
+
+
+def _in_arena(arm):
+  arena = composer.Arena()
+  arena.attach(arm)
+  return arena
+
+
+def test_valid_composition_keeps_every_element():
+  arena = _in_arena(_Arm(edit=_typo_sensor_fixed))
+  model = arena.compose()[0].compile()
+  assert (model.nu, model.nsensor) == (1, 1)
+
+
+def _typo_sensor_fixed(spec):
+  spec.add_sensor(
+      name='touch',
+      type=mujoco.mjtSensor.mjSENS_TOUCH,
+      objtype=_OBJ.mjOBJ_SITE,
+      objname='tip',
+  )
+
+
+def test_root_actuator_typo_raises():
+  with pytest.raises(
+      ValueError,
+      match=(
+          r"Actuator 'motor' targets joint 'shoulderr', which does not exist "
+          r"in the composed model: fix the target name in entity 'arm'.*did "
+          r"you mean 'shoulder'"
+      ),
+  ):
+    _Arm(edit=_typo_actuator).compose()
+
+
+def test_child_actuator_typo_raises():
+  with pytest.raises(
+      ValueError,
+      match=(
+          r"Actuator 'arm/motor' targets joint 'arm/shoulderr', which does not"
+          r" exist in the composed model: fix the target name in entity 'arm'"
+      ),
+  ):
+    _in_arena(_Arm(edit=_typo_actuator)).compose()
+
+
+def test_root_sensor_typo_raises():
+  with pytest.raises(
+      ValueError,
+      match=r"Sensor 'touch' is attached to site 'tipp'.*fix the sensor's "
+      r"objname in entity 'arm'.*did you mean 'tip'",
+  ):
+    _Arm(edit=_typo_sensor).compose()
+
+
+def test_child_sensor_typo_raises():
+  with pytest.raises(
+      ValueError,
+      match=r"Sensor 'arm/touch' is attached to site 'arm/tipp'.*fix the "
+      r"sensor's objname in entity 'arm'",
+  ):
+    _in_arena(_Arm(edit=_typo_sensor)).compose()
+
+
+def test_grandchild_typo_names_the_full_path():
+  hand = _Arm(edit=_typo_actuator, name='hand')
+  arm = _Arm()
+  arm.attach(hand)
+  with pytest.raises(
+      ValueError,
+      match=r"Actuator 'arm/hand/motor' targets joint 'arm/hand/shoulderr'.*"
+      r"fix the target name in entity 'hand'",
+  ):
+    _in_arena(arm).compose()
+
+
+def test_every_dropped_element_is_reported():
+  def two_typos(spec):
+    _typo_actuator(spec)
+    _typo_sensor(spec)
+
+  with pytest.raises(ValueError, match=r'would drop 2 elements') as error:
+    _in_arena(_Arm(edit=two_typos)).compose()
+  assert "'arm/motor'" in str(error.value)
+  assert "'arm/touch'" in str(error.value)
+
+
+@pytest.mark.parametrize(
+    'edit, match',
+    [
+        (
+            lambda s: s.add_tendon(name='t').wrap_joint('elbow', 1.0),
+            r"Tendon 'arm/t' wraps \(path element 0\) a joint that does not "
+            r"exist in entity 'arm'.*fix the joint name of path element 0",
+        ),
+        (
+            lambda s: s.add_equality(
+                name='weld',
+                type=mujoco.mjtEq.mjEQ_WELD,
+                objtype=_OBJ.mjOBJ_BODY,
+                name1='link',
+                name2='lnk',
+            ),
+            r"Equality 'arm/weld' constrains body 'arm/lnk'.*fix the "
+            r"equality's name2 in entity 'arm'",
+        ),
+        (
+            lambda s: s.add_exclude(bodyname1='link', bodyname2='base'),
+            r"Exclude #0 \(unnamed\) excludes body 'arm/base'.*fix the "
+            r"exclude's bodyname2 in entity 'arm'",
+        ),
+        (
+            lambda s: s.add_pair(geomname1='geom', geomname2='gem'),
+            r"Contact pair #0 \(unnamed\) pairs geom 'arm/gem'.*fix the "
+            r"pair's geomname2 in entity 'arm'",
+        ),
+        (
+            lambda s: s.add_actuator(
+                name='site_motor',
+                target='tip',
+                refsite='ref',
+                trntype=mujoco.mjtTrn.mjTRN_SITE,
+            ),
+            r"Actuator 'arm/site_motor' refers to site 'arm/ref'.*fix the "
+            r"refsite name in entity 'arm'",
+        ),
+    ],
+)
+def test_other_dangling_references_raise(edit, match):
+  with pytest.raises(ValueError, match=match):
+    _in_arena(_Arm(edit=edit)).compose()
+
+
+def test_reference_into_a_child_entity_raises():
+  arena = _in_arena(_Arm())
+  arena.mjcf_model.add_actuator(
+      name='reach', target='arm/shoulder', trntype=mujoco.mjtTrn.mjTRN_JOINT
+  )
+  with pytest.raises(
+      ValueError,
+      match=r"Actuator 'reach' targets joint 'arm/shoulder', which is not an "
+      r"element of the own spec of entity 'arena'.*Declare the actuator in "
+      r"the entity that owns 'arm/shoulder'",
+  ):
+    arena.compose()
+
+
+def test_child_sensor_on_its_worldbody_raises():
+  def world_sensor(spec):
+    spec.add_sensor(
+        name='frame',
+        type=mujoco.mjtSensor.mjSENS_FRAMEPOS,
+        objtype=_OBJ.mjOBJ_BODY,
+        objname='world',
+    )
+
+  # As the root entity, 'world' is the world: nothing is dropped.
+  assert _Arm(edit=world_sensor).compose()[0].compile().nsensor == 1
+  with pytest.raises(
+      ValueError,
+      match=r"Sensor 'arm/frame' is attached to the worldbody of entity "
+      r"'arm'.*make it refer to a body inside entity 'arm'",
+  ):
+    _in_arena(_Arm(edit=world_sensor)).compose()
+
+
+def test_environment_build_raises_on_a_dropped_element():
+  task = composer.NullTask(_in_arena(_Arm(edit=_typo_actuator)))
+  with pytest.raises(ValueError, match=r"fix the target name in entity 'arm'"):
+    composer.Environment(task)
+
+
+# -- 2. timesteps and model options -------------------------------------------
+
+_BAD_SECONDS = [0, 0.0, -0.01, math.nan, math.inf]
+
+
+@pytest.mark.parametrize('bad', _BAD_SECONDS)
+def test_check_timesteps_divisible_rejects_non_positive(bad):
+  with pytest.raises(
+      ValueError, match=r'physics_timestep must be a positive, finite number'
+  ):
+    task_lib.check_timesteps_divisible(0.01, bad)
+  with pytest.raises(
+      ValueError, match=r'control_timestep must be a positive, finite number'
+  ):
+    task_lib.check_timesteps_divisible(bad, 0.01)
+
+
+@pytest.mark.parametrize('bad', _BAD_SECONDS)
+def test_set_timesteps_rejects_non_positive(bad):
+  task = composer.NullTask(composer.Arena())
+  with pytest.raises(
+      ValueError, match=r'positive, finite number of seconds.*set_timesteps'
+  ):
+    task.set_timesteps(control_timestep=0.01, physics_timestep=bad)
+  with pytest.raises(ValueError, match=r'control_timestep must be a positive'):
+    task.set_timesteps(control_timestep=bad, physics_timestep=0.01)
+
+
+@pytest.mark.parametrize('bad', _BAD_SECONDS)
+def test_timestep_setters_reject_non_positive(bad):
+  task = composer.NullTask(composer.Arena())
+  with pytest.raises(ValueError, match=r'physics_timestep must be a positive'):
+    task.physics_timestep = bad
+  with pytest.raises(ValueError, match=r'control_timestep must be a positive'):
+    task.control_timestep = bad
+  task.set_timesteps(control_timestep=0.02, physics_timestep=0.01)
+  with pytest.raises(ValueError, match=r'physics_timestep must be a positive'):
+    task.physics_timestep = bad
+  assert task.physics_timestep == 0.01  # Unchanged.
+
+
+def test_timesteps_must_be_numbers():
+  task = composer.NullTask(composer.Arena())
+  with pytest.raises(TypeError, match=r'must be a number of seconds'):
+    task.set_timesteps(control_timestep='0.02', physics_timestep=0.01)
+
+
+_BODY = '<worldbody><body><joint/><geom size=".1"/></body></worldbody>'
+
+
+def _model(option='', body=_BODY):
+  return mujoco.MjModel.from_xml_string(f'<mujoco>{option}{body}</mujoco>')
+
+
+@pytest.mark.parametrize('timestep', ['0', '-0.01', 'nan', 'inf'])
+def test_check_compiled_model_rejects_bad_timestep(timestep):
+  with pytest.raises(
+      ValueError,
+      match=r'option.timestep is .*positive, finite number of seconds.*'
+      r'task.set_timesteps',
+  ):
+    model_checks.check_compiled_model(
+        _model(f'<option timestep="{timestep}"/>')
+    )
+
+
+def test_check_compiled_model_rejects_zero_dofs():
+  with pytest.raises(
+      ValueError,
+      match=r'no degrees of freedom \(nv == 0\).*Give a body a joint.*'
+      r'add_free_entity',
+  ):
+    model_checks.check_compiled_model(
+        _model(body='<worldbody><body><geom size=".1"/></body></worldbody>')
+    )
+
+
+def test_check_compiled_model_accepts_a_default_model_quietly():
+  with warnings.catch_warnings():
+    warnings.simplefilter('error')
+    model_checks.check_compiled_model(_model())
+
+
+@pytest.mark.parametrize(
+    'option, named',
+    [
+        ('<option noslip_iterations="3"/>', 'option.noslip_iterations=3'),
+        ('<option ccd_iterations="7"/>', 'option.ccd_iterations=7'),
+        ('<option sdf_iterations="3"/>', 'option.sdf_iterations=3'),
+        ('<option actuatorgroupdisable="1"/>', 'option.disableactuator'),
+        (
+            '<option><flag nativeccd="disable"/></option>',
+            'mjDSBL_NATIVECCD',
+        ),
+        ('<option><flag sleep="enable"/></option>', 'mjENBL_SLEEP'),
+    ],
+)
+def test_check_compiled_model_warns_about_ignored_options(option, named):
+  with pytest.warns(
+      model_checks.MjxIgnoredOptionWarning, match=r'MJX ignores.*' + named
+  ):
+    model_checks.check_compiled_model(_model(option))
+
+
+def test_ignored_options_are_named_in_one_warning():
+  option = (
+      '<option noslip_iterations="2" ccd_tolerance="1e-3">'
+      '<flag multiccd="disable"/></option>'
+  )
+  with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter('always')
+    model_checks.check_compiled_model(_model(option))
+  assert len(caught) == 1
+  message = str(caught[0].message)
+  for name in ('noslip_iterations', 'ccd_tolerance', 'mjDSBL_MULTICCD'):
+    assert name in message
+
+
+@pytest.mark.parametrize(
+    'option, match',
+    [
+        (
+            '<option integrator="implicit"/>',
+            r'integrator mjINT_IMPLICIT.*implicitfast',
+        ),
+        ('<option solver="PGS"/>', r'solver mjSOL_PGS.*Newton'),
+        (
+            '<option><flag override="enable"/></option>',
+            r'enable flags \[.mjENBL_OVERRIDE.\].*clear them',
+        ),
+    ],
+)
+def test_check_compiled_model_explains_what_mjx_rejects(option, match):
+  with pytest.raises(NotImplementedError, match=match):
+    model_checks.check_compiled_model(_model(option))
+
+
+# These need `model_checks.check_compiled_model(self._mj_model)` in
+# `Environment.__init__`, right after the composed spec compiles.
+
+
+def test_environment_rejects_a_timestep_set_on_the_spec():
+  arena = _in_arena(_Arm())
+  arena.mjcf_model.option.timestep = -0.01
+  with pytest.raises(
+      ValueError, match=r"compiled model's option.timestep is -0.01"
+  ):
+    composer.Environment(composer.NullTask(arena))
+
+
+def test_environment_rejects_a_model_without_dofs():
+  arena = composer.Arena()
+  arena.mjcf_model.worldbody.add_geom(size=[0.1, 0, 0])
+  with pytest.raises(ValueError, match=r'no degrees of freedom'):
+    composer.Environment(composer.NullTask(arena))
+
+
+def test_environment_warns_about_ignored_options():
+  arena = _in_arena(_Arm())
+  arena.mjcf_model.option.noslip_iterations = 5
+  with pytest.warns(
+      model_checks.MjxIgnoredOptionWarning, match=r'noslip_iterations=5'
+  ):
+    composer.Environment(composer.NullTask(arena))
+
+
+# -- 3. HostEnvironment arguments and action shapes ----------------------------
+
+
+@functools.lru_cache(maxsize=None)
+def _pendulum_environment():
+  arena = composer.Arena()
+  arena.attach(conftest.Pendulum())
+  return composer.Environment(composer.NullTask(arena), time_limit=0.1)
+
+
+@pytest.mark.parametrize('num_worlds', [0, -2, 2.5, True, '3'])
+def test_host_environment_rejects_bad_num_worlds(num_worlds):
+  with pytest.raises(
+      ValueError, match=r'num_worlds must be a positive int.*num_worlds=None'
+  ):
+    composer.HostEnvironment(_pendulum_environment(), num_worlds=num_worlds)
+
+
+def test_batched_host_environment_explains_a_single_world_action():
+  env = composer.HostEnvironment(_pendulum_environment(), num_worlds=3)
+  env.reset()
+  single = np.zeros(env.action_spec().shape, np.float32)  # (1,)
+  with pytest.raises(
+      ValueError,
+      match=r'steps 3 worlds at once: expected actions of shape \(3, 1\).*got '
+      r"\(1,\), the shape of one world's action.*np.broadcast_to\(action, "
+      r'\(3, 1\)\)',
+  ):
+    env.step(single)
+  timestep = env.step(np.broadcast_to(single, (3, 1)))
+  assert timestep.step_type.shape == (3,)
+
+
+def test_single_world_host_environment_explains_a_batched_action():
+  env = composer.HostEnvironment(_pendulum_environment())
+  env.reset()
+  with pytest.raises(
+      ValueError,
+      match=r'steps one world: expected an action of shape \(1,\).*got '
+      r'\(4, 1\).*HostEnvironment\(environment, num_worlds=4\)',
+  ):
+    env.step(np.zeros((4, 1), np.float32))
+
+
+# -- 5. importing the package prints nothing ----------------------------------
+
+
+def test_import_prints_nothing():
+  result = subprocess.run(
+      [sys.executable, '-c', 'import mjx_composer'],
+      capture_output=True,
+      text=True,
+      check=True,
+  )
+  assert result.stdout == ''
+  assert result.stderr == ''

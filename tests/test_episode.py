@@ -1,0 +1,92 @@
+"""Episode rules: the step limit, tracing a reset once, the reset select.
+
+`test_environment.py` checks termination, truncation, divergence and both
+auto-reset modes through a composed environment.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_composer import episode
+
+
+@pytest.mark.parametrize(
+    'time_limit, control_timestep, expected',
+    [
+        (0.05, 0.01, 5),  # 0.05 / 0.01 is 5.000000000000001 in floats
+        (0.051, 0.01, 6),
+        (0.001, 0.01, 1),
+        (math.inf, 0.01, math.inf),
+    ],
+)
+def test_step_limit_counts_whole_control_steps(
+    time_limit, control_timestep, expected
+):
+  assert episode.step_limit(time_limit, control_timestep) == expected
+
+
+def test_trace_once_runs_the_python_once():
+  calls = []
+
+  def reset(x):
+    calls.append(1)
+    return {'y': jnp.sin(x) * 2.0, 'n': jnp.zeros((), jnp.int32)}
+
+  traced = episode.trace_once(reset, jnp.ones(3))
+  x = jnp.arange(3.0)
+  np.testing.assert_array_equal(traced(x)['y'], reset(x)['y'])
+  batched = jax.vmap(traced)(jnp.stack([x, x + 1]))
+  assert batched['y'].shape == (2, 3) and batched['n'].shape == (2,)
+  # Two uses plus the direct reference call: fn's Python ran twice in all.
+  assert len(calls) == 2
+
+
+def _select_reset_fn(counter):
+  def reset(key):
+    counter.append(1)
+    return jax.random.uniform(key, (2,))
+
+  def step(done, key, stepped):
+    return episode.select_reset(done, reset, (key,), stepped)
+
+  return step
+
+
+def test_select_reset_batched_equals_the_per_world_select():
+  counter = []
+  step = _select_reset_fn(counter)
+  keys = jax.random.split(jax.random.key(0), 4)
+  stepped = jnp.full((4, 2), -1.0)
+  for done in ([False, True, False, True], [False] * 4, [True] * 4):
+    done = jnp.asarray(done)
+    batched = jax.jit(jax.vmap(step))(done, keys, stepped)
+    for i in range(4):
+      single = step(done[i], keys[i], stepped[i])
+      np.testing.assert_array_equal(batched[i], single)
+
+
+def test_select_reset_traces_the_reset_once_under_vmap():
+  counter = []
+  step = _select_reset_fn(counter)
+  keys = jax.random.split(jax.random.key(0), 4)
+  jax.jit(jax.vmap(step)).lower(jnp.zeros(4, bool), keys, jnp.zeros((4, 2)))
+  assert len(counter) == 1
+
+
+def test_diverged_flags_any_non_finite_state():
+  class Data:
+    qpos = jnp.zeros(3)
+    qvel = jnp.zeros(2)
+    qacc = jnp.zeros(2)
+    act = jnp.zeros(0)
+
+  assert not bool(episode.diverged(Data))
+  Data.qacc = jnp.array([0.0, jnp.nan])
+  assert bool(episode.diverged(Data))
+  Data.qacc = jnp.zeros(2)
+  Data.qvel = jnp.array([jnp.inf, 0.0])
+  assert bool(episode.diverged(Data))
