@@ -53,36 +53,40 @@ Randomness. The sample taken at timestamp t uses
 the purpose (corruptor, delay or interval draw): adding or removing other
 observables never changes an observable's noise, and samples differ even if
 the caller reuses `key`. `fold_in(key, t)` is shared by all observables.
+
+Where things live: `plan` reads each observable's options into a static
+`plan.Entry` (rates, schedule, capacity, streams, key uids), `obs_buffer`
+holds the buffers and their pure read/write functions, `obs_spec` builds the
+`dm_env` specs; this module ties them into `Updater`.
 """
 
 import dataclasses
 import enum
-import logging
-import numbers
-import zlib
-from typing import Any, Mapping, Optional
+from typing import Mapping, Optional
 
-from dm_env import specs
 from flax import struct
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer.observation import flatten as flatten_lib
 from mjx_composer.observation import obs_buffer
+from mjx_composer.observation import obs_spec
+from mjx_composer.observation import plan
 from mjx_composer.observation.groups import ObservationGroup
+from mjx_composer.observation.plan import DEFAULT_BUFFER_SIZE
+from mjx_composer.observation.plan import DEFAULT_DELAY
+from mjx_composer.observation.plan import DEFAULT_UPDATE_INTERVAL
 
-DEFAULT_BUFFER_SIZE = 1
-DEFAULT_UPDATE_INTERVAL = 1
-DEFAULT_DELAY = 0
-
-# Buffer streams: the observable's output after its corruptor, and the raw
-# value (kept only when a group asks for clean values of a corrupted one).
-_VALUE = 'value'
-_CLEAN = 'clean'
-
-# `purpose` values folded into per-sample keys.
-_CORRUPTOR, _DELAY, _INTERVAL = 0, 1, 2
+# The defaults of the observables' options live in `plan`, which applies
+# them; they are re-exported here, where composer has them.
+__all__ = [
+    'DEFAULT_BUFFER_SIZE',
+    'DEFAULT_DELAY',
+    'DEFAULT_UPDATE_INTERVAL',
+    'ObservationPadding',
+    'Updater',
+    'UpdaterState',
+]
 
 
 class ObservationPadding(enum.Enum):
@@ -107,128 +111,6 @@ class UpdaterState:
   buffers: tuple
 
 
-def _is_number(value) -> bool:
-  return isinstance(value, numbers.Number) and not isinstance(value, bool)
-
-
-class _Rate:
-  """A static description of an `update_interval` or a `delay`."""
-
-  def __init__(self, owner: str, name: str, value, default: int, minimum: int):
-    self.name = name
-    self.variation = None
-    if value is None or (_is_number(value) and value == 0):
-      value = default  # composer reads these options by truthiness.
-    if _is_number(value):
-      if value != int(value) or value < minimum:
-        raise ValueError(
-            f'Observable {owner!r}: {name} must be an integer >= {minimum}, '
-            f'got {value!r}.'
-        )
-      self.low = self.high = int(value)
-      return
-    if not callable(value):
-      raise ValueError(
-          f'Observable {owner!r}: {name} must be an int or a '
-          f'Variation, got {value!r}.'
-      )
-    bounds_fn = getattr(value, 'static_bounds', None)
-    bounds = bounds_fn() if bounds_fn is not None else None
-    if bounds is None:
-      raise ValueError(
-          f'Observable {owner!r}: its {name} is {value!r}, whose values have '
-          'no static bounds. A varying update_interval or delay needs bounds '
-          'known at build time to size the observation buffer (buffer_size '
-          '+ ceil(max_delay / min_interval) slots): use a bounded variation '
-          '(e.g. UniformInteger or Sequence) or a constant.'
-      )
-    self.variation = value
-    self.low = max(minimum, int(np.round(np.min(bounds[0]))))
-    self.high = max(self.low, int(np.round(np.max(bounds[1]))))
-
-  @property
-  def constant(self) -> bool:
-    return self.variation is None
-
-  @property
-  def _stateful(self) -> bool:
-    return hasattr(self.variation, 'sample') and hasattr(
-        self.variation, 'initial_state'
-    )
-
-  def initial_state(self):
-    if self.constant or not self._stateful:
-      return None
-    return self.variation.initial_state(None)
-
-  def draw(self, state, make_key):
-    """Returns `(value as () int32 within the static bounds, new state)`.
-
-    Args:
-      state: the variation's state (None for constants and stateless ones).
-      make_key: a zero-argument function returning the key for this draw;
-        called only for a variation, so constants cost no key derivation.
-    """
-    if self.constant:
-      return jnp.asarray(self.low, jnp.int32), state
-    key = make_key()
-    if self._stateful:
-      value, state = self.variation.sample(state, key)
-    else:
-      value = self.variation(key=key)
-    value = jnp.round(jnp.asarray(value, jnp.float32)).reshape(())
-    # Clipping keeps the buffer's capacity bound even for a variation whose
-    # draws stray outside its declared bounds.
-    return jnp.clip(value.astype(jnp.int32), self.low, self.high), state
-
-
-@dataclasses.dataclass
-class _Entry:
-  """Static configuration of one enabled observable."""
-
-  index: int
-  key: str
-  observable: Any
-  uids: tuple  # fold_in data per purpose (_CORRUPTOR, _DELAY, _INTERVAL)
-  buffer_size: int
-  interval: _Rate
-  delay: _Rate
-  schedule: Optional[obs_buffer.ConstantSchedule]
-  capacity: int
-  streams: tuple
-  # Snapshots of the observable's options, taken at construction.
-  aggregator: Any
-  corruptor: Any
-  array_spec: Any
-  shapes: dict = dataclasses.field(default_factory=dict)
-
-  @property
-  def needs_key(self) -> bool:
-    """Whether sampling draws random numbers (corruptor, varying rates)."""
-    return self.corruptor is not None or self.schedule is None
-
-  def stream(self, corrupted: bool) -> str:
-    """The buffer stream holding this view of the observable."""
-    if corrupted or self.corruptor is None:
-      return _VALUE
-    return _CLEAN
-
-
-def _fold(step_key, entry: _Entry, purpose: int):
-  """The key of one observable's sample for one purpose."""
-  if step_key is None:
-    raise ValueError(
-        f'Observable {entry.key!r} has a corruptor or a varying rate and '
-        'needs a PRNG key: pass one to reset/update.'
-    )
-  return jax.random.fold_in(step_key, entry.uids[purpose])
-
-
-def _step_key(key, t):
-  """The key shared by every sample taken at timestamp `t`."""
-  return None if key is None else jax.random.fold_in(key, t)
-
-
 def _static_int(value) -> Optional[int]:
   """`value` as a Python int if it is concrete, None if it is a tracer."""
   try:
@@ -238,11 +120,6 @@ def _static_int(value) -> Optional[int]:
       jax.errors.TracerIntegerConversionError,
   ):
     return None
-
-
-def _canonical_dtype(dtype):
-  """The dtype JAX actually uses for `dtype` (float64 -> float32 unless x64)."""
-  return jnp.asarray(np.zeros((), dtype)).dtype
 
 
 class Updater:
@@ -317,11 +194,19 @@ class Updater:
     self._entries = []
     self._layout = [[] for _ in dicts]  # per dict: [(key, entry or None)]
     for i, key, obs in enabled:
-      streams = self._streams(key, obs)
+      streams = plan.needed_streams(key, obs, self._groups)
       if not streams:
         self._layout[i].append((key, None))
         continue
-      entry = self._make_entry(len(self._entries), i, key, obs, streams)
+      entry = plan.make_entry(
+          len(self._entries),
+          i,
+          key,
+          obs,
+          streams,
+          n=self._n,
+          is_sequence=self._is_sequence,
+      )
       self._entries.append(entry)
       self._layout[i].append((key, entry))
     self._by_key = {
@@ -368,75 +253,6 @@ class Updater:
       checked[name] = dataclasses.replace(group, keys=tuple(keys))
     return checked
 
-  def _streams(self, key, obs) -> tuple:
-    """The buffer streams an enabled observable needs (empty: unused)."""
-    if self._groups is None:
-      views = [True]
-    else:
-      views = [g.corrupted for g in self._groups.values() if key in g.keys]
-    streams = set()
-    for corrupted in views:
-      streams.add(_VALUE if (corrupted or obs.corruptor is None) else _CLEAN)
-    return tuple(sorted(streams, key=[_VALUE, _CLEAN].index))
-
-  def _make_entry(self, index, dict_index, key, obs, streams) -> _Entry:
-    buffer_size = obs.buffer_size or DEFAULT_BUFFER_SIZE
-    if (
-        not _is_number(buffer_size)
-        or buffer_size != int(buffer_size)
-        or (buffer_size < 1)
-    ):
-      raise ValueError(
-          f'Observable {key!r}: buffer_size must be a positive '
-          f'int (it fixes array shapes), got {buffer_size!r}.'
-      )
-    buffer_size = int(buffer_size)
-    interval = _Rate(
-        key,
-        'update_interval',
-        obs.update_interval,
-        DEFAULT_UPDATE_INTERVAL,
-        minimum=1,
-    )
-    delay = _Rate(key, 'delay', obs.delay, DEFAULT_DELAY, minimum=0)
-    if interval.constant and delay.constant:
-      schedule = obs_buffer.ConstantSchedule.plan(
-          interval.low, delay.low, buffer_size, self._n
-      )
-      capacity = schedule.capacity
-    else:
-      schedule = None
-      capacity = obs_buffer.arrival_capacity(
-          buffer_size, delay.high, interval.low
-      )
-    path = key if not self._is_sequence else f'{dict_index}/{key}'
-    uids = tuple(
-        zlib.crc32(f'{path}#{purpose}'.encode('utf-8')) & 0x7FFFFFFF
-        for purpose in (_CORRUPTOR, _DELAY, _INTERVAL)
-    )
-    spec = obs.array_spec
-    entry = _Entry(
-        index=index,
-        key=key,
-        observable=obs,
-        uids=uids,
-        buffer_size=buffer_size,
-        interval=interval,
-        delay=delay,
-        schedule=schedule,
-        capacity=capacity,
-        streams=streams,
-        aggregator=obs.aggregator,
-        corruptor=obs.corruptor,
-        array_spec=spec,
-    )
-    if spec is not None:  # Samples are cast to the declared spec.
-      for stream in streams:
-        entry.shapes[stream] = jax.ShapeDtypeStruct(
-            tuple(spec.shape), _canonical_dtype(spec.dtype)
-        )
-    return entry
-
   # -- introspection ---------------------------------------------------------
 
   @property
@@ -457,31 +273,31 @@ class Updater:
     entry = self._by_key[(dict_index, key)]
     return tuple(j for j in range(1, self._n + 1) if self._is_active(entry, j))
 
-  def _is_active(self, entry: _Entry, substep: int) -> bool:
+  def _is_active(self, entry: plan.Entry, substep: int) -> bool:
     return entry.schedule is None or substep in entry.schedule.substeps
 
   # -- sampling --------------------------------------------------------------
 
-  def _sample(self, entry: _Entry, physics, step_key) -> dict:
+  def _sample(self, entry: plan.Entry, physics, step_key) -> dict:
     """Evaluates one observable once; returns `{stream: value}`."""
-    raw = entry.observable._callable(physics)()  # pylint: disable=protected-access
+    raw = entry.observable.raw_observation_callable(physics)()
     samples = {}
-    if _CLEAN in entry.streams:
-      samples[_CLEAN] = self._conform(entry, raw, _CLEAN)
-    if _VALUE in entry.streams:
+    if plan.CLEAN in entry.streams:
+      samples[plan.CLEAN] = self._conform(entry, raw, plan.CLEAN)
+    if plan.VALUE in entry.streams:
       value = raw
       if entry.corruptor is not None:
-        value = entry.corruptor(raw, _fold(step_key, entry, _CORRUPTOR))
-      samples[_VALUE] = self._conform(entry, value, _VALUE)
+        value = entry.corruptor(raw, plan.fold(step_key, entry, plan.CORRUPTOR))
+      samples[plan.VALUE] = self._conform(entry, value, plan.VALUE)
     return samples
 
-  def _conform(self, entry: _Entry, value, stream: str):
+  def _conform(self, entry: plan.Entry, value, stream: str):
     """Casts a sample to its buffer's dtype and shape; records the shape."""
     value = jnp.asarray(value)
     spec = entry.array_spec
     if spec is not None:
       value = jnp.broadcast_to(
-          value.astype(_canonical_dtype(spec.dtype)), tuple(spec.shape)
+          value.astype(plan.canonical_dtype(spec.dtype)), tuple(spec.shape)
       )
     entry.shapes.setdefault(
         stream, jax.ShapeDtypeStruct(value.shape, value.dtype)
@@ -508,7 +324,7 @@ class Updater:
     """Fresh buffers holding the timestamp-0 sample of every observable."""
     t = jnp.zeros((), jnp.int32)
     needs_key = any(e.needs_key for e in self._entries)
-    step_key = _step_key(key, t) if needs_key else None
+    step_key = plan.step_key(key, t) if needs_key else None
     buffers = []
     for entry in self._entries:
       samples = self._sample(entry, physics, step_key)
@@ -516,11 +332,12 @@ class Updater:
         buffers.append(obs_buffer.ring_init(entry.schedule, samples, self._pad))
         continue
       delay, delay_state = entry.delay.draw(
-          entry.delay.initial_state(), lambda: _fold(step_key, entry, _DELAY)
+          entry.delay.initial_state(),
+          lambda: plan.fold(step_key, entry, plan.DELAY),
       )  # pylint: disable=cell-var-from-loop
       interval, interval_state = entry.interval.draw(
           entry.interval.initial_state(),
-          lambda: _fold(step_key, entry, _INTERVAL),
+          lambda: plan.fold(step_key, entry, plan.INTERVAL),
       )  # pylint: disable=cell-var-from-loop
       buffers.append(
           obs_buffer.arrival_init(
@@ -591,7 +408,7 @@ class Updater:
     buffers = list(state.buffers)
     t = state.t
     needs_key = any(self._entries[i].needs_key for i in active)
-    step_key = _step_key(key, t) if needs_key else None
+    step_key = plan.step_key(key, t) if needs_key else None
     for index in active:
       entry = self._entries[index]
       buffer = buffers[index]
@@ -603,10 +420,11 @@ class Updater:
         continue
       take = t == buffer.next_timestamp
       delay, delay_state = entry.delay.draw(
-          buffer.delay_state, lambda: _fold(step_key, entry, _DELAY)
+          buffer.delay_state, lambda: plan.fold(step_key, entry, plan.DELAY)
       )  # pylint: disable=cell-var-from-loop
       interval, interval_state = entry.interval.draw(
-          buffer.interval_state, lambda: _fold(step_key, entry, _INTERVAL)
+          buffer.interval_state,
+          lambda: plan.fold(step_key, entry, plan.INTERVAL),
       )  # pylint: disable=cell-var-from-loop
       buffer = obs_buffer.arrival_insert(buffer, samples, t, delay, take)
       select = lambda new, old: jax.tree.map(  # pylint: disable=cell-var-from-loop
@@ -621,13 +439,13 @@ class Updater:
 
   # -- reading ---------------------------------------------------------------
 
-  def _read(self, entry: _Entry, state: UpdaterState, stream: str):
+  def _read(self, entry: plan.Entry, state: UpdaterState, stream: str):
     buffer = state.buffers[entry.index]
     if entry.schedule is not None:
       return obs_buffer.ring_read(entry.schedule, buffer, state.t, stream)
     return obs_buffer.arrival_read(buffer, state.t, entry.buffer_size, stream)
 
-  def _observe(self, entry: _Entry, state: UpdaterState, corrupted: bool):
+  def _observe(self, entry: plan.Entry, state: UpdaterState, corrupted: bool):
     values, _ = self._read(entry, state, entry.stream(corrupted))
     return obs_buffer.strip_or_aggregate(values, entry.aggregator, self._strip)
 
@@ -679,54 +497,12 @@ class Updater:
           'Physics to observation_spec(physics) or to Updater(..., '
           'physics=...), or trace reset first.'
       )
-    return self._structure(self._spec, flat=self._flatten_specs)
-
-  def _spec(self, entry: _Entry, corrupted: bool):
-    sample = entry.shapes[entry.stream(corrupted)]
-    name = entry.key
-    buffered = (entry.buffer_size,) + tuple(sample.shape)
-    array_spec = entry.array_spec
-    aggregator = entry.aggregator
-    if aggregator is None:
-      shape = (
-          tuple(sample.shape)
-          if self._strip and entry.buffer_size == 1
-          else buffered
-      )
-      if array_spec is not None:
-        return array_spec.replace(name=name, shape=shape)
-      return specs.Array(shape=shape, dtype=sample.dtype, name=name)
-    out = jax.eval_shape(
-        aggregator, jax.ShapeDtypeStruct(buffered, sample.dtype)
+    return self._structure(
+        lambda e, corrupted: obs_spec.observable_spec(
+            e, corrupted, self._strip
+        ),
+        flat=obs_spec.flat_group_spec,
     )
-    if isinstance(array_spec, specs.BoundedArray):
-      preserves = getattr(aggregator, 'preserves_bounds', None)
-      if preserves is None:
-        logging.warning(
-            'Observable %r: its aggregator %r does not say whether it '
-            'preserves bounds (attribute `preserves_bounds`); the bounds of '
-            'its BoundedArray spec are dropped.',
-            name,
-            aggregator,
-        )
-      if preserves:
-        try:
-          return specs.BoundedArray(
-              shape=out.shape,
-              dtype=out.dtype,
-              minimum=array_spec.minimum,
-              maximum=array_spec.maximum,
-              name=name,
-          )
-        except ValueError:
-          logging.warning(
-              'Observable %r: bounds of shape %s do not fit the '
-              'aggregated shape %s; dropped.',
-              name,
-              np.shape(array_spec.minimum),
-              out.shape,
-          )
-    return specs.Array(shape=out.shape, dtype=out.dtype, name=name)
 
   # -- structure -------------------------------------------------------------
 
@@ -756,7 +532,3 @@ class Updater:
     return jnp.concatenate(
         [jnp.ravel(v).astype(jnp.float32) for v in values.values()]
     )
-
-  @staticmethod
-  def _flatten_specs(name, spec_dict):
-    return flatten_lib.Flattener(spec_dict, jnp.float32, name=name).spec

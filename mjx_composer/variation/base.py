@@ -95,11 +95,14 @@ Arithmetic
 variations, like composer's `_BinaryOperation`, `_UnaryOperation` and
 `_GetItemOperation`. Variations compare structurally (`==`) and print
 readably, e.g. `str(Uniform() + 2) == 'Uniform(low=0.0, high=1.0) + 2'`.
+
+Where things live: this module holds the `Variation` protocol,
+`CompositeVariation`, structure evaluation and static bounds; the arithmetic
+nodes are in `arithmetic`, key checks and evaluation rounds in `rounds`
+(`evaluation_round` is re-exported here).
 """
 
 import abc
-import contextlib
-import contextvars
 import functools
 import operator
 from typing import Any, Optional, Tuple
@@ -108,6 +111,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import tree
+
+from mjx_composer.variation import rounds
+from mjx_composer.variation.rounds import evaluation_round
 
 Bounds = Tuple[np.ndarray, np.ndarray]
 
@@ -145,7 +151,7 @@ class Variation(metaclass=abc.ABCMeta):
     Returns:
       `(value, new_state)`, `new_state` with the structure of `state`.
     """
-    _check_key(key, self)
+    rounds.check_key(key, self)
     with evaluation_round(key):
       return self._sample(state, key, initial_value, current_value)
 
@@ -233,124 +239,46 @@ class Variation(metaclass=abc.ABCMeta):
   # ------------------------------------------------------- Arithmetic.
 
   def __add__(self, other):
-    return _BinaryOperation(operator.add, self, other)
+    return arithmetic.binary_operation(operator.add, self, other)
 
   def __radd__(self, other):
-    return _BinaryOperation(operator.add, other, self)
+    return arithmetic.binary_operation(operator.add, other, self)
 
   def __sub__(self, other):
-    return _BinaryOperation(operator.sub, self, other)
+    return arithmetic.binary_operation(operator.sub, self, other)
 
   def __rsub__(self, other):
-    return _BinaryOperation(operator.sub, other, self)
+    return arithmetic.binary_operation(operator.sub, other, self)
 
   def __mul__(self, other):
-    return _BinaryOperation(operator.mul, self, other)
+    return arithmetic.binary_operation(operator.mul, self, other)
 
   def __rmul__(self, other):
-    return _BinaryOperation(operator.mul, other, self)
+    return arithmetic.binary_operation(operator.mul, other, self)
 
   def __truediv__(self, other):
-    return _BinaryOperation(operator.truediv, self, other)
+    return arithmetic.binary_operation(operator.truediv, self, other)
 
   def __rtruediv__(self, other):
-    return _BinaryOperation(operator.truediv, other, self)
+    return arithmetic.binary_operation(operator.truediv, other, self)
 
   def __floordiv__(self, other):
-    return _BinaryOperation(operator.floordiv, self, other)
+    return arithmetic.binary_operation(operator.floordiv, self, other)
 
   def __rfloordiv__(self, other):
-    return _BinaryOperation(operator.floordiv, other, self)
+    return arithmetic.binary_operation(operator.floordiv, other, self)
 
   def __pow__(self, other):
-    return _BinaryOperation(operator.pow, self, other)
+    return arithmetic.binary_operation(operator.pow, self, other)
 
   def __rpow__(self, other):
-    return _BinaryOperation(operator.pow, other, self)
+    return arithmetic.binary_operation(operator.pow, other, self)
 
   def __neg__(self):
-    return _UnaryOperation(operator.neg, self)
+    return arithmetic.unary_operation(operator.neg, self)
 
   def __getitem__(self, index):
-    return _GetItemOperation(self, index)
-
-
-# --------------------------------------------------------------------------
-# Keys and evaluation rounds.
-
-
-def _check_key(key, owner):
-  """Rejects things that are not JAX keys, with a message for porters."""
-  if key is None:
-    return
-  if isinstance(key, (np.random.RandomState, np.random.Generator)):
-    raise TypeError(
-        f"{owner!r}: got a numpy random state. mjx_composer variations "
-        "take a JAX PRNG key (jax.random.key(seed)) where composer took "
-        "random_state."
-    )
-  dtype = getattr(key, "dtype", None)
-  if dtype is None or not (
-      jnp.issubdtype(dtype, jax.dtypes.prng_key) or dtype == np.uint32
-  ):
-    raise TypeError(
-        f"{owner!r}: key must be a JAX PRNG key such as "
-        f"jax.random.key(0) or jax.random.PRNGKey(0), got {key!r}."
-    )
-
-
-class _Round:
-  """Evaluation-wide context shared by all nodes of one outermost call."""
-
-  def __init__(self, key):
-    self.key = key
-    self._slots = {}
-
-  def slot(self, owner) -> int:
-    """A per-round index for `owner`, in order of first use."""
-    return self._slots.setdefault(owner, len(self._slots))
-
-
-_CURRENT_ROUND = contextvars.ContextVar(
-    "mjx_composer_variation_round", default=None
-)
-
-
-@contextlib.contextmanager
-def evaluation_round(key):
-  """Makes everything evaluated inside one "round" with root key `key`.
-
-  Every public entry point (`Variation.__call__`, `Variation.sample`,
-  `evaluate`, `sample`) opens a round with its own key unless one is already
-  open, in which case the outer round is kept. Within a round, every
-  `VariationBroadcaster` proxy of one broadcaster returns the same value.
-  Open a round explicitly when several variations are evaluated by separate
-  calls but must share broadcast values, e.g. a variator evaluating each
-  bound attribute with its own subkey:
-
-      with variation.evaluation_round(key):
-          for i, v in enumerate(bound_variations):
-              values.append(v(init[i], cur[i], jax.random.fold_in(key, i)))
-
-  The round only exists while Python traces or runs the enclosed code; it
-  holds no state between calls, so evaluation stays pure.
-  """
-  if _CURRENT_ROUND.get() is not None:
-    yield
-    return
-  token = _CURRENT_ROUND.set(_Round(key))
-  try:
-    yield
-  finally:
-    _CURRENT_ROUND.reset(token)
-
-
-def _current_round() -> Optional[_Round]:
-  return _CURRENT_ROUND.get()
-
-
-def _fold_in(key, index):
-  return None if key is None else jax.random.fold_in(key, index)
+    return arithmetic.get_item_operation(self, index)
 
 
 # --------------------------------------------------------------------------
@@ -362,11 +290,11 @@ def _is_variation(x) -> bool:
   return isinstance(x, Variation) or callable(x)
 
 
-def _contains_variation(structure) -> bool:
+def contains_variation(structure) -> bool:
   return any(_is_variation(leaf) for leaf in tree.flatten(structure))
 
 
-def _collapse(states):
+def collapse(states):
   """A tuple of states, or `None` when none of them holds an array."""
   states = tuple(states)
   return tuple(states) if jax.tree_util.tree_leaves(states) else None
@@ -389,18 +317,18 @@ def _leaf_values(structure, n, value, per_leaf):
   return [value] * n
 
 
-def _structure_initial_state(structure, initial_value, per_leaf):
+def structure_initial_state(structure, initial_value, per_leaf):
   if isinstance(structure, Variation):
     return structure.initial_state(initial_value)
   leaves = tree.flatten(structure)
   ivs = _leaf_values(structure, len(leaves), initial_value, per_leaf)
-  return _collapse(
+  return collapse(
       leaf.initial_state(iv) if isinstance(leaf, Variation) else None
       for leaf, iv in zip(leaves, ivs)
   )
 
 
-def _sample_structure(
+def sample_structure(
     structure, state, key, initial_value, current_value, per_leaf
 ):
   """Evaluates every variation leaf of `structure`; returns (values, state)."""
@@ -418,14 +346,16 @@ def _sample_structure(
   values, new_states = [], []
   for i, (leaf, leaf_state, iv, cv) in enumerate(zip(leaves, states, ivs, cvs)):
     if isinstance(leaf, Variation):
-      value, leaf_state = leaf._sample(leaf_state, _fold_in(key, i), iv, cv)
+      value, leaf_state = leaf._sample(
+          leaf_state, rounds.fold_in(key, i), iv, cv
+      )
     elif callable(leaf):
-      value = leaf(iv, cv, _fold_in(key, i))
+      value = leaf(iv, cv, rounds.fold_in(key, i))
     else:
       value = leaf
     values.append(value)
     new_states.append(leaf_state)
-  return tree.unflatten_as(structure, values), _collapse(new_states)
+  return tree.unflatten_as(structure, values), collapse(new_states)
 
 
 def initial_state(structure, initial_value=None):
@@ -442,7 +372,7 @@ def initial_state(structure, initial_value=None):
     tuple with one state per flattened leaf, or `None` if nothing in the
     structure is stateful.
   """
-  return _structure_initial_state(structure, initial_value, per_leaf=True)
+  return structure_initial_state(structure, initial_value, per_leaf=True)
 
 
 def sample(structure, state, key, initial_value=None, current_value=None):
@@ -463,9 +393,9 @@ def sample(structure, state, key, initial_value=None, current_value=None):
   Returns:
     `(values, new_state)`: `values` has the structure of `structure`.
   """
-  _check_key(key, structure)
+  rounds.check_key(key, structure)
   with evaluation_round(key):
-    return _sample_structure(
+    return sample_structure(
         structure, state, key, initial_value, current_value, per_leaf=True
     )
 
@@ -497,7 +427,7 @@ def evaluate(structure, initial_value=None, current_value=None, key=None):
 # Static bounds.
 
 
-def _numeric_array(value) -> Optional[np.ndarray]:
+def numeric_array(value) -> Optional[np.ndarray]:
   """`np.asarray(value)` if that gives a numeric array, else `None`."""
   try:
     array = np.asarray(value)
@@ -519,20 +449,33 @@ def static_bounds(value) -> Optional[Bounds]:
     return value.static_bounds()
   if callable(value):
     return None
-  if tree.is_nested(value) and _contains_variation(value):
+  if tree.is_nested(value) and contains_variation(value):
     leaves = tree.flatten(value)
     bounds = [static_bounds(leaf) for leaf in leaves]
     if any(b is None for b in bounds):
       return None
-    low = _numeric_array(tree.unflatten_as(value, [b[0] for b in bounds]))
-    high = _numeric_array(tree.unflatten_as(value, [b[1] for b in bounds]))
+    low = numeric_array(tree.unflatten_as(value, [b[0] for b in bounds]))
+    high = numeric_array(tree.unflatten_as(value, [b[1] for b in bounds]))
     if low is None or high is None:
       return None
     return low, high
-  array = _numeric_array(value)
+  array = numeric_array(value)
   if array is None:
     return None
   return array, array
+
+
+def extremes(candidates) -> Bounds:
+  """Elementwise min and max over arrays that broadcast together."""
+  return as_bounds(
+      functools.reduce(np.minimum, candidates),
+      functools.reduce(np.maximum, candidates),
+  )
+
+
+def as_bounds(low, high) -> Bounds:
+  """`(low, high)` as numpy arrays."""
+  return np.asarray(low), np.asarray(high)
 
 
 # --------------------------------------------------------------------------
@@ -548,8 +491,8 @@ def _structurally_equal(a, b) -> bool:
     return isinstance(a, Variation) and isinstance(b, Variation) and a == b
   if a is b:
     return True
-  if not (_contains_variation(a) or _contains_variation(b)):
-    array_a, array_b = _numeric_array(a), _numeric_array(b)
+  if not (contains_variation(a) or contains_variation(b)):
+    array_a, array_b = numeric_array(a), numeric_array(b)
     if array_a is not None and array_b is not None:
       return array_a.shape == array_b.shape and bool(np.all(array_a == array_b))
   if isinstance(a, dict) and isinstance(b, dict):
@@ -625,8 +568,8 @@ class CompositeVariation(Variation):
 
   def initial_state(self, initial_value=None):
     inputs = self._operand_inputs(initial_value, None)
-    return _collapse(
-        _structure_initial_state(operand, iv, per_leaf=False)
+    return collapse(
+        structure_initial_state(operand, iv, per_leaf=False)
         for operand, (iv, _) in zip(self._operands, inputs)
     )
 
@@ -634,7 +577,7 @@ class CompositeVariation(Variation):
     if not self._DRAWS_RANDOMNESS:
       return None, key
     self._require_key(key)
-    if not _contains_variation(self._operands):
+    if not contains_variation(self._operands):
       return key, None
     own_key, operand_key = jax.random.split(key)
     return own_key, operand_key
@@ -649,206 +592,20 @@ class CompositeVariation(Variation):
         zip(self._operands, states, inputs)
     ):
       operand_key_i = None
-      if _contains_variation(operand):
-        operand_key_i = operand_key if n == 1 else _fold_in(operand_key, i)
-      value, operand_state = _sample_structure(
+      if contains_variation(operand):
+        operand_key_i = (
+            operand_key if n == 1 else rounds.fold_in(operand_key, i)
+        )
+      value, operand_state = sample_structure(
           operand, operand_state, operand_key_i, iv, cv, per_leaf=False
       )
       values.append(value)
       new_states.append(operand_state)
     value = self._apply(tuple(values), own_key, initial_value, current_value)
-    return value, _collapse(new_states)
+    return value, collapse(new_states)
 
 
-# --------------------------------------------------------------------------
-# Arithmetic nodes.
-
-# Symbol and precedence (higher binds tighter) of each operator.
-_BINARY_SYMBOLS = {
-    operator.add: ("+", 1),
-    operator.sub: ("-", 1),
-    operator.mul: ("*", 2),
-    operator.truediv: ("/", 2),
-    operator.floordiv: ("//", 2),
-    operator.pow: ("**", 4),
-}
-_UNARY_PRECEDENCE = 3
-_ATOM_PRECEDENCE = 5
-
-
-def _precedence(value) -> int:
-  if isinstance(value, _BinaryOperation):
-    return _BINARY_SYMBOLS[value._op][1]
-  if isinstance(value, _UnaryOperation):
-    return _UNARY_PRECEDENCE
-  return _ATOM_PRECEDENCE
-
-
-def _format_operand(value, use_str, parenthesize):
-  text = format_value(value, use_str)
-  return f"({text})" if parenthesize else text
-
-
-class _BinaryOperation(CompositeVariation):
-  """`op(first, second)` of two evaluated operands (one at least a variation)."""
-
-  def __init__(self, op, first, second):
-    self._op = op
-    self._operands = (first, second)
-
-  def _apply(self, values, key, initial_value, current_value):
-    first, second = (as_array(v) for v in values)
-    return self._op(first, second)
-
-  def static_bounds(self):
-    first, second = (static_bounds(v) for v in self._operands)
-    if first is None or second is None:
-      return None
-    (a_low, a_high), (b_low, b_high) = first, second
-    op = self._op
-    if op is operator.add:
-      return _as_bounds(a_low + b_low, a_high + b_high)
-    if op is operator.sub:
-      return _as_bounds(a_low - b_high, a_high - b_low)
-    if op is operator.mul:
-      return _extremes(
-          [a_low * b_low, a_low * b_high, a_high * b_low, a_high * b_high]
-      )
-    if op in (operator.truediv, operator.floordiv):
-      if not (np.all(b_low > 0) or np.all(b_high < 0)):
-        return None  # The divisor's range contains zero.
-      low, high = _extremes(
-          [a_low / b_low, a_low / b_high, a_high / b_low, a_high / b_high]
-      )
-      if op is operator.floordiv:
-        low, high = np.floor(low), np.floor(high)
-      return _as_bounds(low, high)
-    return None
-
-  def _eq_fields(self):
-    return (self._op, self._operands)
-
-  def _format(self, use_str):
-    symbol, precedence = _BINARY_SYMBOLS[self._op]
-    first, second = self._operands
-    right_assoc = self._op is operator.pow
-    first_text = _format_operand(
-        first,
-        use_str,
-        _precedence(first) < precedence
-        or (right_assoc and _precedence(first) == precedence),
-    )
-    second_text = _format_operand(
-        second,
-        use_str,
-        _precedence(second) < precedence
-        or (not right_assoc and _precedence(second) == precedence),
-    )
-    return f"{first_text} {symbol} {second_text}"
-
-  def __str__(self):
-    return self._format(use_str=True)
-
-  def __repr__(self):
-    return self._format(use_str=False)
-
-
-class _UnaryOperation(CompositeVariation):
-  """`op(operand)` of an evaluated variation (composer only has `neg`)."""
-
-  def __init__(self, op, operand):
-    self._op = op
-    self._operands = (operand,)
-
-  def _apply(self, values, key, initial_value, current_value):
-    return self._op(as_array(values[0]))
-
-  def static_bounds(self):
-    bounds = static_bounds(self._operands[0])
-    if bounds is None or self._op is not operator.neg:
-      return None
-    return _as_bounds(-bounds[1], -bounds[0])
-
-  def _eq_fields(self):
-    return (self._op, self._operands)
-
-  def _format(self, use_str):
-    operand = self._operands[0]
-    text = _format_operand(
-        operand, use_str, _precedence(operand) < _ATOM_PRECEDENCE
-    )
-    return f"-{text}"
-
-  def __str__(self):
-    return self._format(use_str=True)
-
-  def __repr__(self):
-    return self._format(use_str=False)
-
-
-def _normalize_index(index):
-  """numpy-style index usable on a jnp array (lists become index arrays)."""
-  if isinstance(index, list):
-    return np.asarray(index)
-  if isinstance(index, tuple):
-    return tuple(np.asarray(i) if isinstance(i, list) else i for i in index)
-  return index
-
-
-def _format_index(index) -> str:
-  if isinstance(index, tuple):
-    return ", ".join(_format_index(i) for i in index)
-  if isinstance(index, slice):
-    parts = ["" if p is None else repr(p) for p in (index.start, index.stop)]
-    text = ":".join(parts)
-    return text if index.step is None else f"{text}:{index.step!r}"
-  if index is Ellipsis:
-    return "..."
-  return repr(index)
-
-
-class _GetItemOperation(CompositeVariation):
-  """`np.asarray(value)[index]` of an evaluated variation."""
-
-  def __init__(self, operand, index):
-    self._index = index
-    self._operands = (operand,)
-
-  def _apply(self, values, key, initial_value, current_value):
-    return as_array(values[0])[_normalize_index(self._index)]
-
-  def static_bounds(self):
-    bounds = static_bounds(self._operands[0])
-    if bounds is None:
-      return None
-    # The bounds may be smaller than the value (they broadcast), so an index
-    # into the value need not address the bounds: use the loosest bounds.
-    return _as_bounds(np.min(bounds[0]), np.max(bounds[1]))
-
-  def _eq_fields(self):
-    return (self._operands, _format_index(self._index))
-
-  def _format(self, use_str):
-    operand = self._operands[0]
-    text = _format_operand(
-        operand, use_str, _precedence(operand) < _ATOM_PRECEDENCE
-    )
-    return f"{text}[{_format_index(self._index)}]"
-
-  def __str__(self):
-    return self._format(use_str=True)
-
-  def __repr__(self):
-    return self._format(use_str=False)
-
-
-def _extremes(candidates) -> Bounds:
-  """Elementwise min and max over arrays that broadcast together."""
-  return _as_bounds(
-      functools.reduce(np.minimum, candidates),
-      functools.reduce(np.maximum, candidates),
-  )
-
-
-def _as_bounds(low, high) -> Bounds:
-  return np.asarray(low), np.asarray(high)
+# The arithmetic nodes subclass `CompositeVariation` (above), and
+# `Variation`'s operators build them at call time: imported last, once
+# `CompositeVariation` exists.
+from mjx_composer.variation import arithmetic  # pylint: disable=g-import-not-at-top,wrong-import-position

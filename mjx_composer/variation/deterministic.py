@@ -23,7 +23,7 @@ class Constant(base.Variation):
 
   def __init__(self, value):
     self._value = value
-    self._array = base._numeric_array(value)
+    self._array = base.numeric_array(value)
 
   @property
   def value(self):
@@ -98,7 +98,7 @@ class Sequence(base.Variation):
     if not self._items:
       raise ValueError("Sequence needs at least one value.")
     self._table = None
-    if not base._contains_variation(self._items):
+    if not base.contains_variation(self._items):
       arrays = [np.asarray(item) for item in self._items]
       shapes = {a.shape for a in arrays}
       if len(shapes) != 1:
@@ -108,8 +108,8 @@ class Sequence(base.Variation):
       self._table = np.stack(arrays)
 
   def initial_state(self, initial_value=None):
-    item_states = base._collapse(
-        base._structure_initial_state(item, initial_value, per_leaf=False)
+    item_states = base.collapse(
+        base.structure_initial_state(item, initial_value, per_leaf=False)
         for item in self._items
     )
     return SequenceState(jnp.zeros((), jnp.int32), item_states)
@@ -134,7 +134,7 @@ class Sequence(base.Variation):
     def branch_for(i):
       def branch(item_states, key, initial_value, current_value):
         states = (None,) * n if stateless else item_states
-        value, new_state = base._sample_structure(
+        value, new_state = base.sample_structure(
             self._items[i],
             states[i],
             key,
@@ -170,12 +170,12 @@ class Sequence(base.Variation):
 
   def static_bounds(self):
     if self._table is not None:
-      return base._as_bounds(self._table.min(axis=0), self._table.max(axis=0))
+      return base.as_bounds(self._table.min(axis=0), self._table.max(axis=0))
     bounds = [base.static_bounds(item) for item in self._items]
     if any(b is None for b in bounds):
       return None
     lows, highs = [b[0] for b in bounds], [b[1] for b in bounds]
-    return base._as_bounds(base._extremes(lows)[0], base._extremes(highs)[1])
+    return base.as_bounds(base.extremes(lows)[0], base.extremes(highs)[1])
 
   def _eq_fields(self):
     return (self._items,)

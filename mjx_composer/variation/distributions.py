@@ -120,7 +120,7 @@ class Uniform(Distribution):
     low, high = base.static_bounds(self.low), base.static_bounds(self.high)
     if low is None or high is None:
       return None
-    return base._as_bounds(
+    return base.as_bounds(
         np.minimum(low[0], high[0]), np.maximum(low[1], high[1])
     )
 
@@ -154,12 +154,12 @@ class UniformInteger(Distribution):
       return (
           None
           if low is None
-          else base._as_bounds(np.zeros_like(low[0]), low[1] - 1)
+          else base.as_bounds(np.zeros_like(low[0]), low[1] - 1)
       )
     high = base.static_bounds(self.high)
     if low is None or high is None:
       return None
-    return base._as_bounds(low[0], high[1] - 1)
+    return base.as_bounds(low[0], high[1] - 1)
 
 
 class UniformChoice(Distribution):
@@ -189,7 +189,7 @@ class UniformChoice(Distribution):
       TypeError: for non-numeric choices.
       ValueError: for an empty set of choices.
     """
-    if not base._contains_variation(choices):
+    if not base.contains_variation(choices):
       array = np.asarray(choices)
       if array.dtype.kind not in "biuf":
         raise TypeError(
@@ -227,7 +227,7 @@ class UniformChoice(Distribution):
     bounds = base.static_bounds(self.choices)
     if bounds is None or np.ndim(bounds[0]) == 0:
       return None
-    return base._as_bounds(np.min(bounds[0], axis=0), np.max(bounds[1], axis=0))
+    return base.as_bounds(np.min(bounds[0], axis=0), np.max(bounds[1], axis=0))
 
 
 class UniformPointOnSphere(base.Variation):

@@ -29,6 +29,7 @@ once per round, which is composer's documented contract.
 import jax
 
 from mjx_composer.variation import base
+from mjx_composer.variation import rounds
 
 # Separates broadcaster keys from the per-leaf keys fold_in(round_key, i).
 _SALT = 0x62726F61
@@ -56,7 +57,7 @@ class VariationBroadcaster:
 
   def _round_key(self, key):
     """The key of this broadcaster's draw in the current round."""
-    current = base._current_round()
+    current = rounds.current_round()
     if current is None or current.key is None:
       return key
     slot = current.slot(self)
@@ -74,12 +75,12 @@ class _BroadcastedValueProxy(base.Variation):
 
   def initial_state(self, initial_value=None):
     del initial_value  # The wrapped variation is evaluated without one.
-    return base._structure_initial_state(
+    return base.structure_initial_state(
         self._broadcaster.wrapped_variation, None, per_leaf=False
     )
 
   def _sample(self, state, key, initial_value, current_value):
-    return base._sample_structure(
+    return base.sample_structure(
         self._broadcaster.wrapped_variation,
         state,
         self._broadcaster._round_key(key),
