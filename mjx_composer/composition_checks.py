@@ -14,6 +14,14 @@ actuators or sensors (e.g. `nu == 0`) and no error.
 and raise a `ValueError` that names the element, its entity, the missing
 target and what to fix. They only raise when an element was actually dropped,
 so a model MuJoCo accepts is never rejected here.
+
+Cross-entity references: as in composer, an entity may declare an equality,
+actuator, sensor, exclude or contact pair that refers by full name to an
+element of an entity attached below it (a weld between `'arm/hand'` and
+`'prop/body'` declared in the arena). Its own spec cannot resolve that name,
+so `copy()` would drop it: `cross_entity_elements` finds such elements, and
+`Entity.compose` adds a copy of each (`readd`) to the composed spec once the
+entities are attached, where compiling resolves (or rejects) the name.
 """
 
 from __future__ import annotations
@@ -100,20 +108,83 @@ def count_elements(spec: mujoco.MjSpec) -> dict[str, int]:
   return counts
 
 
-def check_copy(entity, original: mujoco.MjSpec, copied: mujoco.MjSpec):
+# Element lists whose elements may refer to an attached entity's elements,
+# and the MjSpec method that adds one.
+_CROSS_ENTITY = {
+    'equalities': 'add_equality',
+    'actuators': 'add_actuator',
+    'sensors': 'add_sensor',
+    'excludes': 'add_exclude',
+    'pairs': 'add_pair',
+}
+# Attributes that belong to the spec an element lives in, not to the element.
+_NOT_COPIED = frozenset(
+    {'id', 'signature', 'classname', 'compiler', 'info', 'plugin', 'frame'}
+)
+
+
+def cross_entity_elements(entity, spec: mujoco.MjSpec) -> list:
+  """`(list attr, element)` of `spec` that refer to attached entities.
+
+  An element qualifies when each of its unresolved references names an
+  element below one of `entity`'s attached children (`'<child name>/...'`).
+  """
+  prefixes = tuple(
+      child.name + '/'
+      for child in entity.iter_entities(exclude_self=True)
+      if child.parent is entity
+  )
+  if not prefixes:
+    return []
+  unresolved = {}
+  for attr, index, element, ref in _dangling_references(spec):
+    unresolved.setdefault((attr, index), (element, []))[1].append(ref)
+  return [
+      (attr, element)
+      for (attr, _), (element, refs) in unresolved.items()
+      if attr in _CROSS_ENTITY
+      and all(r.name and r.name.startswith(prefixes) for r in refs)
+  ]
+
+
+def readd(spec: mujoco.MjSpec, attr: str, element):
+  """Adds to `spec` a copy of `element` (from `cross_entity_elements`)."""
+  clone = getattr(spec, _CROSS_ENTITY[attr])()
+  for name in dir(element):
+    if name.startswith('_') or name in _NOT_COPIED:
+      continue
+    value = getattr(element, name)
+    if callable(value):
+      continue
+    try:
+      setattr(clone, name, value)
+    except (AttributeError, TypeError):
+      pass  # A read-only or derived attribute.
+  return clone
+
+
+def check_copy(
+    entity, original: mujoco.MjSpec, copied: mujoco.MjSpec, deferred=()
+):
   """Raises ValueError if `copied = original.copy()` lost any element.
 
   Args:
     entity: the `Entity` that owns `original` (for messages).
     original: the entity's own spec.
     copied: its copy, before anything else is added to it.
+    deferred: `cross_entity_elements(entity, original)`: dropped on purpose,
+      added back after the attached entities.
   """
   before, after = count_elements(original), count_elements(copied)
+  for attr, _ in deferred:
+    before[attr] -= 1
   if before == after:
     return
+  skip = {id(element) for _, element in deferred}
   problems = [
       _describe_dangling(entity, original, attr, index, element, ref)
       for attr, index, element, ref in _dangling_references(original)
+      if id(element) not in skip
   ]
   if not problems:
     problems = _describe_missing(entity, original, copied, '')
@@ -309,11 +380,10 @@ def _describe_dangling(entity, spec, attr, index, element, ref):
     return (
         f'{name} {ref.verb} {ref.kind} {ref.name!r}, which is not an element '
         f'of the own spec of {where}, so composition would drop the '
-        f'{_SINGULAR[attr]}: an element can only refer to elements of its own '
-        "entity (entities are composed lazily: an attached entity's elements "
-        "are not in its parent's spec). Declare the "
-        f'{_SINGULAR[attr]} in the entity that owns {ref.name!r}, with the '
-        f'name it has there, or fix {ref.field} in {where}.'
+        f'{_SINGULAR[attr]}: an element can refer to elements of its own '
+        'entity, and by full name to those of entities attached below it. '
+        f'Declare the {_SINGULAR[attr]} in an entity that {ref.name!r} is '
+        f'part of or attached below, or fix {ref.field} in {where}.'
     )
   message = (
       f'{name} {ref.verb} {ref.kind} {full + ref.name!r}, which does not '

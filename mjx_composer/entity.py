@@ -38,6 +38,10 @@ from mjx_composer import element_index
 from mjx_composer.utils import transformations as tr
 
 _DEFAULT_SPEC_NAME = 'MuJoCo Model'
+# The bindable kind of each MjSpec element list.
+_BINDABLE_LISTS = {
+    attr: kind for kind, attr in element_index.SPEC_LISTS.items()
+}
 
 
 class Entity(abc.ABC):
@@ -251,19 +255,34 @@ class Entity(abc.ABC):
   def compose(self) -> tuple[mujoco.MjSpec, dict[int, tuple]]:
     """Merges this entity's tree into a fresh spec.
 
+    An element of an entity's own spec may refer by full name to an element
+    of an entity attached below it (`'arm/hand'`): it is added to the
+    composed spec after the attached entities, so it compiles after them
+    (an actuator declared that way comes after the attached entities'
+    actuators). Any other reference that does not resolve is an error
+    (`composition_checks`).
+
     Returns:
       The composed spec (a copy: no entity's own spec is modified), and a map
       `id(handle) -> (handle, kind name, composed handle)` for every element
       of every entity in the tree, where `composed handle` is the element in
       the composed spec (its `.name` is the fully qualified name).
     """
-    spec = self.mjcf_model.copy()
-    # copy() and attach() silently drop elements with dangling references.
-    composition_checks.check_copy(self, self.mjcf_model, spec)
+    own = self.mjcf_model
+    # copy() and attach() silently drop elements with dangling references;
+    # elements that refer to attached entities are added back at the end.
+    deferred = composition_checks.cross_entity_elements(self, own)
+    spec = own.copy()
+    composition_checks.check_copy(self, own, spec, deferred)
+    deferred_ids = {id(element) for _, element in deferred}
     handles = {}
+    kept = [
+        (kind, original)
+        for kind, original in element_index.iter_elements(own)
+        if id(original) not in deferred_ids
+    ]
     for (kind, original), (_, copied) in zip(
-        element_index.iter_elements(self.mjcf_model),
-        element_index.iter_elements(spec),
+        kept, element_index.iter_elements(spec)
     ):
       if kind == 'body' and copied is spec.worldbody:
         pass
@@ -281,6 +300,13 @@ class Entity(abc.ABC):
       child_world = child.mjcf_model.worldbody
       child_handles[id(child_world)] = (child_world, 'body', frame)
       handles.update(child_handles)
+    for attr, original in deferred:
+      copied = composition_checks.readd(spec, attr, original)
+      kind = _BINDABLE_LISTS.get(attr)
+      if kind is not None:
+        if not copied.name:
+          copied.name = f'unnamed_{kind}_{len(handles)}'
+        handles[id(original)] = (original, kind, copied)
     return spec, handles
 
   # -- frames and poses (device, pure) --------------------------------------

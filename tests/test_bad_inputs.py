@@ -186,18 +186,52 @@ def test_other_dangling_references_raise(edit, match):
     _in_arena(_Arm(edit=edit)).compose()
 
 
-def test_reference_into_a_child_entity_raises():
+def test_reference_into_a_child_entity_is_kept():
+  # Composer lets an entity refer to the elements of entities attached below
+  # it by full name; composition adds such elements after the attach.
+  arena = _in_arena(_Arm())
+  reach = arena.mjcf_model.add_actuator(
+      name='reach', target='arm/shoulder', trntype=mujoco.mjtTrn.mjTRN_JOINT
+  )
+  weld = arena.mjcf_model.add_equality(
+      type=mujoco.mjtEq.mjEQ_CONNECT,
+      name1='arm/link',
+      objtype=_OBJ.mjOBJ_BODY,
+      active=False,
+  )
+  spec, handles = arena.compose()
+  model = spec.compile()
+  assert model.nu == 2 and model.neq == 1
+  shoulder = model.joint('arm/shoulder').id
+  assert model.actuator('reach').trnid[0] == shoulder
+  assert model.actuator('arm/motor').trnid[0] == shoulder
+  assert model.eq_obj1id[0] == model.body('arm/link').id
+  # The arena's own handles bind to the composed elements.
+  assert handles[id(reach)][2].name == 'reach'
+  assert handles[id(weld)][1] == 'equality'
+
+
+def test_reference_to_an_entity_not_attached_below_raises():
   arena = _in_arena(_Arm())
   arena.mjcf_model.add_actuator(
-      name='reach', target='arm/shoulder', trntype=mujoco.mjtTrn.mjTRN_JOINT
+      name='reach', target='leg/knee', trntype=mujoco.mjtTrn.mjTRN_JOINT
   )
   with pytest.raises(
       ValueError,
-      match=r"Actuator 'reach' targets joint 'arm/shoulder', which is not an "
-      r"element of the own spec of entity 'arena'.*Declare the actuator in "
-      r"the entity that owns 'arm/shoulder'",
+      match=r"Actuator 'reach' targets joint 'leg/knee', which is not an "
+      r"element of the own spec of entity 'arena'.*by full name to those of "
+      r'entities attached below it',
   ):
     arena.compose()
+
+
+def test_typo_in_a_reference_into_a_child_fails_to_compile():
+  arena = _in_arena(_Arm())
+  arena.mjcf_model.add_actuator(
+      name='reach', target='arm/shoulderr', trntype=mujoco.mjtTrn.mjTRN_JOINT
+  )
+  with pytest.raises(ValueError, match=r'failed to compile.*arm/shoulderr'):
+    composer.Environment(composer.NullTask(arena))
 
 
 def test_child_sensor_on_its_worldbody_raises():
