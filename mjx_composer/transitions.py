@@ -109,20 +109,13 @@ class Transitions:
       )
     carry, failures = self._initialize(init_key, start)
     physics = forward_without_actuation(self._restore(carry))
-    obs_state = self.updater.reset(physics, obs_key)
-    observation = self.updater.get_observation(obs_state)
-    return state_lib.State(
-        data=physics.data,
-        task_state=physics.task_state,
-        entity_states=physics.entity_states,
-        model_fields=carry.model_fields,
-        persistent=physics.persistent,
-        obs_state=obs_state,
-        observation=observation,
-        final_observation=observation,
-        key=next_key,
-        scheduled_hooks=physics.scheduled_hooks,
-        **self.episode.start(physics, failures),
+    return _state(
+        physics,
+        tuple(carry.model_fields),
+        self.updater.reset(physics, obs_key),
+        self.updater,
+        next_key,
+        self.episode.start(physics, failures),
     )
 
   def restart(self, stepped: state_lib.State) -> state_lib.State:
@@ -245,21 +238,32 @@ class Transitions:
     )
     physics = self.hooks.after_step(self._restore(carry), after_key)
     _check_step_writes(start, physics, fields, 'after_step')
-    obs_state = self.updater.update(obs_state, physics, obs_key, n)
-    observation = self.updater.get_observation(obs_state)
-    return state_lib.State(
-        data=physics.data,
-        task_state=physics.task_state,
-        entity_states=physics.entity_states,
-        model_fields={f: getattr(physics.model, f) for f in fields},
-        persistent=physics.persistent,
-        obs_state=obs_state,
-        observation=observation,
-        final_observation=observation,
-        key=next_key,
-        scheduled_hooks=physics.scheduled_hooks,
-        **self.episode.end_of_step(state, physics),
+    return _state(
+        physics,
+        fields,
+        self.updater.update(obs_state, physics, obs_key, n),
+        self.updater,
+        next_key,
+        self.episode.end_of_step(state, physics),
     )
+
+
+def _state(physics, fields, obs_state, updater, key, episode_fields):
+  """The `State` of `physics` with its observation and episode fields."""
+  observation = updater.get_observation(obs_state)
+  return state_lib.State(
+      data=physics.data,
+      task_state=physics.task_state,
+      entity_states=physics.entity_states,
+      model_fields={f: getattr(physics.model, f) for f in fields},
+      persistent=physics.persistent,
+      obs_state=obs_state,
+      observation=observation,
+      final_observation=observation,
+      key=key,
+      scheduled_hooks=physics.scheduled_hooks,
+      **episode_fields,
+  )
 
 
 def _check_step_writes(before, after, fields, hook_names):
