@@ -26,51 +26,26 @@ Results go to stdout as a table and, as JSON, to `--out` (default
 `$OUT/reset_cost.json`, or `./reset_cost.json` when `OUT` is unset).
 """
 
-import argparse
-import json
-import os
-import statistics
-import time
-
 import jax
 import jax.numpy as jnp
 
-from mjx_composer import environment
-from mjx_composer.tasks import push
+import common  # benchmarks/common.py
 
 _PLACEMENTS = ('placer', 'ring', 'unchecked', 'fixed')
 
 
 def build(placement, max_reset_attempts):
-  task = push.Push(num_boxes=5, placement=placement)
-  return environment.Environment(
-      task,
+  return common.make_env(
+      'push',
       time_limit=2.0,
-      auto_reset='same_step',
-      observation_groups=task.observation_groups(),
       max_reset_attempts=max_reset_attempts,
+      num_boxes=5,
+      placement=placement,
   )
 
 
-def time_calls(fn, make_args, repeats):
-  """(compile-and-first-call seconds, median seconds of `repeats` calls)."""
-  t0 = time.perf_counter()
-  out = jax.block_until_ready(fn(*make_args(0)))
-  first = time.perf_counter() - t0
-  times = []
-  for i in range(repeats):
-    args = jax.block_until_ready(make_args(i + 1))
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(fn(*args))
-    times.append(time.perf_counter() - t0)
-  del out
-  return first, statistics.median(times)
-
-
 def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--worlds', type=int, nargs='+', default=[8192])
-  parser.add_argument('--repeats', type=int, default=5)
+  parser = common.make_parser(__doc__, worlds=[8192], repeats=5)
   parser.add_argument(
       '--max-reset-attempts',
       type=int,
@@ -85,14 +60,10 @@ def main():
       choices=_PLACEMENTS,
       help='which variants to time (default: all)',
   )
-  parser.add_argument(
-      '--out',
-      default=os.path.join(os.environ.get('OUT', '.'), 'reset_cost.json'),
-  )
+  common.add_out_arg(parser, 'reset_cost.json')
   args = parser.parse_args()
 
-  device = jax.devices()[0]
-  print(f'JAX {jax.__version__}, {device.platform}: {device.device_kind}')
+  device = common.print_device()
   envs = {
       name: build(name, args.max_reset_attempts) for name in args.placements
   }
@@ -105,7 +76,7 @@ def main():
       return (jax.random.split(jax.random.key(1000 + i), worlds),)
 
     for name in args.placements:
-      compile_s, seconds = time_calls(resets[name], keys, args.repeats)
+      compile_s, seconds = common.time_calls(resets[name], keys, args.repeats)
       row[f'{name}_s'] = seconds
       row[f'{name}_first_call_s'] = compile_s
       if name == 'placer':
@@ -128,7 +99,7 @@ def main():
     physics = env.physics(jax.tree.map(lambda x: x[0], placer_states))
     placer = env.task.placer
     place = jax.jit(jax.vmap(lambda k: placer(physics, k).data.qpos))
-    compile_s, seconds = time_calls(place, keys, args.repeats)
+    compile_s, seconds = common.time_calls(place, keys, args.repeats)
     row['placer_only_s'] = seconds
     row['placer_only_first_call_s'] = compile_s
     print(
@@ -137,22 +108,18 @@ def main():
         flush=True,
     )
 
-  out_dir = os.path.dirname(os.path.abspath(args.out))
-  os.makedirs(out_dir, exist_ok=True)
-  with open(args.out, 'w') as f:
-    json.dump(
-        {
-            'device': device.device_kind,
-            'platform': device.platform,
-            'jax': jax.__version__,
-            'props': 5,
-            'max_reset_attempts': args.max_reset_attempts,
-            'repeats': args.repeats,
-            'results': results,
-        },
-        f,
-        indent=2,
-    )
+  common.write_json(
+      args.out,
+      {
+          'device': device.device_kind,
+          'platform': device.platform,
+          'jax': jax.__version__,
+          'props': 5,
+          'max_reset_attempts': args.max_reset_attempts,
+          'repeats': args.repeats,
+          'results': results,
+      },
+  )
 
   def ms(row, name):
     return f'{row[name] * 1e3:.1f} ms' if name in row else '-'

@@ -17,85 +17,55 @@ each, and raw `jax.vmap(mjx.step)` on the same model for scale.
     python benchmarks/variation_cost.py --worlds 8192
 """
 
-import argparse
-import json
-import os
-import statistics
-import time
-
 import jax
-import jax.numpy as jnp
-from mujoco import mjx
 
-from mjx_composer import environment
-from mjx_composer.tasks import reach
-import throughput  # benchmarks/throughput.py: timing and rollout helpers
+import common  # benchmarks/common.py
 
 
 def build(randomize: bool, episode_steps: int):
-  task = reach.Reach(randomize=randomize)
-  return environment.Environment(
-      task,
-      time_limit=episode_steps * task.control_timestep,
-      auto_reset='same_step',
-      observation_groups=reach.Reach.observation_groups(),
+  return common.make_env(
+      'reach', episode_steps=episode_steps, randomize=randomize
   )
 
 
-def time_reset(reset, keys, repeats):
-  """Median seconds of one batched reset (after compiling it)."""
-  jax.block_until_ready(reset(keys))
-  times = []
-  for _ in range(repeats):
-    t0 = time.perf_counter()
-    jax.block_until_ready(reset(keys))
-    times.append(time.perf_counter() - t0)
-  return statistics.median(times)
-
-
 def main():
-  parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-  parser.add_argument('--worlds', type=int, nargs='+', default=[8192])
+  parser = common.make_parser(__doc__, worlds=[8192])
   parser.add_argument('--episode-steps', type=int, default=100)
   parser.add_argument(
       '--steps', type=int, default=300, help='control steps per timed call'
   )
-  parser.add_argument('--repeats', type=int, default=3)
-  parser.add_argument(
-      '--out',
-      default=os.path.join(os.environ.get('OUT', '.'), 'variation_cost.json'),
-  )
+  common.add_repeats_arg(parser, 3)
+  common.add_out_arg(parser, 'variation_cost.json')
   args = parser.parse_args()
 
-  device = jax.devices()[0]
-  print(f'JAX {jax.__version__}, {device.platform}: {device.device_kind}')
+  device = common.print_device()
   envs = {
       'randomized': build(True, args.episode_steps),
       'fixed': build(False, args.episode_steps),
   }
   base = envs['fixed']
   n = base.n_sub_steps
-  spec = base.action_spec()
   results = []
   for worlds in args.worlds:
     row = {'worlds': worlds}
     keys = jax.random.split(jax.random.key(0), worlds)
-    actions = jax.random.uniform(
-        jax.random.key(1), (worlds,) + spec.shape, minval=-1.0, maxval=1.0
-    )
-    data = jax.vmap(lambda _: mjx.make_data(base.mjx_model))(jnp.arange(worlds))
-    seconds = throughput.time_fn(
-        throughput.raw_rollout(base.mjx_model, n, args.steps),
+    actions = common.random_actions(base, worlds)
+    data = common.raw_data(base.mjx_model, worlds)
+    seconds = common.time_fn(
+        common.raw_rollout(base.mjx_model, n, args.steps),
         (data, actions),
         args.repeats,
     )
     row['raw'] = worlds * args.steps * n / seconds
     for name, env in envs.items():
       reset = jax.jit(jax.vmap(env.reset))
-      row[f'{name}_reset_s'] = time_reset(reset, keys, args.repeats)
+      # Median of `--repeats` batched resets, after compiling it.
+      _, row[f'{name}_reset_s'] = common.time_calls(
+          reset, lambda _, keys=keys: (keys,), args.repeats
+      )
       states = reset(keys)
-      seconds = throughput.time_fn(
-          throughput.env_rollout(env, args.steps),
+      seconds = common.time_fn(
+          common.env_rollout(env, args.steps),
           (states, actions),
           args.repeats,
       )
@@ -110,19 +80,17 @@ def main():
         flush=True,
     )
 
-  with open(args.out, 'w') as f:
-    json.dump(
-        {
-            'device': device.device_kind,
-            'jax': jax.__version__,
-            'n_sub_steps': n,
-            'episode_steps': args.episode_steps,
-            'steps_per_call': args.steps,
-            'results': results,
-        },
-        f,
-        indent=2,
-    )
+  common.write_json(
+      args.out,
+      {
+          'device': device.device_kind,
+          'jax': jax.__version__,
+          'n_sub_steps': n,
+          'episode_steps': args.episode_steps,
+          'steps_per_call': args.steps,
+          'results': results,
+      },
+  )
   print(
       '\n| worlds | raw MJX | fixed | randomized | randomized / fixed '
       '| reset fixed | reset randomized |'

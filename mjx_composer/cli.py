@@ -4,6 +4,11 @@
 control steps on the default JAX device (the CPU unless a GPU build of JAX
 is installed) with a random policy, shows progress, and prints throughput and
 episode statistics.
+
+Compiled programs are kept in JAX's persistent compilation cache
+(`mjx_composer.compilation_cache`), so a second run with the same options
+skips most of the compilation; `--no-compilation-cache` or
+`MJX_COMPOSER_COMPILATION_CACHE=0` turns that off.
 """
 
 import argparse
@@ -84,7 +89,8 @@ def make_rollout(env, num_worlds, chunk):
   return rollout
 
 
-def demo(argv=None):
+def demo_parser():
+  """The `mjx-composer demo` argument parser."""
   parser = argparse.ArgumentParser(
       prog='mjx-composer demo',
       description=(
@@ -106,13 +112,31 @@ def demo(argv=None):
       '--time-limit', type=float, default=1.0, help='episode length in seconds'
   )
   parser.add_argument('--seed', type=int, default=0)
+  parser.add_argument(
+      '--no-compilation-cache',
+      action='store_true',
+      help="don't read or write JAX's persistent compilation cache "
+      '(default: on, in $MJX_COMPOSER_CACHE_DIR or '
+      '~/.cache/mjx_composer/jax)',
+  )
+  return parser
+
+
+def demo(argv=None):
+  from mjx_composer import compilation_cache  # pylint: disable=g-import-not-at-top
+
+  parser = demo_parser()
   args = parser.parse_args(argv)
   if args.worlds < 1 or args.steps < 1 or args.chunk < 1:
     parser.error('--worlds, --steps and --chunk must be positive.')
+  cache_dir = compilation_cache.enable(
+      enabled=False if args.no_compilation_cache else None
+  )
 
   print(
       f'JAX {jax.__version__} on {jax.devices()[0].platform}: '
-      f'{jax.devices()[0].device_kind}'
+      f'{jax.devices()[0].device_kind}; compilation cache: '
+      f'{cache_dir or "off"}'
   )
   t0 = time.perf_counter()
   env = make_environment(args.task, args.time_limit)
@@ -191,7 +215,7 @@ def main(argv=None):
   if not argv or argv[0] not in ('demo',):
     print(
         'usage: mjx-composer demo [--task reach|push] [--worlds N] '
-        '[--steps T] [--time-limit S] [--seed K]'
+        '[--steps T] [--time-limit S] [--seed K] [--no-compilation-cache]'
     )
     return 2
   return demo(argv[1:])

@@ -13,9 +13,9 @@ to static indices, and plans the observation updater.
 `reset(key)` and `step(state, action)` are pure functions of one world. They
 follow composer's order of events:
 
-* reset: the model's default data (`qpos0`, zero velocities and time), a
-  forward pass with actuation disabled, the task's then each entity's
-  `initialize_episode`, another forward pass with actuation disabled, and the
+* reset: the model's default data (`qpos0`, zero velocities and time),
+  kinematics (composer: a whole forward pass), the task's then each entity's
+  `initialize_episode`, a forward pass with actuation disabled, and the
   first observation (timestamp 0).
 * step: hooks scheduled with `Physics.schedule_before_step`, `before_step`
   (the task gets the action; its default writes `ctrl`), then `n_sub_steps`

@@ -135,7 +135,11 @@ class Transitions:
     """One run of the `initialize_episode` hooks from `start`."""
     physics = self._restore(start)
     if self.hooks.has('initialize_episode'):
-      physics = forward_without_actuation(physics)
+      # Composer runs a whole forward pass here; the hooks read poses, so
+      # kinematics suffices, and keeps a second copy of the collision and
+      # constraint code out of every program that contains a reset (the
+      # step program does, through auto-reset).
+      physics = physics.kinematics()
       physics = self.hooks.initialize_episode(physics, key)
     base = self.initial.model
     changed = {

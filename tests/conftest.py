@@ -6,6 +6,11 @@ import mujoco
 import pytest
 
 import mjx_composer as composer
+from mjx_composer import compilation_cache
+
+# Keep compiled programs on disk between test runs (~/.cache/mjx_composer/jax,
+# or $MJX_COMPOSER_CACHE_DIR); MJX_COMPOSER_COMPILATION_CACHE=0 turns it off.
+compilation_cache.enable()
 
 
 class Pendulum(composer.Robot):

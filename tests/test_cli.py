@@ -30,3 +30,9 @@ def test_demo_runs_and_reports(capsys):
 def test_usage_without_command(capsys):
   assert cli.main([]) == 2
   assert 'usage' in capsys.readouterr().out
+
+
+def test_compilation_cache_flag():
+  parser = cli.demo_parser()
+  assert not parser.parse_args([]).no_compilation_cache
+  assert parser.parse_args(['--no-compilation-cache']).no_compilation_cache

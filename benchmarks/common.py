@@ -1,0 +1,247 @@
+"""Setup shared by the benchmarks in this folder.
+
+Building the bundled tasks' environments, the raw MJX baseline on the same
+compiled model, timing jitted calls, common command-line flags and writing
+results as JSON. The benchmark scripts import it as `common` (Python puts
+the script's folder, `benchmarks/`, on `sys.path`), so they run from a
+checkout with the package installed or on `PYTHONPATH`:
+
+    PYTHONPATH=. python benchmarks/throughput.py --worlds 1024
+"""
+
+import argparse
+import json
+import os
+import statistics
+import time
+
+import jax
+import jax.numpy as jnp
+from mujoco import mjx
+
+TASKS = ('reach', 'push')
+
+
+# -- environments ------------------------------------------------------------
+
+
+def make_task(name='reach', **task_kwargs):
+  """A bundled task by name, with `task_kwargs` passed to its constructor."""
+  # pylint: disable=g-import-not-at-top
+  if name == 'reach':
+    from mjx_composer.tasks import reach
+
+    return reach.Reach(**task_kwargs)
+  if name == 'push':
+    from mjx_composer.tasks import push
+
+    return push.Push(**task_kwargs)
+  # pylint: enable=g-import-not-at-top
+  raise ValueError(f'Unknown task {name!r}; choose from {TASKS}.')
+
+
+def make_env(
+    name='reach',
+    *,
+    time_limit=2.0,
+    episode_steps=None,
+    observables=True,
+    auto_reset='same_step',
+    max_reset_attempts=None,
+    **task_kwargs,
+):
+  """A bundled task's `Environment`, as the benchmarks build it.
+
+  Args:
+    name: 'reach' or 'push'.
+    time_limit: episode length in seconds.
+    episode_steps: if given, the episode length in control steps instead.
+    observables: False disables every observable (no observation groups).
+    auto_reset: the `Environment`'s auto-reset mode.
+    max_reset_attempts: passed to the `Environment` when given.
+    **task_kwargs: passed to the task's constructor (e.g. `randomize=False`
+      for reach, `placement='ring'` for push).
+
+  Returns:
+    The `mjx_composer.Environment`, with the task's observation groups
+    (policy/critic) when `observables` is True.
+  """
+  from mjx_composer import environment  # pylint: disable=g-import-not-at-top
+
+  task = make_task(name, **task_kwargs)
+  if not observables:
+    for obs in task.observables.values():
+      obs.enabled = False
+  if episode_steps is not None:
+    time_limit = episode_steps * task.control_timestep
+  kwargs = {}
+  if max_reset_attempts is not None:
+    kwargs['max_reset_attempts'] = max_reset_attempts
+  return environment.Environment(
+      task,
+      time_limit=time_limit,
+      auto_reset=auto_reset,
+      # {}: no groups (None would mean the task's own groups).
+      observation_groups=task.observation_groups() if observables else {},
+      **kwargs,
+  )
+
+
+def random_actions(env, worlds, seed=1):
+  """`(worlds,) + action shape` uniform actions in [-1, 1]."""
+  spec = env.action_spec()
+  return jax.random.uniform(
+      jax.random.key(seed), (worlds,) + spec.shape, minval=-1.0, maxval=1.0
+  )
+
+
+# -- programs: composed and raw MJX -----------------------------------------
+
+
+def env_rollout(env, steps, jit=True):
+  """`rollout(states, actions) -> (states, actions)`: `steps` batched steps.
+
+  `jax.lax.scan` over `jax.vmap(env.step)`, the actions held fixed.
+  """
+  vstep = jax.vmap(env.step)
+
+  def rollout(states, actions):
+    def control_step(s, _):
+      return vstep(s, actions), None
+
+    return jax.lax.scan(control_step, states, None, length=steps)[0], actions
+
+  return jax.jit(rollout) if jit else rollout
+
+
+def raw_rollout(model, n_sub_steps, steps, jit=True):
+  """Raw MJX's `rollout(data, ctrl) -> (data, ctrl)` on a batch of worlds.
+
+  `steps` control steps (`jax.lax.scan`), each setting `ctrl` and running
+  `n_sub_steps` of `jax.vmap(mjx.step)` in a `jax.lax.fori_loop`.
+  """
+  step = jax.vmap(lambda d: mjx.step(model, d))
+
+  def rollout(data, ctrl):
+    def control_step(d, _):
+      d = d.replace(ctrl=ctrl)
+      d = jax.lax.fori_loop(0, n_sub_steps, lambda _, x: step(x), d)
+      return d, None
+
+    return jax.lax.scan(control_step, data, None, length=steps)[0], ctrl
+
+  return jax.jit(rollout) if jit else rollout
+
+
+def raw_reset(model, noise=0.01, jit=True):
+  """Raw MJX's batched reset: `reset(keys) -> data`.
+
+  Per world: `mjx.make_data`, `qpos0` plus `noise` x a standard normal
+  sample from the world's key (so that the worlds differ and XLA cannot fold
+  the reset into a constant), then `mjx.forward`.
+  """
+
+  def reset_one(key):
+    data = mjx.make_data(model)
+    qpos = data.qpos + noise * jax.random.normal(key, data.qpos.shape)
+    return mjx.forward(model, data.replace(qpos=qpos))
+
+  reset = jax.vmap(reset_one)
+  return jax.jit(reset) if jit else reset
+
+
+def raw_data(model, worlds):
+  """A batch of `worlds` identical raw MJX data, after `mjx.forward`."""
+  data = jax.vmap(lambda _: mjx.make_data(model))(jnp.arange(worlds))
+  return jax.jit(jax.vmap(lambda d: mjx.forward(model, d)))(data)
+
+
+# -- timing ------------------------------------------------------------------
+
+
+def time_fn(fn, args, repeats):
+  """Median seconds of `fn(*out)`, each call fed the previous call's outputs.
+
+  For functions returning their own next arguments (rollouts). Two calls
+  first: to compile, and because outputs may retrace once (dtypes).
+  """
+  out = jax.block_until_ready(fn(*args))  # compile + warm up
+  out = jax.block_until_ready(fn(*out))  # outputs may retrace once (dtypes)
+  times = []
+  for _ in range(repeats):
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn(*out))
+    times.append(time.perf_counter() - t0)
+  return statistics.median(times)
+
+
+def time_calls(fn, make_args, repeats):
+  """(first-call seconds, median seconds of `repeats` further calls).
+
+  Call `i` gets `make_args(i)` (made and ready before the clock starts); the
+  first call, `make_args(0)`, includes compilation.
+  """
+  t0 = time.perf_counter()
+  out = jax.block_until_ready(fn(*make_args(0)))
+  first = time.perf_counter() - t0
+  times = []
+  for i in range(repeats):
+    args = jax.block_until_ready(make_args(i + 1))
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    times.append(time.perf_counter() - t0)
+  del out
+  return first, statistics.median(times)
+
+
+# -- command line and results ------------------------------------------------
+
+
+def default_out(filename):
+  """`$OUT/filename`, or `./filename` when `OUT` is unset."""
+  return os.path.join(os.environ.get('OUT', '.'), filename)
+
+
+def add_worlds_arg(parser, default):
+  parser.add_argument('--worlds', type=int, nargs='+', default=list(default))
+
+
+def add_repeats_arg(parser, default):
+  parser.add_argument('--repeats', type=int, default=default)
+
+
+def add_out_arg(parser, filename):
+  parser.add_argument('--out', default=default_out(filename))
+
+
+def make_parser(doc, *, worlds=None, repeats=None, out=None):
+  """An `ArgumentParser` described by `doc`'s first line, with shared flags.
+
+  Args:
+    doc: the script's docstring.
+    worlds: default `--worlds` (a list); no flag when None.
+    repeats: default `--repeats`; no flag when None.
+    out: default file name of `--out` (in `$OUT`); no flag when None.
+  """
+  parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+  if worlds is not None:
+    add_worlds_arg(parser, worlds)
+  if repeats is not None:
+    add_repeats_arg(parser, repeats)
+  if out is not None:
+    add_out_arg(parser, out)
+  return parser
+
+
+def print_device():
+  """Prints and returns the default JAX device."""
+  device = jax.devices()[0]
+  print(f'JAX {jax.__version__}, {device.platform}: {device.device_kind}')
+  return device
+
+
+def write_json(path, payload):
+  """Writes `payload` as indented JSON, creating `path`'s folder."""
+  os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+  with open(path, 'w') as f:
+    json.dump(payload, f, indent=2)

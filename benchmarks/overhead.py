@@ -1,0 +1,112 @@
+"""Where the composed step's time goes, against raw MJX, in one run.
+
+`throughput.py` gives the headline ratio; this separates its parts. For each
+number of worlds it times, on the bundled reach task's compiled model with
+its sub-steps (domain randomization off):
+
+* raw:         `scan` over `vmap(mjx.step)`, sub-steps in a `fori_loop`,
+               every world starting from the compiled model's `qpos0`;
+* raw_reset:   the same program from the composed environment's reset
+               states (the physics states a composed world steps from);
+* ends:        `vmap(env.step)`, episodes of 2 s with same-step auto-reset,
+               every observable on (the configuration `throughput.py` times);
+* no_ends:     the same with no time limit (no world ever resets);
+* no_obs:      `no_ends` with every observable disabled;
+* raw_fast:    `raw` on the same model with the solver's iterations capped
+               (iterations 4, line-search 8), to show what the default solver
+               settings (100 / 50, tolerance 1e-8) cost this contact model.
+
+Physics steps per second (control steps x sub-steps), median of `--repeats`
+calls of `--steps` control steps, and each ratio to `raw` of the same run.
+
+    python benchmarks/overhead.py --worlds 8192 32768
+"""
+
+import copy
+
+import jax
+from mujoco import mjx
+
+import common  # benchmarks/common.py
+
+
+def main():
+  parser = common.make_parser(__doc__, worlds=[1024])
+  parser.add_argument(
+      '--steps', type=int, default=100, help='control steps per timed call'
+  )
+  common.add_repeats_arg(parser, 3)
+  common.add_out_arg(parser, 'overhead.json')
+  args = parser.parse_args()
+
+  device = common.print_device()
+  envs = {
+      'ends': common.make_env('reach', randomize=False),
+      'no_ends': common.make_env(
+          'reach', randomize=False, time_limit=float('inf')
+      ),
+      'no_obs': common.make_env(
+          'reach', randomize=False, time_limit=float('inf'), observables=False
+      ),
+  }
+  base = envs['ends']
+  n = base.n_sub_steps
+  fast_model = copy.copy(base.mj_model)
+  fast_model.opt.iterations = 4
+  fast_model.opt.ls_iterations = 8
+  fast = mjx.put_model(fast_model)
+  results = []
+  for worlds in args.worlds:
+    row = {'worlds': worlds}
+    actions = common.random_actions(base, worlds)
+    keys = jax.random.split(jax.random.key(0), worlds)
+    rate = lambda seconds: worlds * args.steps * n / seconds
+    data = common.raw_data(base.mjx_model, worlds)
+    raw = common.raw_rollout(base.mjx_model, n, args.steps)
+    row['raw'] = rate(common.time_fn(raw, (data, actions), args.repeats))
+    states = jax.jit(jax.vmap(base.reset))(keys)
+    row['raw_reset'] = rate(
+        common.time_fn(raw, (states.data, actions), args.repeats)
+    )
+    for name, env in envs.items():
+      states = jax.jit(jax.vmap(env.reset))(keys)
+      rollout = common.env_rollout(env, args.steps)
+      row[name] = rate(common.time_fn(rollout, (states, actions), args.repeats))
+    data = common.raw_data(fast, worlds)
+    row['raw_fast'] = rate(
+        common.time_fn(
+            common.raw_rollout(fast, n, args.steps),
+            (data, actions),
+            args.repeats,
+        )
+    )
+    results.append(row)
+    print(
+        f'{worlds:>7} worlds: '
+        + '  '.join(f'{k} {v:,.0f}' for k, v in row.items() if k != 'worlds'),
+        flush=True,
+    )
+
+  common.write_json(
+      args.out,
+      {
+          'device': device.device_kind,
+          'jax': jax.__version__,
+          'n_sub_steps': n,
+          'steps_per_call': args.steps,
+          'results': results,
+      },
+  )
+  names = ['raw_reset', 'ends', 'no_ends', 'no_obs', 'raw_fast']
+  print('\n| worlds | raw MJX (physics steps/s) | ' + ' | '.join(names) + ' |')
+  print('|---|---|' + '---|' * len(names))
+  for r in results:
+    print(
+        f'| {r["worlds"]:,} | {r["raw"] / 1e6:.2f} M | '
+        + ' | '.join(f'{r[k] / r["raw"]:.3f}' for k in names)
+        + ' |'
+    )
+
+
+if __name__ == '__main__':
+  main()
