@@ -1,5 +1,11 @@
 """Shared fixtures: small composed scenes compiled once per test session."""
 
+import collections
+import json
+import os
+import shutil
+import tempfile
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -10,7 +16,50 @@ from mjx_composer import compilation_cache
 
 # Keep compiled programs on disk between test runs (~/.cache/mjx_composer/jax,
 # or $MJX_COMPOSER_CACHE_DIR); MJX_COMPOSER_COMPILATION_CACHE=0 turns it off.
+# Tests that build the same environment then load its programs instead of
+# compiling them again, within one run too.
 compilation_cache.enable()
+
+# -- the cache's use, reported at the end of the run -------------------------
+
+_CACHE_EVENTS = {
+    '/jax/compilation_cache/cache_hits': 'hits',
+    '/jax/compilation_cache/cache_misses': 'misses',
+}
+_cache_counts = collections.Counter()
+jax.monitoring.register_event_listener(
+    lambda event, **_: _cache_counts.update(
+        [_CACHE_EVENTS[event]] if event in _CACHE_EVENTS else []
+    )
+)
+# One folder per run: xdist workers are the controlling process's children.
+_RUN = os.getppid() if 'PYTEST_XDIST_WORKER' in os.environ else os.getpid()
+_CACHE_REPORTS = os.path.join(
+    tempfile.gettempdir(), f'mjx_composer_cache_report_{_RUN}'
+)
+
+
+def pytest_sessionfinish(session):
+  """Each process (an xdist worker too) writes its cache hits and misses."""
+  del session
+  os.makedirs(_CACHE_REPORTS, exist_ok=True)
+  with open(os.path.join(_CACHE_REPORTS, f'{os.getpid()}.json'), 'w') as f:
+    json.dump(dict(_cache_counts), f)
+
+
+def pytest_terminal_summary(terminalreporter):
+  """Sums the processes' reports into one line of the run's log."""
+  totals = collections.Counter()
+  if os.path.isdir(_CACHE_REPORTS):
+    for name in os.listdir(_CACHE_REPORTS):
+      with open(os.path.join(_CACHE_REPORTS, name)) as f:
+        totals.update(json.load(f))
+    shutil.rmtree(_CACHE_REPORTS, ignore_errors=True)
+  terminalreporter.write_line(
+      f'persistent compilation cache ({jax.config.jax_compilation_cache_dir}'
+      f'): {totals["hits"]} programs loaded, {totals["misses"]} compiled and '
+      'written'
+  )
 
 
 class Pendulum(composer.Robot):
