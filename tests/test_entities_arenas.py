@@ -118,3 +118,13 @@ def test_regenerate_without_a_variation_is_a_no_op():
   assert arena.regenerate(np.random.RandomState(0)) is None
   sentinel = object()
   assert arena.regenerate_world(sentinel, jax.random.key(0)) is sentinel
+
+
+def test_per_world_fields_are_reported_with_the_hook_that_wrote_them(
+    regenerated,
+):
+  arena, env, _ = regenerated
+  writers = env.per_world_model_fields
+  assert set(writers) == {'geom_pos', 'geom_size'}
+  expected = f'{type(arena).__name__}({arena.name!r}).initialize_episode'
+  assert writers['geom_pos'] == writers['geom_size'] == (expected,)

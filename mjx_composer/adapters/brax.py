@@ -176,6 +176,16 @@ class BraxEnv(brax_base.Env):
             "episode_length for Brax's evaluator."
         )
       episode_length = environment.step_limit
+    if (
+        isinstance(episode_length, bool)
+        or int(episode_length) != episode_length
+        or episode_length < 1
+    ):
+      raise ValueError(
+          'episode_length must be a positive number of control steps, got '
+          f"{episode_length!r}: pass the number of steps Brax's evaluator "
+          'should unroll, or leave it out to use the time limit.'
+      )
     self._episode_length = int(episode_length)
     self._abstract_state_cache = None
 
