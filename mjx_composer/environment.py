@@ -291,6 +291,7 @@ class Environment:
 
   def step(self, state: State, action) -> State:
     """Advances one world by one control step. Pure; jit and vmap it."""
+    _check_one_world(state)
     action = self._check_action(action)
     transitions = self._transitions
     if self._auto_reset == 'next_step':
@@ -341,6 +342,14 @@ def _check_arguments(
   if unknown:
     raise ValueError(
         f'Unknown mjx.Model fields {sorted(unknown)} in per_world_model_fields.'
+    )
+
+
+def _check_one_world(state):
+  if jnp.ndim(state.step_type):
+    raise ValueError(
+        f'This state holds {jnp.shape(state.step_type)[0]} worlds: step a '
+        'batch with jax.vmap(env.step)(states, actions).'
     )
 
 

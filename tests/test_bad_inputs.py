@@ -6,6 +6,8 @@ import subprocess
 import sys
 import warnings
 
+import jax
+import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
@@ -495,3 +497,12 @@ def test_brax_env_rejects_a_bad_episode_length(length):
   )
   with pytest.raises(ValueError, match='positive number of control steps'):
     brax_adapter.BraxEnv(env, episode_length=length)
+
+
+def test_a_batched_state_in_the_single_world_step_says_use_vmap():
+  env = composer.Environment(composer.NullTask(_Arm()))
+  states = jax.eval_shape(
+      jax.vmap(env.reset), jax.random.split(jax.random.key(0), 3)
+  )
+  with pytest.raises(ValueError, match=r'holds 3 worlds.*jax.vmap\(env.step\)'):
+    jax.eval_shape(env.step, states, jnp.zeros((1,)))
