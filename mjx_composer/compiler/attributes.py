@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable, Optional
 
+import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer import element_index
@@ -27,6 +28,66 @@ from mjx_composer.compiler import structure
 from mjx_composer.compiler import writes
 
 Effect = effects.Effect
+
+
+# -- bounds -------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class Bound:
+  """The values an attribute may take (what recompiling would accept).
+
+  Attributes:
+    text: the bound, in words, for error messages ('>= 0').
+    check: `value -> bool array`, true where the finite value is within the
+      bound (numpy or JAX arrays). Every bound also requires finite values.
+  """
+
+  text: str
+  check: Optional[Callable[[Any], Any]] = None
+
+  def valid(self, value):
+    """A bool scalar: every entry of `value` is finite and within the bound.
+
+    Works on numpy values (a numpy bool) and traced JAX values.
+    """
+    xp = np if isinstance(value, (np.ndarray, np.generic)) else jnp
+    ok = xp.all(xp.isfinite(value))
+    if self.check is not None:
+      ok = xp.logical_and(ok, xp.all(self.check(xp.asarray(value))))
+    return ok
+
+  def describe(self) -> str:
+    return 'finite' if self.check is None else f'finite and {self.text}'
+
+
+def _size_check(value):
+  # Every entry >= 0 and the first one (present for every geom type) > 0;
+  # for a stack of sizes (several elements), per row.
+  first = value[..., 0] if value.ndim else value
+  return (value >= 0).all() & (first > 0).all()
+
+
+FINITE = Bound('finite')
+NONNEGATIVE = Bound('>= 0', lambda v: v >= 0)
+POSITIVE = Bound('> 0', lambda v: v > 0)
+UNIT_INTERVAL = Bound('in [0, 1]', lambda v: (v >= 0) & (v <= 1))
+SIZE = Bound('>= 0 with a first entry > 0', _size_check)
+
+
+def bound_for(bound: Bound, compiled) -> Bound:
+  """`bound`, relaxed to one the compiled value meets where it breaks it.
+
+  E.g. an infinite plane's size is 0: its bound becomes `NONNEGATIVE`. A
+  value the spec leaves unset (NaN, e.g. a geom's mass when its density
+  decides) keeps the bound.
+  """
+  compiled = np.asarray(compiled, np.float64)
+  if bound.valid(compiled) or not np.all(np.isfinite(compiled)):
+    return bound
+  if bound is SIZE and NONNEGATIVE.valid(compiled):
+    return NONNEGATIVE
+  return FINITE
 
 
 @dataclasses.dataclass(frozen=True)
@@ -47,6 +108,9 @@ class Attribute:
       them (the inertial attributes).
     get_spec: reads the value from the element (default: the attribute).
     set_spec: writes the value on the element (default: the attribute).
+    bound: the values it may take (`Bound`): a variation that draws
+      outside it makes the episode's initialization fail (see
+      `variation.variator_base`).
   """
 
   kind: str
@@ -58,6 +122,7 @@ class Attribute:
   set_model: Optional[writes.ModelWrite] = None
   get_spec: Optional[Callable[[Any], Any]] = None
   set_spec: Optional[Callable[[Any, np.ndarray], None]] = None
+  bound: Bound = FINITE
 
   def spec_value(self, element) -> np.ndarray:
     """The attribute's value in the spec, as a float64 array."""
@@ -152,7 +217,7 @@ def _pose(kind, part, effects_, **kwargs) -> Attribute:
   )
 
 
-def _inertial(kind, name, shape, effects_, refusals, fields=None):
+def _inertial(kind, name, shape, effects_, refusals, fields=None, bound=FINITE):
   """An attribute that `inertia.body_inertial` derives the fields from."""
   fields = fields or (f'body_{name}',)
   return _record(
@@ -163,10 +228,11 @@ def _inertial(kind, name, shape, effects_, refusals, fields=None):
       effects=effects_,
       refusals=refusals,
       set_model=None,
+      bound=bound,
   )
 
 
-def _option(name, shape, refusals=()) -> Attribute:
+def _option(name, shape, refusals=(), bound=FINITE) -> Attribute:
   return Attribute(
       'option',
       name,
@@ -174,6 +240,7 @@ def _option(name, shape, refusals=()) -> Attribute:
       (f'opt.{name}',),
       refusals=refusals,
       set_model=writes.option(name),
+      bound=bound,
   )
 
 
@@ -186,11 +253,18 @@ CATALOGUE: tuple[Attribute, ...] = (
         effects=Effect.GEOM_INERTIA | Effect.KINEMATICS,
         refusals=(_s.meshlike_geom, _s.fluid_ellipsoid),
         set_model=writes.geom_size,
+        bound=SIZE,
     ),
-    _record('geom', 'rgba', (4,)),
-    _record('geom', 'friction', (3,)),
+    _record('geom', 'rgba', (4,), bound=UNIT_INTERVAL),
+    _record('geom', 'friction', (3,), bound=NONNEGATIVE),
     _inertial(
-        'geom', 'mass', (), Effect.GEOM_INERTIA, (_s.meshlike_geom,), _INERTIAL
+        'geom',
+        'mass',
+        (),
+        Effect.GEOM_INERTIA,
+        (_s.meshlike_geom,),
+        _INERTIAL,
+        bound=NONNEGATIVE,
     ),
     _inertial(
         'geom',
@@ -199,6 +273,7 @@ CATALOGUE: tuple[Attribute, ...] = (
         Effect.GEOM_INERTIA,
         (_s.meshlike_geom,),
         _INERTIAL,
+        bound=NONNEGATIVE,
     ),
     _pose(
         'geom',
@@ -226,7 +301,12 @@ CATALOGUE: tuple[Attribute, ...] = (
         refusals=(_s.orientation_alternative,),
     ),
     _inertial(
-        'body', 'mass', (), Effect.BODY_INERTIAL, (_s.inertia_from_geoms,)
+        'body',
+        'mass',
+        (),
+        Effect.BODY_INERTIAL,
+        (_s.inertia_from_geoms,),
+        bound=NONNEGATIVE,
     ),
     _inertial(
         'body',
@@ -234,6 +314,7 @@ CATALOGUE: tuple[Attribute, ...] = (
         (3,),
         Effect.BODY_INERTIAL,
         (_s.full_inertia, _s.inertia_from_geoms),
+        bound=NONNEGATIVE,
     ),
     _inertial(
         'body',
@@ -267,6 +348,7 @@ CATALOGUE: tuple[Attribute, ...] = (
         fields=('dof_damping',),
         refusals=(_s.spring_damper,),
         set_model=writes.put_dofs('dof_damping'),
+        bound=NONNEGATIVE,
         **_first_entry('damping'),
     ),
     _record(
@@ -274,6 +356,7 @@ CATALOGUE: tuple[Attribute, ...] = (
         'stiffness',
         (),
         refusals=(_s.spring_damper,),
+        bound=NONNEGATIVE,
         **_first_entry('stiffness'),
     ),
     _record(
@@ -283,6 +366,7 @@ CATALOGUE: tuple[Attribute, ...] = (
         fields=('dof_armature',),
         effects=Effect.MASS_MATRIX,
         set_model=writes.put_dofs('dof_armature'),
+        bound=NONNEGATIVE,
     ),
     _record(
         'joint',
@@ -291,6 +375,7 @@ CATALOGUE: tuple[Attribute, ...] = (
         fields=('dof_frictionloss',),
         refusals=(_s.no_frictionloss,),
         set_model=writes.put_dofs('dof_frictionloss'),
+        bound=NONNEGATIVE,
     ),
     _record(
         'joint',
@@ -344,8 +429,8 @@ CATALOGUE: tuple[Attribute, ...] = (
     ),
     _option('gravity', (3,)),
     _option('wind', (3,), refusals=(_s.no_fluid,)),
-    _option('density', (), refusals=(_s.no_fluid,)),
-    _option('viscosity', (), refusals=(_s.no_fluid,)),
+    _option('density', (), refusals=(_s.no_fluid,), bound=NONNEGATIVE),
+    _option('viscosity', (), refusals=(_s.no_fluid,), bound=NONNEGATIVE),
 )
 
 # {kind: {attribute: record}}, in catalogue order.
@@ -413,6 +498,11 @@ def check_attribute(element, attr: str) -> str:
     what = f'{record.kind} {name!r}' if name else record.kind
     raise ValueError(f'MJCFVariator cannot vary {attr!r} of {what}: {why}')
   return record.kind
+
+
+def bound_of(element, attr: str) -> Bound:
+  """The bound of an element's attribute (its record's)."""
+  return lookup(element, attr).bound
 
 
 def spec_value(element, kind: str, attr: str) -> np.ndarray:

@@ -44,7 +44,11 @@ Differences from composer:
   starts every episode from the compiled `qpos0`: set the free joint's qpos
   yourself if you want the varied pose as the initial state.
 
-See `variator_base` for schedules (`Schedule`) and state.
+See `variator_base` for schedules (`Schedule`) and state, and for invalid
+draws (values outside their catalogue record's `bound`, or not finite, e.g.
+a negative mass or size): at reset they fail the episode's initialization
+(the environment resamples it, as recompiling would refuse the MJCF), in
+step they are dropped.
 """
 
 from __future__ import annotations
@@ -52,6 +56,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from mjx_composer import compiler
+from mjx_composer.compiler import attributes
 from mjx_composer.variation import variator_base
 
 
@@ -66,6 +71,10 @@ class _Plan:
         owner=variator.label,
     )
     self.initial_values = self._compiler.initial_values
+    self.bounds = [
+        attributes.bound_for(attributes.bound_of(b.element, b.attr), initial)
+        for b, initial in zip(bindings, self.initial_values)
+    ]
 
   def read_current(self, physics, entry):
     del physics
@@ -97,6 +106,9 @@ class MJCFVariator(variator_base.Variator):
         variator_base.describe_element(element) + '.' + attr,
         self.label,
     )
+
+  def _bound(self, element, attr):
+    return attributes.bound_of(element, attr)
 
   def _prepare(self, physics):
     return _Plan(self, physics)

@@ -22,7 +22,9 @@ Like composer's, this variator writes the fields and nothing else: quantities
 MuJoCo's compiler derives from them (`body_subtreemass`, `dof_invweight0`,
 ...) keep their compiled values. Use `MJCFVariator` for variations that must
 equal a recompiled model. Initial values are the compiled model's values;
-current values are the world's. See `variator_base` for schedules.
+current values are the world's. See `variator_base` for schedules, and for
+invalid draws (values outside `FIELD_BOUNDS`, or not finite): at reset they
+fail the episode's initialization, in step they are dropped.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer import element_index
+from mjx_composer.compiler import attributes
 from mjx_composer.compiler import options
 from mjx_composer.variation import variator_base
 
@@ -50,6 +53,30 @@ OPTION_FIELDS = (
     'viscosity',
     'impratio',
 )
+
+# The bound of each compiled field (`opt.<name>` for the option) a draw
+# must meet (see `variator_base`: an invalid draw fails the episode's
+# initialization); fields not listed must be finite. `opt.timestep` is
+# listed for completeness: it is not bindable (static for the environment).
+_B = attributes
+FIELD_BOUNDS: dict[str, attributes.Bound] = {
+    'body_mass': _B.NONNEGATIVE,
+    'body_inertia': _B.NONNEGATIVE,
+    'geom_size': _B.SIZE,
+    'geom_friction': _B.NONNEGATIVE,
+    'geom_rgba': _B.UNIT_INTERVAL,
+    'dof_damping': _B.NONNEGATIVE,
+    'dof_armature': _B.NONNEGATIVE,
+    'dof_frictionloss': _B.NONNEGATIVE,
+    'jnt_stiffness': _B.NONNEGATIVE,
+    'tendon_damping': _B.NONNEGATIVE,
+    'tendon_stiffness': _B.NONNEGATIVE,
+    'tendon_armature': _B.NONNEGATIVE,
+    'tendon_frictionloss': _B.NONNEGATIVE,
+    'opt.timestep': _B.POSITIVE,
+    'opt.density': _B.NONNEGATIVE,
+    'opt.viscosity': _B.NONNEGATIVE,
+}
 
 
 @dataclasses.dataclass
@@ -68,6 +95,7 @@ class _Plan:
     mj_model = index.mj_model
     self.targets = []
     self.initial_values = []
+    self.bounds = []
     for binding in variator.bindings:
       element, attr = binding.element, binding.attr
       if isinstance(element, options.SPEC_OPTION):
@@ -97,6 +125,7 @@ class _Plan:
         initial = compiled.astype(field.dtype)
         self.targets.append(_Target(None, attr))
         self.initial_values.append(initial.reshape(jnp.shape(field)))
+        self.bounds.append(_field_bound(f'opt.{attr}', initial))
         continue
       try:
         kind, ids, is_seq = index.resolve(element)
@@ -123,6 +152,7 @@ class _Plan:
       host = host.reshape(field.shape).astype(field.dtype)
       self.targets.append(_Target(address, None))
       self.initial_values.append(np.asarray(host[address.index]))
+      self.bounds.append(_field_bound(address.field, self.initial_values[-1]))
 
   def read_current(self, physics, entry):
     del entry  # The current values are the world's model fields.
@@ -147,6 +177,22 @@ class _Plan:
           model=model.replace(opt=model.opt.replace(**opt_updates))
       )
     return physics, {}
+
+
+def _field_bound(field: str, compiled) -> attributes.Bound:
+  """A field's bound, relaxed to what its compiled value meets."""
+  return attributes.bound_for(
+      FIELD_BOUNDS.get(field, attributes.FINITE), compiled
+  )
+
+
+def _field_name(kind, short: str) -> str | None:
+  """The compiled field a binding name maps to (`dof_damping`), or None."""
+  prefixes = ('dof', kind.prefix) if kind.name == 'joint' else (kind.prefix,)
+  for prefix in prefixes:
+    if element_index.hasattr_model(f'{prefix}_{short}'):
+      return f'{prefix}_{short}'
+  return None
 
 
 def _short_name(kind, attr: str) -> str:
@@ -184,6 +230,15 @@ class PhysicsVariator(variator_base.Variator):
           f'A {kind.name} has no compiled model attribute {attr!r} that can '
           f'vary per world. Valid attributes: {sorted(valid)}.'
       )
+
+  def _bound(self, element, attr):
+    if isinstance(element, options.SPEC_OPTION):
+      return FIELD_BOUNDS.get(f'opt.{attr}', attributes.FINITE)
+    kind = element_index.element_kind(element)
+    field = _field_name(kind, _short_name(kind, attr))
+    if field is None:
+      return None
+    return FIELD_BOUNDS.get(field, attributes.FINITE)
 
   def _prepare(self, physics):
     return _Plan(self, physics)

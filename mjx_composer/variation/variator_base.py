@@ -36,6 +36,32 @@ Initial values are the compiled defaults (never the values of a previous
 episode), so non-cumulative variations never compound across episodes;
 `current_value` is the world's current value, which cumulative variations
 (`noises.Additive(..., cumulative=True)`) build on.
+
+Invalid draws. Every bound attribute has a bound (`compiler.attributes.Bound`:
+the MJCF catalogue's record for an `MJCFVariator`, `physics_variator.
+FIELD_BOUNDS` by compiled field for a `PhysicsVariator`): every value must be
+finite, and mass, density, inertia, friction, damping, stiffness, armature,
+frictionloss, option density and viscosity must be >= 0, a geom size >= 0
+with a first entry > 0, rgba in [0, 1], the timestep > 0 (other attributes:
+finite only). Where the compiled value itself breaks its bound (e.g. the
+zero size of an infinite plane), the binding's bound is relaxed to what the
+compiled value meets (size: >= 0; else finite only). A draw is *invalid*
+when any of the variator's sampled values breaks its bound (a skipped draw,
+once per world or between every-k-steps draws, is never invalid):
+
+* in a call from `initialize_episode`, the values are written as drawn and
+  the episode's initialization is marked failed
+  (`physics.fail_initialization(invalid)`): `Environment(max_reset_attempts=
+  N)` resamples the episode with a fresh key and counts the failed attempts
+  in `metrics['init_failures']` (`metrics['init_failed']` when the last
+  attempt fails too), as recompiling an invalid MJCF would refuse it;
+* in a per-step call (every k steps), the draw is dropped: the world keeps
+  its current values and variation states (a running episode cannot be
+  resampled).
+
+A constant bound value that breaks its bound is refused at bind time
+(`ValueError`, naming the attribute and the bound), when the bound is known
+then (always for an `MJCFVariator`).
 """
 
 from __future__ import annotations
@@ -142,10 +168,12 @@ class Variator:
   """Base class: bindings, schedules and the persistent state protocol.
 
   Subclasses implement `_check_binding(element, attr, variation)` (bind-time
-  validation) and `_prepare(physics)`, the trace-time resolution, which
-  returns a plan with `initial_values` (one numpy array per binding, the
-  compiled default), `read_current(physics, entry)` (the world's current
-  values) and `write(physics, values) -> (physics, extra entries)`.
+  validation), optionally `_bound(element, attr)` (the attribute's `Bound`
+  if known at bind time, for constants) and `_prepare(physics)`, the
+  trace-time resolution, which returns a plan with `initial_values` (one
+  numpy array per binding, the compiled default), `bounds` (one `Bound` per
+  binding), `read_current(physics, entry)` (the world's current values) and
+  `write(physics, values) -> (physics, extra entries)`.
 
   The persistent entry (`persistent_name`) holds `states` (the bindings'
   variation states), `applied` (once per world) or `count` (every k steps),
@@ -229,8 +257,9 @@ class Variator:
         attribute bound before.
 
     Raises:
-      ValueError, TypeError: for an attribute this variator cannot vary, or
-        a value whose shape can never match the attribute's.
+      ValueError, TypeError: for an attribute this variator cannot vary, a
+        value whose shape can never match the attribute's, or a constant
+        value that breaks the attribute's bound (see the module docstring).
     """
     for attr, variation in variations.items():
       key = (id(element), attr)
@@ -238,6 +267,7 @@ class Variator:
         self._bindings.pop(key, None)
         continue
       self._check_binding(element, attr, variation)
+      self._check_constant(element, attr, variation)
       old = self._bindings.get(key)
       if old is not None:
         old.variation = variation
@@ -253,6 +283,23 @@ class Variator:
 
   def _check_binding(self, element, attr, variation):
     raise NotImplementedError
+
+  def _bound(self, element, attr):
+    """The attribute's `Bound` if known at bind time, else None."""
+    del element, attr
+    return None
+
+  def _check_constant(self, element, attr, variation):
+    """Refuses a constant value that breaks the attribute's bound."""
+    bound = self._bound(element, attr)
+    value = _constant_value(variation)
+    if bound is None or value is None or bound.valid(value):
+      return
+    raise ValueError(
+        f'{self.label}: the constant {variation!r} bound to '
+        f'{describe_element(element)}.{attr} is invalid: {attr} must be '
+        f'{bound.describe()}.'
+    )
 
   def _prepare(self, physics):
     raise NotImplementedError
@@ -346,11 +393,19 @@ class Variator:
         values.append(_conform(value, initial[i], binding, name))
         new_states.append(state)
     new_states = tuple(new_states)
+    invalid = invalid_draw(values, plan.bounds)
+    if draw is not True:
+      invalid = jnp.logical_and(draw, invalid)
+    if in_step:
+      # A running episode cannot be resampled: drop an invalid draw.
+      draw = jnp.logical_and(draw, jnp.logical_not(invalid))
     if draw is not True:
       values = [jnp.where(draw, v, c) for v, c in zip(values, current)]
       new_states = jax.tree.map(
           lambda a, b: jnp.where(draw, a, b), new_states, tuple(states)
       )
+    if not in_step:
+      physics = physics.fail_initialization(invalid)
     new_entry['states'] = new_states
     physics, extra = plan.write(physics, values)
     new_entry.update(extra)
@@ -362,6 +417,27 @@ class Variator:
   def _draw_in_step(self, physics, key):
     """The per-control-step call of an every-k-steps schedule."""
     return self.apply_variations(physics, key, in_step=True)
+
+
+def invalid_draw(values, bounds) -> jax.Array:
+  """A bool scalar: some value breaks its binding's bound."""
+  invalid = jnp.zeros((), bool)
+  for value, bound in zip(values, bounds):
+    invalid = jnp.logical_or(
+        invalid, jnp.logical_not(bound.valid(jnp.asarray(value)))
+    )
+  return invalid
+
+
+def _constant_value(variation):
+  """The value of a constant (numbers, nested lists of them), else None."""
+  if callable(variation) or isinstance(variation, base.Variation):
+    return None
+  try:
+    value = np.asarray(variation, np.float64)
+  except (TypeError, ValueError):
+    return None
+  return value
 
 
 def _conform(value, initial: np.ndarray, binding: Binding, owner: str):
