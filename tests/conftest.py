@@ -32,10 +32,12 @@ jax.monitoring.register_event_listener(
         [_CACHE_EVENTS[event]] if event in _CACHE_EVENTS else []
     )
 )
-# One folder per run: xdist workers are the controlling process's children.
-_RUN = os.getppid() if 'PYTEST_XDIST_WORKER' in os.environ else os.getpid()
+# One folder per run, named by the controlling process (xdist workers inherit
+# its environment).
+os.environ.setdefault('MJX_COMPOSER_TEST_RUN', str(os.getpid()))
 _CACHE_REPORTS = os.path.join(
-    tempfile.gettempdir(), f'mjx_composer_cache_report_{_RUN}'
+    tempfile.gettempdir(),
+    f'mjx_composer_cache_report_{os.environ["MJX_COMPOSER_TEST_RUN"]}',
 )
 
 
@@ -49,6 +51,8 @@ def pytest_sessionfinish(session):
 
 def pytest_terminal_summary(terminalreporter):
   """Sums the processes' reports into one line of the run's log."""
+  if 'PYTEST_XDIST_WORKER' in os.environ:
+    return  # The controlling process reports for the whole run.
   totals = collections.Counter()
   if os.path.isdir(_CACHE_REPORTS):
     for name in os.listdir(_CACHE_REPORTS):
@@ -62,20 +66,52 @@ def pytest_terminal_summary(terminalreporter):
   )
 
 
-class Pendulum(composer.Robot):
-  """A hinged rod with a torque motor and a tip site."""
+class SpecEntity(composer.Entity):
+  """A test entity whose `_build` adds elements to a spec of its own.
 
-  def _build(self, name='pendulum'):
-    spec = mujoco.MjSpec()
-    spec.modelname = name
+  A subclass's `_build` starts with `spec = self._new_spec(name)`.
+  """
+
+  def _new_spec(self, name):
+    """Creates the entity's `MjSpec`, named `name`, and returns it."""
+    self._spec = mujoco.MjSpec()
+    self._spec.modelname = name
+    return self._spec
+
+  @property
+  def mjcf_model(self):
+    return self._spec
+
+
+class Pendulum(SpecEntity, composer.Robot):
+  """A hinged rod with a torque motor and, by default, a tip site.
+
+  The constructor's arguments: `name`; `damping` of the hinge; `tip`, whether
+  to add the site 'tip' at the rod's end; `ctrllimited` of the motor;
+  `free_spin`, whether to add a second, unactuated hinge 'free_spin' (about x,
+  with no range: `self.unlimited`); and more attributes of the hinge
+  (`range`, `frictionloss`, ...).
+  """
+
+  def _build(
+      self,
+      name='pendulum',
+      damping=0.1,
+      tip=True,
+      ctrllimited=True,
+      free_spin=False,
+      **hinge,
+  ):
+    spec = self._new_spec(name)
     body = spec.worldbody.add_body(name='rod', pos=[0, 0, 1])
     self.joint = body.add_joint(
         name='hinge',
         type=mujoco.mjtJoint.mjJNT_HINGE,
         axis=[0, 1, 0],
-        damping=0.1,
+        damping=damping,
+        **hinge,
     )
-    body.add_geom(
+    self.geom = body.add_geom(
         name='rod',
         type=mujoco.mjtGeom.mjGEOM_CAPSULE,
         size=[0.02, 0, 0],
@@ -83,44 +119,68 @@ class Pendulum(composer.Robot):
         contype=0,
         conaffinity=0,
     )
-    self.tip = body.add_site(name='tip', pos=[0, 0, -0.5])
+    if tip:
+      self.tip = body.add_site(name='tip', pos=[0, 0, -0.5])
     self.motor = spec.add_actuator(
         name='motor',
         target='hinge',
         trntype=mujoco.mjtTrn.mjTRN_JOINT,
         ctrlrange=[-1, 1],
-        ctrllimited=True,
+        ctrllimited=ctrllimited,
     )
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
+    if free_spin:
+      self.unlimited = body.add_joint(
+          name='free_spin', type=mujoco.mjtJoint.mjJNT_HINGE, axis=[1, 0, 0]
+      )
 
   @property
   def actuators(self):
     return (self.motor,)
 
 
-class Ball(composer.Entity):
+class Ball(SpecEntity):
+  """A body 'body' with one sphere geom 'geom'.
 
-  def _build(self, name='ball'):
-    spec = mujoco.MjSpec()
-    spec.modelname = name
-    self.geom = spec.worldbody.add_body(name='body').add_geom(
+  It weighs `mass`, or has `density` where one is given (with neither,
+  MuJoCo's default density); `collides=False` sets contype = conaffinity = 0.
+  """
+
+  def _build(
+      self, name='ball', radius=0.05, mass=0.1, density=None, collides=True
+  ):
+    spec = self._new_spec(name)
+    geom = {} if collides else dict(contype=0, conaffinity=0)
+    if density is not None:
+      geom['density'] = density
+    elif mass is not None:
+      geom['mass'] = mass
+    self.body = spec.worldbody.add_body(name='body')
+    self.geom = self.body.add_geom(
         name='geom',
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
-        size=[0.05, 0, 0],
-        mass=0.1,
+        size=[radius, 0, 0],
+        **geom,
     )
-    self._spec = spec
+
+
+class PendulumTask(composer.Task):
+  """A task on `self.pendulum` (a `Pendulum`) in `self.arena`; it observes
+  the pendulum's tip ('tip')."""
 
   @property
-  def mjcf_model(self):
-    return self._spec
+  def root_entity(self):
+    return self.arena
+
+  @property
+  def task_observables(self):
+    tip = composer.observation.observable.Generic(
+        lambda physics: physics.bind(self.pendulum.tip).xpos
+    )
+    tip.enabled = True
+    return {'tip': tip}
 
 
-class SwingTask(composer.Task):
+class SwingTask(PendulumTask):
   """Swing the pendulum tip high; a free ball drops on the floor.
 
   Terminates when the tip passes `terminate_above` (if set); the target
@@ -138,18 +198,6 @@ class SwingTask(composer.Task):
     self.arena.add_free_entity(self.ball)
     self.terminate_above = terminate_above
     self.set_timesteps(control_timestep=0.01, physics_timestep=0.005)
-
-  @property
-  def root_entity(self):
-    return self.arena
-
-  @property
-  def task_observables(self):
-    tip = composer.observation.observable.Generic(
-        lambda physics: physics.bind(self.pendulum.tip).xpos
-    )
-    tip.enabled = True
-    return {'tip': tip}
 
   def initial_task_state(self):
     return {'target': jnp.zeros(())}

@@ -22,12 +22,11 @@ _OBJ = mujoco.mjtObj
 # -- 1. composition never drops an element ------------------------------------
 
 
-class _Arm(composer.Entity):
+class _Arm(conftest.SpecEntity):
   """A one-joint arm; `edit(spec)` may add a faulty element."""
 
   def _build(self, edit=None, name='arm'):
-    spec = mujoco.MjSpec()
-    spec.modelname = name
+    spec = self._new_spec(name)
     body = spec.worldbody.add_body(name='link')
     body.add_joint(name='shoulder', type=mujoco.mjtJoint.mjJNT_HINGE)
     body.add_geom(name='geom', size=[0.1, 0, 0])
@@ -37,11 +36,6 @@ class _Arm(composer.Entity):
     )
     if edit is not None:
       edit(spec)
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
 
 def _typo_actuator(spec):

@@ -24,6 +24,7 @@ import mjx_composer as composer
 from mjx_composer.compiler import attributes
 from mjx_composer.compiler import inertia
 from mjx_composer.compiler import planner
+from tests import conftest
 
 _J = mujoco.mjtJoint
 _G = mujoco.mjtGeom
@@ -36,14 +37,13 @@ _FLOOR_ONLY = dict(contype=2, conaffinity=1)
 # -- the scene ----------------------------------------------------------------
 
 
-class Arm(composer.Robot):
+class Arm(conftest.SpecEntity, composer.Robot):
   """Hinge, slide and ball joints; a geom in an MjsFrame; a fromto capsule;
   an explicit inertial; position (dampratio, kv) and motor actuators; a
   spatial tendon; a camera and a light. Angles in degrees (spec default)."""
 
   def _build(self):
-    spec = mujoco.MjSpec()
-    spec.modelname = 'arm'
+    spec = self._new_spec('arm')
     base = spec.worldbody.add_body(name='base', pos=[0, 0, 0.1])
     self.shoulder = base.add_joint(
         name='shoulder',
@@ -151,23 +151,17 @@ class Arm(composer.Robot):
     )
     tendon.wrap_site('base_site')
     tendon.wrap_site('upper_site')
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
   @property
   def actuators(self):
     return (self.servo, self.motor, self.site_servo)
 
 
-class Prop(composer.Entity):
+class Prop(conftest.SpecEntity):
   """Two geoms in one body: the inertial frame comes from an eigen-solve."""
 
   def _build(self):
-    spec = mujoco.MjSpec()
-    spec.modelname = 'prop'
+    spec = self._new_spec('prop')
     body = spec.worldbody.add_body(name='body')
     self.body = body
     self.sphere = body.add_geom(
@@ -185,20 +179,14 @@ class Prop(composer.Entity):
         density=800,
         **_FLOOR_ONLY,
     )
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
 
-class Slider(composer.Entity):
+class Slider(conftest.SpecEntity):
   """A slide-only "simple" body (MuJoCo's body_simple == 2) over a rail
   geom that sits in the entity's worldbody."""
 
   def _build(self):
-    spec = mujoco.MjSpec()
-    spec.modelname = 'slider'
+    spec = self._new_spec('slider')
     # In the entity's worldbody: compiled into its attachment frame body.
     self.rail = spec.worldbody.add_geom(
         name='rail',
@@ -213,11 +201,6 @@ class Slider(composer.Entity):
     self.puck = body.add_geom(
         name='puck', type=_G.mjGEOM_BOX, size=[0.05, 0.05, 0.02], **_FLOOR_ONLY
     )
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
 
 class SceneTask(composer.Task):

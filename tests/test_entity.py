@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
+from tests import conftest
 
 
-class Part(composer.Entity):
+class Part(conftest.SpecEntity):
   """A body with a sphere geom, a site to attach things to, and a joint."""
 
   def _build(self, name):
-    spec = mujoco.MjSpec()
-    spec.modelname = name
+    spec = self._new_spec(name)
     body = spec.worldbody.add_body(name='body')
     body.add_geom(
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
@@ -26,11 +26,6 @@ class Part(composer.Entity):
     self.site = spec.worldbody.add_site(name='mount', pos=[0.5, 0, 0])
     self.site.alt.type = mujoco.mjtOrientation.mjORIENTATION_XYAXES
     self.site.alt.xyaxes = [0, 1, 0, -1, 0, 0]
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
 
 def _physics(root):

@@ -65,12 +65,11 @@ def _check_and_count(physics, row, hook):
   return physics.update_task_state(counts=counts, violations=violations)
 
 
-class HookEntity(composer.Entity):
+class HookEntity(conftest.SpecEntity):
   """An entity that counts its hooks; the root one has 4 motors."""
 
   def _build(self, name, row, host_log, n_motors=0):
-    spec = mujoco.MjSpec()
-    spec.modelname = name
+    spec = self._new_spec(name)
     body = spec.worldbody.add_body(name='body')
     body.add_geom(
         type=mujoco.mjtGeom.mjGEOM_SPHERE,
@@ -85,13 +84,8 @@ class HookEntity(composer.Entity):
       spec.add_actuator(
           name=f'm{i}', target=joint.name, trntype=mujoco.mjtTrn.mjTRN_JOINT
       )
-    self._spec = spec
     self.row = row
     self.host_log = host_log
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
   def initialize_episode_mjcf(self, random_state):
     self.host_log.append((self.row, 'initialize_episode_mjcf'))

@@ -16,22 +16,18 @@ import mjx_composer as composer
 from mjx_composer import element_index
 from mjx_composer import hooks as hooks_lib
 from mjx_composer import transitions
+from tests import conftest
 
 
-class Box(composer.Entity):
+class Box(conftest.SpecEntity):
   """A free box that draws a number into its entity state per episode."""
 
   def _build(self, name='box', draws=True):
-    self._spec = mujoco.MjSpec()
-    self._spec.modelname = name
-    self.geom = self._spec.worldbody.add_body(name='body').add_geom(
+    spec = self._new_spec(name)
+    self.geom = spec.worldbody.add_body(name='body').add_geom(
         name='geom', type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.1, 0.1, 0.1]
     )
     self.draws = draws
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
   def initial_state(self):
     return {'draw': jnp.zeros(()), 'order': jnp.zeros((), jnp.int32)}

@@ -23,7 +23,7 @@ from tests import conftest
 _EPISODE_STEPS = 3
 
 
-class _TinySwing(composer.Task):
+class _TinySwing(conftest.PendulumTask):
   """A single pendulum; episodes end by time limit, or early by termination."""
 
   def __init__(self):
@@ -31,18 +31,6 @@ class _TinySwing(composer.Task):
     self.pendulum = conftest.Pendulum()
     self.arena.attach(self.pendulum)
     self.set_timesteps(control_timestep=0.01, physics_timestep=0.01)
-
-  @property
-  def root_entity(self):
-    return self.arena
-
-  @property
-  def task_observables(self):
-    tip = composer.observation.observable.Generic(
-        lambda physics: physics.bind(self.pendulum.tip).xpos
-    )
-    tip.enabled = True
-    return {'tip': tip}
 
   def initialize_episode(self, physics, key):
     angle = jax.random.uniform(key, (1,), minval=-1.0, maxval=1.0)

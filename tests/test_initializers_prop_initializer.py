@@ -19,6 +19,7 @@ from mjx_composer.entities import props
 from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
 from mjx_composer.variation import rotations
+from tests import conftest
 
 _RADIUS = 0.05
 _CRATE = 0.1  # the crate's half-size
@@ -365,12 +366,11 @@ def test_invalid_arguments():
 # -- settling and environment retries ------------------------------------------
 
 
-class Hinge(composer.Entity):
+class Hinge(conftest.SpecEntity):
   """A rod on a hinge: a non-prop joint that settling must hold still."""
 
   def _build(self):
-    spec = mujoco.MjSpec()
-    spec.modelname = 'hinge'
+    spec = self._new_spec('hinge')
     body = spec.worldbody.add_body(name='rod', pos=[0.6, 0.0, 0.5])
     self.joint = body.add_joint(
         name='hinge', type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 1, 0]
@@ -382,11 +382,6 @@ class Hinge(composer.Entity):
         contype=0,
         conaffinity=0,
     )
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
 
 class RetryTask(composer.Task):

@@ -10,28 +10,9 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer import rendering
+from tests import conftest
 
 _COLOURS = np.eye(3, 4, dtype=np.float32) + np.array([0, 0, 0, 1], np.float32)
-
-
-class _Bead(composer.Entity):
-  """A sphere that collides with nothing (keeps the compile small)."""
-
-  def _build(self, name='bead'):
-    spec = mujoco.MjSpec()
-    spec.modelname = name
-    self.geom = spec.worldbody.add_body(name='body').add_geom(
-        name='geom',
-        type=mujoco.mjtGeom.mjGEOM_SPHERE,
-        size=[0.3, 0, 0],
-        contype=0,
-        conaffinity=0,
-    )
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
 
 class _ColourTask(composer.Task):
@@ -47,7 +28,10 @@ class _ColourTask(composer.Task):
         contype=0,
         conaffinity=0,
     )
-    self.bead = _Bead()
+    # A sphere that collides with nothing (keeps the compile small).
+    self.bead = conftest.Ball(
+        name='bead', radius=0.3, mass=None, collides=False
+    )
     self.arena.add_free_entity(self.bead)
 
   @property

@@ -21,6 +21,7 @@ from mjx_composer.compiler import attributes
 from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
 from mjx_composer.variation import noises
+from tests import conftest
 
 _J = mujoco.mjtJoint
 _G = mujoco.mjtGeom
@@ -28,62 +29,23 @@ _COLORS = [[1, 0, 0, 1], [0, 1, 0, 1], [0, 0, 1, 1]]
 _K = 2  # the every-k schedule's interval
 
 
-class Hinge(composer.Robot):
-
-  def _build(self, name='hinge'):
-    spec = mujoco.MjSpec()
-    spec.modelname = name
-    body = spec.worldbody.add_body(name='rod', pos=[0, 0, 1])
-    self.joint = body.add_joint(
-        name='hinge',
-        type=_J.mjJNT_HINGE,
-        axis=[0, 1, 0],
-        damping=0.5,
-        range=[-90, 90],
-        frictionloss=0.01,
-    )
-    self.geom = body.add_geom(
-        name='rod',
-        type=_G.mjGEOM_CAPSULE,
-        size=[0.02, 0, 0],
-        fromto=[0, 0, 0, 0, 0, -0.5],
-        contype=0,
-        conaffinity=0,
-    )
-    self.motor = spec.add_actuator(
-        name='motor',
-        target='hinge',
-        trntype=mujoco.mjtTrn.mjTRN_JOINT,
-        ctrlrange=[-1, 1],
-    )
-    self.unlimited = body.add_joint(
-        name='free_spin', type=_J.mjJNT_HINGE, axis=[1, 0, 0]
-    )
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
-
-  @property
-  def actuators(self):
-    return (self.motor,)
+def _hinge():
+  """A damped, limited hinge with friction loss, a motor limited by
+  autolimits (its ctrlrange) and a second, unlimited hinge (`unlimited`);
+  no tip site."""
+  return conftest.Pendulum(
+      name='hinge',
+      damping=0.5,
+      tip=False,
+      ctrllimited=mujoco.mjtLimited.mjLIMITED_AUTO,
+      free_spin=True,
+      range=[-90, 90],
+      frictionloss=0.01,
+  )
 
 
-class Ball(composer.Entity):
-
-  def _build(self, name='ball'):
-    spec = mujoco.MjSpec()
-    spec.modelname = name
-    self.body = spec.worldbody.add_body(name='body')
-    self.geom = self.body.add_geom(
-        name='geom', type=_G.mjGEOM_SPHERE, size=[0.05, 0, 0], density=400
-    )
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
+def _ball(name='ball'):
+  return conftest.Ball(name=name, density=400)
 
 
 class VariedTask(composer.Task):
@@ -96,9 +58,9 @@ class VariedTask(composer.Task):
     # no contacts.)
     self.arena = composer.Arena()
     self.arena.mjcf_model.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
-    self.hinge = Hinge()
+    self.hinge = _hinge()
     self.arena.attach(self.hinge)
-    self.ball = Ball()
+    self.ball = _ball()
     self.arena.add_free_entity(self.ball)
     self.set_timesteps(control_timestep=0.01, physics_timestep=0.01)
     # Per episode: a stateful Sequence of colours and a derived size.
@@ -304,7 +266,7 @@ def test_schedules_state_and_derived_fields_across_auto_resets(rollout):
 
 
 def test_unsupported_attribute_lists_what_is_supported():
-  ball = Ball()
+  ball = _ball()
   variator = variation.MJCFVariator()
   with pytest.raises(ValueError, match=r"geom attribute 'margin'.*'friction'"):
     variator.bind_attributes(ball.geom, margin=0.1)
@@ -316,7 +278,7 @@ def test_unsupported_attribute_lists_what_is_supported():
 
 
 def test_structural_attributes_are_refused_with_reasons():
-  hinge, ball = Hinge(), Ball()
+  hinge, ball = _hinge(), _ball()
   variator = variation.MJCFVariator()
   with pytest.raises(ValueError, match='fromto'):
     variator.bind_attributes(hinge.geom, pos=[0, 0, 0])
@@ -342,7 +304,7 @@ def test_structural_attributes_are_refused_with_reasons():
 
 
 def test_shape_mismatch_at_bind_time():
-  ball = Ball()
+  ball = _ball()
   variator = variation.MJCFVariator()
   with pytest.raises(ValueError, match=r'shape \(2,\).*shape \(3,\)'):
     variator.bind_attributes(ball.geom, size=[0.1, 0.2])
@@ -375,9 +337,9 @@ class _OneVariatorTask(composer.Task):
     self.arena.mjcf_model.worldbody.add_geom(
         name='floor', type=_G.mjGEOM_PLANE, size=[2, 2, 0.1]
     )
-    self.hinge = Hinge()
+    self.hinge = _hinge()
     self.arena.attach(self.hinge)
-    self.ball = Ball()
+    self.ball = _ball()
     self.arena.add_free_entity(self.ball)
     self.variator = variation.MJCFVariator(schedule=schedule)
     bind(self, self.variator)
@@ -406,7 +368,7 @@ def _trace_reset(task, in_step=False):
 
 
 def test_element_not_in_the_composed_model_names_it_and_says_attach():
-  stray = Ball(name='stray')
+  stray = _ball(name='stray')
   task = _OneVariatorTask(
       lambda t, v: v.bind_attributes(stray.geom, rgba=[1, 0, 0, 1])
   )

@@ -11,16 +11,16 @@ from mjx_composer import variation
 from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
 from mjx_composer.variation import noises
+from tests import conftest
 
 _J = mujoco.mjtJoint
 _G = mujoco.mjtGeom
 
 
-class Arm(composer.Robot):
+class Arm(conftest.SpecEntity, composer.Robot):
 
   def _build(self):
-    spec = mujoco.MjSpec()
-    spec.modelname = 'arm'
+    spec = self._new_spec('arm')
     self.body = spec.worldbody.add_body(name='link', pos=[0, 0, 0.5])
     self.joint = self.body.add_joint(
         name='hinge', type=_J.mjJNT_HINGE, axis=[0, 1, 0], damping=0.5
@@ -34,11 +34,6 @@ class Arm(composer.Robot):
         trntype=mujoco.mjtTrn.mjTRN_JOINT,
         gear=[3, 0, 0, 0, 0, 0],
     )
-    self._spec = spec
-
-  @property
-  def mjcf_model(self):
-    return self._spec
 
   @property
   def actuators(self):
