@@ -240,6 +240,19 @@ def print_device():
   return device
 
 
+def write_results(path, device, results, **settings):
+  """Writes a benchmark's `results` with the device, JAX version and settings."""
+  write_json(
+      path,
+      {
+          'device': device.device_kind,
+          'jax': jax.__version__,
+          **settings,
+          'results': results,
+      },
+  )
+
+
 def write_json(path, payload):
   """Writes `payload` as indented JSON, creating `path`'s folder."""
   os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)

@@ -87,15 +87,12 @@ def main():
         flush=True,
     )
 
-  common.write_json(
+  common.write_results(
       args.out,
-      {
-          'device': device.device_kind,
-          'jax': jax.__version__,
-          'n_sub_steps': n,
-          'steps_per_call': args.steps,
-          'results': results,
-      },
+      device,
+      results,
+      n_sub_steps=n,
+      steps_per_call=args.steps,
   )
   names = ['raw_reset', 'ends', 'no_ends', 'no_obs', 'raw_fast']
   print('\n| worlds | raw MJX (physics steps/s) | ' + ' | '.join(names) + ' |')

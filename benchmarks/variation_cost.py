@@ -80,16 +80,13 @@ def main():
         flush=True,
     )
 
-  common.write_json(
+  common.write_results(
       args.out,
-      {
-          'device': device.device_kind,
-          'jax': jax.__version__,
-          'n_sub_steps': n,
-          'episode_steps': args.episode_steps,
-          'steps_per_call': args.steps,
-          'results': results,
-      },
+      device,
+      results,
+      n_sub_steps=n,
+      episode_steps=args.episode_steps,
+      steps_per_call=args.steps,
   )
   print(
       '\n| worlds | raw MJX | fixed | randomized | randomized / fixed '

@@ -57,14 +57,14 @@ class EpisodeRules:
 
   Args:
     task: the `Task` (reward, discount, termination, metrics).
-    step_limit: control steps before truncation (`step_limit`).
+    limit: control steps before truncation (`step_limit`).
     reward_shape: the shape of the reward (`Environment.reward_spec`).
     discount_shape: the shape of the discount.
   """
 
-  def __init__(self, task, step_limit_: float, reward_shape, discount_shape):
+  def __init__(self, task, limit: float, reward_shape, discount_shape):
     self._task = task
-    self.step_limit = step_limit_
+    self.step_limit = limit
     self._reward_shape = tuple(reward_shape)
     self._discount_shape = tuple(discount_shape)
 
