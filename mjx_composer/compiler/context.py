@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import jax.numpy as jnp
@@ -10,6 +11,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer import kinematics
 from mjx_composer.compiler import inertia
 
 
@@ -28,6 +30,11 @@ class Host:
     for g in range(self.m.ngeom):
       body_geoms.setdefault(int(self.m.geom_bodyid[g]), []).append(g)
     self.body_geoms: dict[int, list[int]] = body_geoms
+
+  @functools.cached_property
+  def qpos0_kinematics(self) -> kinematics.ReferenceKinematics:
+    """Positions and com-based quantities of the host model at `qpos0`."""
+    return kinematics.ReferenceKinematics(self.m)
 
   def body_name(self, b: int) -> str:
     return mujoco.mj_id2name(self.m, mujoco.mjtObj.mjOBJ_BODY, b)

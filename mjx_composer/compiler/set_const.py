@@ -50,9 +50,11 @@ def update(host, plan, fields, auto_stat):
   nv = m.nv
   model = fields.model
   mx = model.replace(**fields.fields)
-  d = mjx.make_data(mx).replace(qpos=mx.qpos0)
-  d = mjx.kinematics(mx, d)
-  d = mjx.com_pos(mx, d)
+  # Positions at qpos0 come from the host where the bound attributes
+  # cannot move them (e.g. masses, sizes, colours): see `kinematics`.
+  d = host.qpos0_kinematics.apply(
+      mx, mjx.make_data(mx).replace(qpos=mx.qpos0), written=fields.fields
+  )
   diag_m = minv = None
   if nv:
     d = mjx.crb(mx, d)
