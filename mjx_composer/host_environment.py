@@ -17,6 +17,11 @@ A batch of worlds stepped in lockstep, with its own interface (NOT a
 
 Both hold the current `State`, jit `reset`/`step` themselves (vmapped for a
 batch), manage the keys and return numpy arrays.
+
+A batch can be spread over several devices (see `mjx_composer.sharding`):
+
+    env = BatchedHostEnvironment(composer.Environment(task), num_worlds=64,
+                                 mesh=sharding.world_mesh())
 """
 
 from __future__ import annotations
@@ -27,6 +32,8 @@ import dm_env
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from mjx_composer import sharding
 
 
 class BatchedTimeStep(NamedTuple):
@@ -68,9 +75,9 @@ def _auto_reset_mode(environment) -> str:
   return mode
 
 
-def _fetch(state):
+def _fetch(state, gather=jax.device_get):
   """The host copies of what a timestep reports (not the whole State)."""
-  return jax.device_get(
+  return gather(
       (
           state.step_type,
           state.reward,
@@ -84,16 +91,21 @@ def _fetch(state):
 class _HostLoop:
   """What the single-world and the batched host environments share."""
 
-  def __init__(self, environment, seed, num_worlds):
+  def __init__(self, environment, seed, num_worlds, mesh=None):
     self._env = environment
     self._num_worlds = num_worlds
     self._key = jax.random.key(seed)
     self._auto_reset = _auto_reset_mode(environment)
-    reset, step = environment.reset, environment.step
-    if num_worlds is not None:
-      reset, step = jax.vmap(reset), jax.vmap(step)
-    self._reset_fn = jax.jit(reset)
-    self._step_fn = jax.jit(step)
+    self._mesh = mesh
+    if mesh is not None:
+      self._reset_fn = sharding.batched_reset(environment, mesh)
+      self._step_fn = sharding.batched_step(environment, mesh)
+    else:
+      reset, step = environment.reset, environment.step
+      if num_worlds is not None:
+        reset, step = jax.vmap(reset), jax.vmap(step)
+      self._reset_fn = jax.jit(reset)
+      self._step_fn = jax.jit(step)
     self._state = None
     self._pending_first = False
 
@@ -114,7 +126,9 @@ class _HostLoop:
 
   def _new_state(self):
     self._key, key = jax.random.split(self._key)
-    if self._num_worlds is not None:
+    if self._mesh is not None:
+      key = sharding.world_keys(key, self._num_worlds, self._mesh)
+    elif self._num_worlds is not None:
       key = jax.random.split(key, self._num_worlds)
     return self._reset_fn(key)
 
@@ -159,18 +173,24 @@ class HostEnvironment(_HostLoop, dm_env.Environment):
     num_worlds: None for this single-world environment; an int for a
       `BatchedHostEnvironment` of that many worlds.
     seed: an int seed for the episodes' keys.
+    mesh: only for a batch (see `BatchedHostEnvironment`).
   """
 
-  def __new__(cls, environment=None, num_worlds=None, seed=0):
+  def __new__(cls, environment=None, num_worlds=None, seed=0, mesh=None):
     if cls is HostEnvironment and num_worlds is not None:
-      return BatchedHostEnvironment(environment, num_worlds, seed)
+      return BatchedHostEnvironment(environment, num_worlds, seed, mesh)
     return super().__new__(cls)
 
-  def __init__(self, environment, num_worlds=None, seed=0):
+  def __init__(self, environment, num_worlds=None, seed=0, mesh=None):
     if num_worlds is not None:
       raise ValueError(
           f'{type(self).__name__} steps one world: use '
           'BatchedHostEnvironment(environment, num_worlds) for a batch.'
+      )
+    if mesh is not None:
+      raise ValueError(
+          'A mesh spreads a batch of worlds over devices; this '
+          'HostEnvironment steps one world. Pass num_worlds for a batch.'
       )
     super().__init__(environment, seed, None)
 
@@ -253,9 +273,18 @@ class BatchedHostEnvironment(_HostLoop):
     num_worlds: the batch size, an int >= 1.
     seed: an int seed; world i's first episode uses `split(key, n)[i]` of a
       key split from `key(seed)`.
+    mesh: None (the default): the batch runs on JAX's default device. A mesh
+      from `mjx_composer.sharding.world_mesh`, or a sequence of devices to
+      build one over: the batch is split over its devices along the world
+      axis (`num_worlds` must be a multiple of their number), each device
+      stepping its own worlds (`sharding.batched_step`). A world's episodes
+      do not depend on the mesh. The timesteps returned hold every world, so
+      with several processes (`jax.distributed`) every process passes every
+      world's actions and gets every world's timestep (an all-gather each
+      step; for throughput use `sharding.batched_step` directly).
   """
 
-  def __init__(self, environment, num_worlds, seed=0):
+  def __init__(self, environment, num_worlds, seed=0, mesh=None):
     if (
         isinstance(num_worlds, bool)
         or not isinstance(num_worlds, (int, np.integer))
@@ -266,11 +295,20 @@ class BatchedHostEnvironment(_HostLoop):
           f'{num_worlds!r}. Use num_worlds=None (the default) for one world '
           'as a dm_env.Environment.'
       )
-    super().__init__(environment, seed, int(num_worlds))
+    if mesh is not None:
+      if not isinstance(mesh, jax.sharding.Mesh):
+        mesh = sharding.world_mesh(mesh)
+      sharding.check_num_worlds(int(num_worlds), mesh)
+    super().__init__(environment, seed, int(num_worlds), mesh)
 
   @property
   def num_worlds(self) -> int:
     return self._num_worlds
+
+  @property
+  def mesh(self) -> jax.sharding.Mesh | None:
+    """The mesh the worlds are split over; None on the default device."""
+    return self._mesh
 
   def reset(self) -> BatchedTimeStep:
     """Starts a new episode in every world."""
@@ -284,7 +322,10 @@ class BatchedHostEnvironment(_HostLoop):
     """
     if self._state is None:
       return self.reset()
-    self._state = self._step_fn(self._state, self._check_actions(actions))
+    actions = self._check_actions(actions)
+    if self._mesh is not None:
+      actions = sharding.put_worlds(actions, self._mesh)
+    self._state = self._step_fn(self._state, actions)
     return self._timestep()
 
   def _check_actions(self, actions):
@@ -306,7 +347,10 @@ class BatchedHostEnvironment(_HostLoop):
     return actions
 
   def _timestep(self) -> BatchedTimeStep:
-    step_type, reward, discount, observation, final = _fetch(self._state)
+    gather = jax.device_get if self._mesh is None else sharding.gather_worlds
+    step_type, reward, discount, observation, final = _fetch(
+        self._state, gather
+    )
     return BatchedTimeStep(
         step_type=np.asarray(step_type),
         reward=np.asarray(reward),
