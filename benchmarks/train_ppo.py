@@ -3,6 +3,10 @@
     python benchmarks/train_ppo.py --task reach --num-timesteps 8000000 \\
         --threshold 20 --out runs/reach
 
+`--task walk` and `--task joystick` (`joystick_rough`) default to MuJoCo
+Playground's PPO settings for HumanoidWalk and Go1Joystick (`TASK_DEFAULTS`:
+episode length, network sizes, discount, reward scaling, ...).
+
 Brax's `ppo.train` runs unchanged on the task through
 `mjx_composer.adapters.brax` (per-episode randomization, our auto-reset,
 truncation reported as truncation). The policy and the critic see the
@@ -51,6 +55,54 @@ def _parse_sizes(text):
   return tuple(int(x) for x in text.split(',') if x)
 
 
+# Per-task defaults; flags given on the command line win. walk: MuJoCo
+# Playground 0.2.0's PPO config for HumanoidWalk (dm_control_suite_params);
+# joystick: its config for Go1JoystickFlatTerrain / RoughTerrain
+# (locomotion_params), whose critic sees the privileged state. Networks are
+# Brax's defaults where Playground keeps them (init_noise_std 1.0 too).
+TASK_DEFAULTS = {
+    'walk': dict(
+        num_timesteps=60_000_000,
+        num_evals=10,
+        reward_scaling=10.0,
+        normalize=True,
+        time_limit=25.0,
+        unroll_length=30,
+        num_minibatches=32,
+        num_updates_per_batch=16,
+        discounting=0.995,
+        learning_rate=1e-3,
+        entropy_cost=1e-2,
+        num_envs=2048,
+        batch_size=1024,
+        init_noise_std=1.0,
+        policy_layers=(32, 32, 32, 32),
+        value_layers=(256, 256, 256, 256, 256),
+    ),
+    'joystick': dict(
+        num_timesteps=200_000_000,
+        num_evals=10,
+        reward_scaling=1.0,
+        normalize=True,
+        time_limit=20.0,
+        unroll_length=20,
+        num_minibatches=32,
+        num_updates_per_batch=4,
+        discounting=0.97,
+        learning_rate=3e-4,
+        entropy_cost=1e-2,
+        num_envs=8192,
+        batch_size=256,
+        max_grad_norm=1.0,
+        init_noise_std=1.0,
+        policy_layers=(512, 256, 128),
+        value_layers=(512, 256, 128),
+        obs='asymmetric',
+    ),
+}
+TASK_DEFAULTS['joystick_rough'] = TASK_DEFAULTS['joystick']
+
+
 def parse_args(argv=None):
   from mjx_composer import cli  # pylint: disable=g-import-not-at-top
 
@@ -91,6 +143,13 @@ def parse_args(argv=None):
       help='normalize observations (Brax running stats)',
   )
   parser.add_argument('--discounting', type=float, default=0.95)
+  parser.add_argument('--reward-scaling', type=float, default=1.0)
+  parser.add_argument(
+      '--max-grad-norm',
+      type=float,
+      default=None,
+      help='clip the gradient norm (default: no clipping)',
+  )
   parser.add_argument(
       '--policy-layers',
       type=_parse_sizes,
@@ -126,6 +185,8 @@ def parse_args(argv=None):
       help='skip training: render the policy saved in this '
       'policy.pkl into --out',
   )
+  task, _ = parser.parse_known_args(argv)
+  parser.set_defaults(**TASK_DEFAULTS.get(task.task, {}))
   args = parser.parse_args(argv)
   if (args.batch_size * args.num_minibatches) % args.num_envs:
     parser.error(
@@ -340,6 +401,8 @@ def main(argv=None):
       learning_rate=args.learning_rate,
       entropy_cost=args.entropy_cost,
       discounting=args.discounting,
+      reward_scaling=args.reward_scaling,
+      max_grad_norm=args.max_grad_norm,
       normalize_observations=args.normalize,
       num_evals=args.num_evals,
       num_eval_envs=args.num_eval_envs,

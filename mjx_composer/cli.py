@@ -19,11 +19,14 @@ import jax
 import jax.numpy as jnp
 import tqdm
 
-TASKS = ('reach', 'push')
+TASKS = ('reach', 'push', 'walk', 'joystick', 'joystick_rough')
 # What each task's `distance` metric measures, for the summary line.
 _DISTANCE_LABELS = {
     'reach': 'hand-target distance',
     'push': 'box-zone distance',
+    'walk': 'distance walked',
+    'joystick': 'distance travelled',
+    'joystick_rough': 'distance travelled',
 }
 
 
@@ -40,6 +43,17 @@ def make_environment(task_name='reach', time_limit=2.0, auto_reset='same_step'):
     from mjx_composer.tasks import push  # pylint: disable=g-import-not-at-top
 
     task = push.Push()
+    groups = task.observation_groups()
+  elif task_name == 'walk':
+    from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+
+    task = walk.Walk()
+    groups = task.observation_groups()
+  elif task_name in ('joystick', 'joystick_rough'):
+    from mjx_composer.tasks import joystick  # pylint: disable=g-import-not-at-top
+
+    terrain = 'rough' if task_name == 'joystick_rough' else 'flat'
+    task = joystick.Joystick(terrain=terrain)
     groups = task.observation_groups()
   else:
     raise ValueError(f'Unknown task {task_name!r}; choose from {TASKS}.')
@@ -214,7 +228,7 @@ def main(argv=None):
   argv = list(sys.argv[1:] if argv is None else argv)
   if not argv or argv[0] not in ('demo',):
     print(
-        'usage: mjx-composer demo [--task reach|push] [--worlds N] '
+        f'usage: mjx-composer demo [--task {"|".join(TASKS)}] [--worlds N] '
         '[--steps T] [--time-limit S] [--seed K] [--no-compilation-cache]'
     )
     return 2
