@@ -7,6 +7,12 @@
 Playground's PPO settings for HumanoidWalk and Go1Joystick (`TASK_DEFAULTS`:
 episode length, network sizes, discount, reward scaling, ...).
 
+Brax trains on every local device by default (its `pmap`, each device with
+`--num-envs / N` worlds and its share of each minibatch, gradients averaged
+across them); `--devices N` trains on the first N (Brax's
+`max_devices_per_host`). `--num-envs` and `--batch-size` must be multiples
+of N.
+
 Brax's `ppo.train` runs unchanged on the task through
 `mjx_composer.adapters.brax` (per-episode randomization, our auto-reset,
 truncation reported as truncation). The policy and the critic see the
@@ -166,6 +172,14 @@ def parse_args(argv=None):
   )
   parser.add_argument('--seed', type=int, default=0)
   parser.add_argument(
+      '--devices',
+      type=int,
+      default=None,
+      help="local devices to train on (Brax's max_devices_per_host: it "
+      'pmaps over them, splitting the worlds evenly); default: all. '
+      '--num-envs and --batch-size must be multiples of it',
+  )
+  parser.add_argument(
       '--no-compilation-cache',
       action='store_true',
       help="don't read or write JAX's persistent compilation cache (for "
@@ -192,7 +206,27 @@ def parse_args(argv=None):
     parser.error(
         '--batch-size x --num-minibatches must be a multiple of ' '--num-envs.'
     )
+  if args.devices is not None:
+    if args.devices < 1:
+      parser.error(f'--devices must be at least 1, got {args.devices}.')
+    _check_divides(parser.error, args, args.devices)
   return args
+
+
+def _check_divides(error, args, devices):
+  """Brax gives each device num_envs / devices worlds and batch_size /
+  devices samples of each minibatch; it fails on a bare assert or a reshape
+  otherwise."""
+  for flag, value in (
+      ('--num-envs', args.num_envs),
+      ('--batch-size', args.batch_size),
+  ):
+    if value % devices:
+      error(
+          f'{flag} {value} is not a multiple of the {devices} devices '
+          'trained on: Brax splits it evenly over them. Change it, or the '
+          'number of devices (--devices).'
+      )
 
 
 def make_networks(args):
@@ -318,9 +352,18 @@ def main(argv=None):
   )
   os.makedirs(args.out, exist_ok=True)
   device = jax.devices()[0]
+  local_devices = jax.local_device_count()
+  devices = args.devices or local_devices
+  if devices > local_devices:
+    sys.exit(
+        f'--devices {devices}: this process has {local_devices} local '
+        'devices.'
+    )
+  _check_divides(sys.exit, args, devices)
   print(
-      f'JAX {jax.__version__} on {device.platform}: {device.device_kind}; '
-      f'compilation cache: {cache_dir or "off"}'
+      f'JAX {jax.__version__} on {device.platform}: {device.device_kind} x '
+      f'{devices} (of {local_devices}); compilation cache: '
+      f'{cache_dir or "off"}'
   )
 
   env = cli.make_environment(
@@ -408,6 +451,7 @@ def main(argv=None):
       num_eval_envs=args.num_eval_envs,
       deterministic_eval=True,
       seed=args.seed,
+      max_devices_per_host=devices,
       network_factory=make_networks(args),
       progress_fn=progress,
       **brax_adapter.training_kwargs(brax_env),
@@ -452,6 +496,7 @@ def main(argv=None):
   summary = {
       'task': args.task,
       'device': f'{device.platform}: {device.device_kind}',
+      'devices': devices,
       'jax': jax.__version__,
       'num_envs': args.num_envs,
       'num_timesteps': args.num_timesteps,
@@ -471,6 +516,7 @@ def main(argv=None):
     json.dump(summary, f, indent=1, default=str)
 
   print(f'\n{"task":<22}{args.task}\n{"device":<22}{summary["device"]}')
+  print(f'{"devices":<22}{devices}')
   print(f'{"worlds x steps":<22}{args.num_envs} x {args.num_timesteps:,}')
   print(
       f'{"return: first/final":<22}{rows[0]["eval_return"]:.2f} / '
