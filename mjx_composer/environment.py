@@ -300,6 +300,8 @@ class Environment:
       return episode_lib.select_reset(
           state.last(), transitions.reset, (reset_key, state), stepped
       )
+    if transitions.can_fuse_restart():
+      return transitions.step_and_restart(state, action)
     stepped = transitions.step(state, action)
     return episode_lib.select_reset(
         stepped.last(), transitions.restart, (stepped,), stepped

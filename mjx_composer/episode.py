@@ -201,3 +201,71 @@ def select_reset(done, reset_fn, operands, stepped):
     return out, jax.tree.map(lambda _: True, out)
 
   return select_or_skip(done, operands, stepped)
+
+
+def loop_with_reset(n, body, wants_reset, carry, operands):
+  """`body(i, carry, operands)` for `i < n`, then `i = n` where it is wanted.
+
+  The step loop of a same-step auto-reset whose last iteration restarts the
+  episode, so that the reset's forward pass is the sub-steps' forward pass
+  (one copy in the program). For one world this is a while loop of `n`
+  iterations, plus one where `wants_reset(carry)` holds after them. Under
+  `jax.vmap` a batched loop condition would turn every branch on `i` in the
+  body into a select, computing the reset at every sub-step; the batching
+  rule instead keeps `i` shared by the batch, runs the extra iteration when
+  some world wants it, and keeps its result only for those worlds. Results
+  are the same either way. The body is traced once and reused by both paths.
+
+  Args:
+    n: the iterations every world runs.
+    body: `(i, carry, operands) -> carry`, for one world.
+    wants_reset: `carry -> bool`, for one world.
+    carry: the initial carry.
+    operands: per-world inputs the body reads.
+
+  Returns:
+    The final carry.
+  """
+  index = jnp.zeros((), jnp.int32)
+  traced = trace_once(body, index, carry, operands)
+
+  def iterate(i, carry, operands):  # one world
+    new = traced(i, carry, operands)
+    return jax.lax.cond(
+        i == n,
+        lambda: _tree_select(wants_reset(carry), new, carry),
+        lambda: new,
+    )
+
+  def run(carry, operands, any_wants, iterate):
+    def again(loop):
+      i, carry = loop
+      return jnp.logical_or(i < n, jnp.logical_and(i == n, any_wants(carry)))
+
+    def step(loop):
+      i, carry = loop
+      return i + 1, iterate(i, carry, operands)
+
+    return jax.lax.while_loop(again, step, (index, carry))[1]
+
+  def one_world(carry, operands):
+    return run(carry, operands, wants_reset, iterate)
+
+  looped = jax.custom_batching.custom_vmap(one_world)
+
+  @looped.def_vmap
+  def _batched(axis_size, in_batched, carry, operands):
+    carry, operands = jax.tree.map(
+        lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape),
+        (carry, operands),
+        tuple(in_batched),
+    )
+    out = run(
+        carry,
+        operands,
+        lambda carry: jnp.any(jax.vmap(wants_reset)(carry)),
+        jax.vmap(iterate, in_axes=(None, 0, 0)),
+    )
+    return out, jax.tree.map(lambda _: True, out)
+
+  return looped(carry, operands)

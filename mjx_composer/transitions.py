@@ -10,12 +10,16 @@ are written so that each expensive piece (the `initialize_episode` hooks,
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
+import mujoco
 from mujoco import mjx
+import numpy as np
 
 from mjx_composer import episode as episode_lib
+from mjx_composer import kinematics as kinematics_lib
 from mjx_composer import physics as physics_lib
 from mjx_composer import state as state_lib
 
@@ -69,6 +73,16 @@ class Transitions:
   max_reset_attempts: int
   declared_model_fields: tuple
 
+  @functools.cached_property
+  def _initial_kinematics(self) -> kinematics_lib.ReferenceKinematics:
+    data = self.initial.data
+    return kinematics_lib.ReferenceKinematics(
+        self.initial.index.mj_model,
+        qpos=np.asarray(data.qpos),
+        mocap_pos=np.asarray(data.mocap_pos),
+        mocap_quat=np.asarray(data.mocap_quat),
+    )
+
   def physics(self, state: state_lib.State) -> physics_lib.Physics:
     """The `Physics` of a `State`."""
     return self._restore(
@@ -99,16 +113,27 @@ class Transitions:
   def reset(self, key, previous: state_lib.State | None = None):
     """A new episode; `previous` is the world's last state on auto-reset."""
     init_key, obs_key, next_key = jax.random.split(key, 3)
-    start = self.initial.carry(())
-    if previous is not None:
-      # An auto-reset keeps the world's model and persistent entries.
-      start = start.replace(
-          model_fields=previous.model_fields,
-          persistent=previous.persistent,
-          scheduled_hooks=previous.scheduled_hooks,
-      )
-    carry, failures = self._initialize(init_key, start)
+    carry, failures = self._initialize(init_key, self._start(previous))
     physics = forward_without_actuation(self._restore(carry))
+    return self._first_state(physics, carry, failures, obs_key, next_key)
+
+  def restart(self, stepped: state_lib.State) -> state_lib.State:
+    """Same-step auto-reset: the next episode, reporting the ended one."""
+    return _reporting(self.reset(stepped.key, previous=stepped), stepped)
+
+  def _start(self, previous):
+    start = self.initial.carry(())
+    if previous is None:
+      return start
+    # An auto-reset keeps the world's model and persistent entries.
+    return start.replace(
+        model_fields=previous.model_fields,
+        persistent=previous.persistent,
+        scheduled_hooks=previous.scheduled_hooks,
+    )
+
+  def _first_state(self, physics, carry, failures, obs_key, next_key):
+    """The FIRST `State` of an initialized, forwarded `physics`."""
     return _state(
         physics,
         tuple(carry.model_fields),
@@ -118,19 +143,6 @@ class Transitions:
         self.episode.start(physics, failures),
     )
 
-  def restart(self, stepped: state_lib.State) -> state_lib.State:
-    """Same-step auto-reset: the next episode, reporting the ended one."""
-    restarted = self.reset(stepped.key, previous=stepped)
-    return restarted.replace(
-        step_type=stepped.step_type,
-        reward=stepped.reward,
-        discount=stepped.discount,
-        terminated=stepped.terminated,
-        truncated=stepped.truncated,
-        final_observation=stepped.final_observation,
-        metrics=stepped.metrics,
-    )
-
   def _attempt(self, key, start):
     """One run of the `initialize_episode` hooks from `start`."""
     physics = self._restore(start)
@@ -138,8 +150,11 @@ class Transitions:
       # Composer runs a whole forward pass here; the hooks read poses, so
       # kinematics suffices, and keeps a second copy of the collision and
       # constraint code out of every program that contains a reset (the
-      # step program does, through auto-reset).
-      physics = physics.kinematics()
+      # step program does, through auto-reset). Every attempt starts from
+      # the initial data, whose kinematics the host knows.
+      physics = physics.replace(
+          data=self._initial_kinematics.apply(physics.model, self.initial.data)
+      )
       physics = self.hooks.initialize_episode(physics, key)
     base = self.initial.model
     changed = {
@@ -195,61 +210,228 @@ class Transitions:
 
   def step(self, state: state_lib.State, action) -> state_lib.State:
     """One control step; episode ends are decided, not acted on."""
-    before_key, substep_key, after_key, obs_key, next_key = jax.random.split(
-        state.key, 5
-    )
-    physics = self.physics(state)
+    keys = _StepKeys.split(state.key)
     fields = tuple(state.model_fields)
-    start = physics
-    physics = self.hooks.scheduled(physics, before_key)
-    physics = self.hooks.before_step(physics, action, before_key)
-    _check_step_writes(start, physics, fields, 'before_step')
-    n = self.n_sub_steps
+    physics = self._before_step(state, action, keys)
 
     def substep(loop, i):
       carry, obs_state = loop
-      physics = self._restore(carry)
-      sub_key = jax.random.fold_in(substep_key, i)
-      physics = self.hooks.before_substep(
-          physics, action, jax.random.fold_in(sub_key, 0)
+      physics = self._before_substep(
+          self._restore(carry), action, keys, i, fields
       )
-      physics = physics.step()
-      physics = self.hooks.after_substep(
-          physics, jax.random.fold_in(sub_key, 1)
+      return (
+          self._after_substep(physics.step(), obs_state, keys, i, fields),
+          None,
       )
-      _check_step_writes(start, physics, fields, 'before_substep/after_substep')
-      if n > 1:
-        # Sub-steps 1..n-1 update the observations here; the updater skips,
-        # at trace time, every observable that cannot be sampled there. The
-        # last sub-step's update comes after the after_step hooks.
-        obs_state = jax.lax.cond(
-            i < n - 1,
-            lambda: self.updater.update(
-                obs_state,
-                physics,
-                jax.random.fold_in(sub_key, 2),
-                i + 1,
-                substep_bounds=(1, n - 1),
-            ),
-            lambda: obs_state,
-        )
-      return (physics.carry(fields), obs_state), None
 
     (carry, obs_state), _ = jax.lax.scan(
         substep,
         (physics.carry(fields), state.obs_state),
-        jnp.arange(n, dtype=jnp.int32),
+        jnp.arange(self.n_sub_steps, dtype=jnp.int32),
     )
-    physics = self.hooks.after_step(self._restore(carry), after_key)
+    return self._end_step(state, self._restore(carry), obs_state, keys)
+
+  def can_fuse_restart(self) -> bool:
+    """Whether `step_and_restart` applies (see there)."""
+    if int(self.initial.model.opt.integrator) not in _INTEGRATORS:
+      return False
+    m = self.initial.index.mj_model
+    if np.any(m.actuator_gaintype == mujoco.mjtGain.mjGAIN_MUSCLE) or np.any(
+        m.actuator_biastype == mujoco.mjtBias.mjBIAS_MUSCLE
+    ):
+      return False  # a muscle's force is not zero when its parameters are
+    # Actuator-level gravity compensation adds to the actuator forces.
+    return not np.any(m.jnt_actgravcomp)
+
+  def step_and_restart(self, state, action) -> state_lib.State:
+    """`step`, then `restart` where the episode ended: same-step auto-reset.
+
+    The same as `select(last, restart(stepped), stepped)` of `stepped =
+    step(state, action)`, with one copy of the forward pass in the program
+    instead of two: the sub-steps run `mjx.forward` then the integrator,
+    and the restart is one more iteration of the same loop, whose forward
+    pass runs with every actuator force masked to zero, as composer's reset
+    runs `mj_forward` with actuation disabled. Needs the Euler or
+    implicitfast integrator, no muscles and no actuator gravity
+    compensation (`can_fuse_restart`); otherwise `Environment.step` runs
+    `step` and `restart`.
+    """
+    keys = _StepKeys.split(state.key)
+    fields = tuple(state.model_fields)
+    physics = self._before_step(state, action, keys)
+    n = self.n_sub_steps
+    integrate = _INTEGRATORS[int(self.initial.model.opt.integrator)]
+
+    def body(i, loop, operands):
+      carry, obs_state, stepped = loop
+      state, action, keys = operands
+
+      def prepare_substep():
+        physics = self._before_substep(
+            self._restore(carry), action, keys, i, fields
+        )
+        physics = physics.replace(initialization_failed=jnp.zeros((), bool))
+        return physics.carry(fields), jnp.zeros((), jnp.int32)
+
+      def prepare_restart():
+        init_key, _, _ = jax.random.split(stepped.key, 3)
+        return self._initialize(init_key, self._start(stepped))
+
+      ready, failures = jax.lax.cond(i == n, prepare_restart, prepare_substep)
+      physics = self._restore(ready)
+      data = mjx.forward(_actuation_masked(physics.model, i == n), physics.data)
+      physics = physics.replace(data=data)
+
+      def finish_substep():
+        moved = physics.replace(data=integrate(physics.model, physics.data))
+        carry, new_obs_state = self._after_substep(
+            moved, obs_state, keys, i, fields
+        )
+        new_stepped = jax.lax.cond(
+            i == n - 1,
+            lambda: self._end_step(
+                state, self._restore(carry), new_obs_state, keys
+            ),
+            lambda: stepped,
+        )
+        # The loop carries no initialization flag; only restarts raise it.
+        carry = carry.replace(initialization_failed=None)
+        return carry, new_obs_state, new_stepped
+
+      def finish_restart():
+        # What `mjx.forward` leaves with actuation disabled.
+        data = physics.data.replace(
+            act_dot=jnp.zeros_like(physics.data.act_dot),
+            actuator_force=ready.data.actuator_force,
+        )
+        _, obs_key, next_key = jax.random.split(stepped.key, 3)
+        restarted = self._first_state(
+            physics.replace(data=data), ready, failures, obs_key, next_key
+        )
+        return carry, obs_state, _reporting(restarted, stepped)
+
+      return jax.lax.cond(i < n, finish_substep, finish_restart)
+
+    _, _, stepped = episode_lib.loop_with_reset(
+        n,
+        body,
+        lambda loop: loop[2].last(),
+        (physics.carry(fields), state.obs_state, state),
+        (state, action, keys),
+    )
+    return stepped
+
+  # The pieces of a step, shared by `step` and `step_and_restart`.
+
+  def _before_step(self, state, action, keys):
+    start = self.physics(state)
+    physics = self.hooks.scheduled(start, keys.before)
+    physics = self.hooks.before_step(physics, action, keys.before)
+    _check_step_writes(start, physics, tuple(state.model_fields), 'before_step')
+    return physics
+
+  def _before_substep(self, physics, action, keys, i, fields):
+    sub_key = jax.random.fold_in(keys.substep, i)
+    start = physics
+    physics = self.hooks.before_substep(
+        physics, action, jax.random.fold_in(sub_key, 0)
+    )
+    _check_step_writes(start, physics, fields, 'before_substep')
+    return physics
+
+  def _after_substep(self, physics, obs_state, keys, i, fields):
+    """After-substep hooks and observation updates: (carry, obs_state)."""
+    sub_key = jax.random.fold_in(keys.substep, i)
+    start = physics
+    physics = self.hooks.after_substep(physics, jax.random.fold_in(sub_key, 1))
+    _check_step_writes(start, physics, fields, 'after_substep')
+    n = self.n_sub_steps
+    if n > 1:
+      # Sub-steps 1..n-1 update the observations here; the updater skips,
+      # at trace time, every observable that cannot be sampled there. The
+      # last sub-step's update comes after the after_step hooks.
+      obs_state = jax.lax.cond(
+          i < n - 1,
+          lambda: self.updater.update(
+              obs_state,
+              physics,
+              jax.random.fold_in(sub_key, 2),
+              i + 1,
+              substep_bounds=(1, n - 1),
+          ),
+          lambda: obs_state,
+      )
+    return physics.carry(fields), obs_state
+
+  def _end_step(self, state, physics, obs_state, keys):
+    fields = tuple(state.model_fields)
+    start = physics
+    physics = self.hooks.after_step(physics, keys.after)
     _check_step_writes(start, physics, fields, 'after_step')
     return _state(
         physics,
         fields,
-        self.updater.update(obs_state, physics, obs_key, n),
+        self.updater.update(obs_state, physics, keys.obs, self.n_sub_steps),
         self.updater,
-        next_key,
+        keys.next,
         self.episode.end_of_step(state, physics),
     )
+
+
+_INTEGRATORS = {  # what `mjx.step` runs after `mjx.forward`
+    int(mujoco.mjtIntegrator.mjINT_EULER): mjx.euler,
+    int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): mjx.implicit,
+}
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class _StepKeys:
+  """A control step's keys, one per use."""
+
+  before: jax.Array
+  substep: jax.Array
+  after: jax.Array
+  obs: jax.Array
+  next: jax.Array
+
+  @classmethod
+  def split(cls, key):
+    return cls(*jax.random.split(key, 5))
+
+
+def _actuation_masked(model, masked):
+  """`model`, where `masked`, with every actuator force zero.
+
+  Zero gains and biases make a (non-muscle) actuator's force zero, and zero
+  force ranges keep it there through the clamps, so the forward pass
+  computes what it does with actuation disabled: `qfrc_actuator` is zero.
+  """
+  if not model.nu:
+    return model
+
+  def zero_where_masked(x):
+    return jnp.where(masked, jnp.zeros_like(x), x)
+
+  fields = ['actuator_gainprm', 'actuator_biasprm', 'actuator_forcerange']
+  if model.ntendon:
+    fields.append('tendon_actfrcrange')
+  return model.replace(
+      **{name: zero_where_masked(getattr(model, name)) for name in fields}
+  )
+
+
+def _reporting(restarted, stepped):
+  """The restarted `State`, reporting how the ended episode's step ended."""
+  return restarted.replace(
+      step_type=stepped.step_type,
+      reward=stepped.reward,
+      discount=stepped.discount,
+      terminated=stepped.terminated,
+      truncated=stepped.truncated,
+      final_observation=stepped.final_observation,
+      metrics=stepped.metrics,
+  )
 
 
 def _state(physics, fields, obs_state, updater, key, episode_fields):
