@@ -138,3 +138,19 @@ def test_mjx_refuses_shapes_it_cannot_collide_with_height_fields():
   arena.add_free_entity(props.Cylinder(radius=0.05, half_length=0.05))
   with pytest.raises(NotImplementedError, match='HFIELD'):
     environment.Environment(task.NullTask(arena))
+
+
+def test_highest_point_near_a_spot(worlds):
+  env, states = worlds
+  arena = env.task.arena
+  xs = np.linspace(-2.0, 2.0, 16)
+  ys = np.linspace(-3.0, 3.0, 24)
+  for world in range(3):
+    physics = env.physics(jax.tree.map(lambda x: x[world], states))
+    heights = arena.max_height * states.model_fields['hfield_data'][
+        world
+    ].reshape(24, 16)
+    for xy, radius in (((0.3, -0.7), 0.6), ((-1.0, 2.0), 1.0)):
+      near = (xs[None] - xy[0]) ** 2 + (ys[:, None] - xy[1]) ** 2 <= radius**2
+      got = arena.max_height_near(physics, jnp.asarray(xy), radius)
+      assert float(got) == pytest.approx(heights[near].max(), abs=1e-6)
