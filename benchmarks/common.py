@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-TASKS = ('reach', 'push')
+TASKS = ('reach', 'push', 'walk', 'joystick')
 
 
 # -- environments ------------------------------------------------------------
@@ -36,6 +36,14 @@ def make_task(name='reach', **task_kwargs):
     from mjx_composer.tasks import push
 
     return push.Push(**task_kwargs)
+  if name == 'walk':
+    from mjx_composer.tasks import walk
+
+    return walk.Walk(**task_kwargs)
+  if name == 'joystick':
+    from mjx_composer.tasks import joystick
+
+    return joystick.Joystick(**task_kwargs)
   # pylint: enable=g-import-not-at-top
   raise ValueError(f'Unknown task {name!r}; choose from {TASKS}.')
 
@@ -53,7 +61,7 @@ def make_env(
   """A bundled task's `Environment`, as the benchmarks build it.
 
   Args:
-    name: 'reach' or 'push'.
+    name: one of `TASKS`.
     time_limit: episode length in seconds.
     episode_steps: if given, the episode length in control steps instead.
     observables: False disables every observable (no observation groups).

@@ -7,9 +7,11 @@ tests read one short trajectory of it.
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
 
+from mjx_composer import cli
 from mjx_composer import environment
 from mjx_composer.entities import go1
 from mjx_composer.state import StepType
@@ -324,8 +326,22 @@ def test_every_world_and_episode_is_randomized(run):
 def test_rough_terrain_variant_builds_with_per_world_terrain():
   task = joystick.Joystick(terrain='rough')
   env = environment.Environment(task, time_limit=1.0)
-  assert env.mj_model.geom('ground').type == 1  # mjGEOM_HFIELD
+  assert env.mj_model.geom('ground').type == mujoco.mjtGeom.mjGEOM_HFIELD
   shapes = jax.eval_shape(env.reset, jax.random.key(0))
   assert 'hfield_data' in shapes.model_fields
   with pytest.raises(ValueError, match='terrain'):
     joystick.Joystick(terrain='ice')
+
+
+@pytest.mark.parametrize(
+    'name, terrain', [('joystick', 'flat'), ('joystick_rough', 'rough')]
+)
+def test_the_command_line_builds_it(name, terrain):
+  env = cli.make_environment(name, time_limit=joystick.EPISODE_SECONDS)
+  assert isinstance(env.task, joystick.Joystick) and env.step_limit == 1000
+  assert env.task.arena.ground_geoms[0].type == (
+      mujoco.mjtGeom.mjGEOM_PLANE
+      if terrain == 'flat'
+      else mujoco.mjtGeom.mjGEOM_HFIELD
+  )
+  assert set(env.observation_spec()) == {'policy', 'critic'}

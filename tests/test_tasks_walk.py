@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from mjx_composer import cli
 from mjx_composer import environment
 from mjx_composer.state import StepType
 from mjx_composer.tasks import walk
@@ -219,3 +220,10 @@ def test_playground_equivalent_settings_switch_everything_off():
   assert env.observation_spec()['policy'].shape == (67,)
   assert not task.variator.bindings and task.pushes.interval == 0
   assert not jax.eval_shape(env.reset, jax.random.key(0)).model_fields
+
+
+def test_the_command_line_builds_it():
+  env = cli.make_environment('walk', time_limit=walk.EPISODE_SECONDS)
+  assert isinstance(env.task, walk.Walk) and env.step_limit == 1000
+  assert set(env.observation_spec()) == {'policy', 'critic'}
+  assert env.action_spec().shape == (21,)

@@ -1,1 +1,2 @@
-"""Bundled entities: arenas, robots and props built in code with MjSpec."""
+"""Bundled entities: arenas, props and robots, built in code with MjSpec or
+loaded from the vendored models in `assets/` (see each folder's NOTICE)."""

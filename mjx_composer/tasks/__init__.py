@@ -1,1 +1,1 @@
-"""Bundled example tasks."""
+"""Bundled tasks: reach and push (the arm), walk (humanoid), joystick (Go1)."""

@@ -1,0 +1,249 @@
+"""The walk task against MuJoCo Playground's HumanoidWalk and raw MJX.
+
+In one process, for each number of worlds, four programs step the same
+humanoid (dm_control's suite humanoid, the XML Playground's HumanoidWalk
+loads) for `--steps` control steps of 5 physics steps, held actions:
+
+* ours_on:    `vmap(env.step)` of the bundled walk task as shipped: policy
+              noise, latency and history, policy/critic groups, per-episode
+              randomization (densities, gears, friction), pushes, falls
+              ending episodes (same-step auto-reset, 1000-step episodes);
+* ours_off:   the same task with all of that off
+              (`walk.PLAYGROUND_EQUIVALENT`), observing only the 'policy'
+              group, which is then HumanoidWalk's observation;
+* playground: `vmap(env.step)` of `registry.load('HumanoidWalk')` from
+              playground 0.2.0 with `impl='jax'` (skipped, with the reason,
+              when `mujoco_playground` cannot be imported);
+* raw:        `vmap(mjx.step)` on ours_off's compiled model, the sub-steps in
+              a `fori_loop` (`common.raw_rollout`), from `qpos0` plus noise,
+              the same actions as controls.
+
+For each: control steps per second (median of `--repeats` calls), the first
+call's seconds (trace, lower and XLA compile of the rollout, and of the
+reset), and memory per world: the bytes of one world's state, and the step
+program's arguments + outputs + temporaries (XLA's memory analysis of the
+compiled rollout) over the number of worlds. On a GPU the device's peak
+bytes in use after each program are recorded too (a running maximum: JAX
+cannot reset it). Ratios: ours/raw and ours/playground per world count.
+
+    python benchmarks/playground_compare.py --worlds 1024 8192 32768
+    python benchmarks/playground_compare.py --worlds 4 --steps 2   # smoke
+
+Playground 0.2.0's imports need, besides this project's dependencies,
+`playground==0.2.0` and `lxml` (see the module's `PLAYGROUND_NEEDS`).
+"""
+
+import importlib.metadata
+import time
+
+import jax
+import numpy as np
+
+import common  # benchmarks/common.py
+
+# What `import mujoco_playground` + `registry.load('HumanoidWalk')` needs
+# beyond this project's own environment (checked with playground 0.2.0).
+PLAYGROUND_NEEDS = ('playground==0.2.0', 'lxml')
+
+
+def _tree_bytes(tree):
+  return sum(
+      int(np.prod(x.shape)) * x.dtype.itemsize
+      for x in jax.tree.leaves(tree)
+      if hasattr(x, 'dtype')
+      and not jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
+  )
+
+
+def _program_bytes(compiled):
+  """Arguments + outputs + temporaries of a compiled program (or None)."""
+  try:
+    analysis = compiled.memory_analysis()
+  except Exception:  # pylint: disable=broad-except
+    return None
+  if analysis is None:
+    return None
+  return int(
+      analysis.argument_size_in_bytes
+      + analysis.output_size_in_bytes
+      + analysis.temp_size_in_bytes
+      - analysis.alias_size_in_bytes
+  )
+
+
+def _peak_bytes(device):
+  stats = device.memory_stats() if hasattr(device, 'memory_stats') else None
+  return None if not stats else stats.get('peak_bytes_in_use')
+
+
+def measure(reset, rollout, keys, actions, repeats, device):
+  """Times one variant: `reset(keys) -> state`, `rollout(state, a)`."""
+  t0 = time.perf_counter()
+  reset_compiled = jax.jit(reset).lower(keys).compile()
+  reset_compile_s = time.perf_counter() - t0
+  state = jax.block_until_ready(reset_compiled(keys))
+  t0 = time.perf_counter()
+  compiled = jax.jit(rollout).lower(state, actions).compile()
+  compile_s = time.perf_counter() - t0
+  t0 = time.perf_counter()
+  out = jax.block_until_ready(compiled(state, actions))
+  first_run_s = time.perf_counter() - t0
+  seconds = common.time_fn(compiled, out, repeats)
+  worlds = actions.shape[0]
+  program = _program_bytes(compiled)
+  return {
+      'seconds_per_call': seconds,
+      'reset_compile_s': reset_compile_s,
+      'rollout_compile_s': compile_s,
+      'first_call_s': compile_s + first_run_s,
+      'state_bytes_per_world': _tree_bytes(state) / worlds,
+      'program_bytes_per_world': None if program is None else program / worlds,
+      'peak_bytes_in_use': _peak_bytes(device),
+  }
+
+
+def _env_variants():
+  """ours_on and ours_off environments (walk task)."""
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer import environment
+  from mjx_composer.tasks import walk
+
+  # pylint: enable=g-import-not-at-top
+  on = common.make_env('walk', time_limit=walk.EPISODE_SECONDS)
+  task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)
+  off = environment.Environment(
+      task,
+      time_limit=walk.EPISODE_SECONDS,
+      auto_reset='same_step',
+      observation_groups={'policy': task.observation_groups()['policy']},
+  )
+  return {'ours_on': on, 'ours_off': off}
+
+
+def _playground_env():
+  """(HumanoidWalk with impl='jax', None) or (None, why it is skipped)."""
+  try:
+    # pylint: disable=g-import-not-at-top
+    import mujoco_playground
+    from mujoco_playground import registry
+    # pylint: enable=g-import-not-at-top
+  except Exception as e:  # pylint: disable=broad-except
+    return None, f'mujoco_playground cannot be imported: {e!r}'
+  env = registry.load('HumanoidWalk', config_overrides={'impl': 'jax'})
+  try:
+    version = importlib.metadata.version('playground')
+  except importlib.metadata.PackageNotFoundError:
+    version = getattr(mujoco_playground, '__version__', 'unknown')
+  return env, f'playground {version}'
+
+
+def _scan_rollout(step, steps):
+  """`rollout(state, actions)`: `steps` of `vmap(step)`, actions held."""
+  batched = jax.vmap(step)
+
+  def rollout(state, actions):
+    def body(s, _):
+      return batched(s, actions), None
+
+    return jax.lax.scan(body, state, None, length=steps)[0], actions
+
+  return rollout
+
+
+def main():
+  parser = common.make_parser(
+      __doc__,
+      worlds=[1024, 8192, 32768],
+      repeats=3,
+      out='playground_compare.json',
+  )
+  parser.add_argument(
+      '--steps', type=int, default=100, help='control steps per timed call'
+  )
+  args = parser.parse_args()
+  device = common.print_device()
+
+  envs = _env_variants()
+  n = envs['ours_off'].n_sub_steps
+  playground, playground_info = _playground_env()
+  if playground is None:
+    print(f'Skipping the playground column: {playground_info}')
+  else:
+    print(f'{playground_info}: HumanoidWalk, impl=jax')
+  raw_model = envs['ours_off'].mjx_model
+
+  results = []
+  for worlds in args.worlds:
+    keys = jax.random.split(jax.random.key(0), worlds)
+    actions = common.random_actions(envs['ours_off'], worlds)
+    row = {'worlds': worlds}
+    for name, env in envs.items():
+      row[name] = measure(
+          jax.vmap(env.reset),
+          _scan_rollout(env.step, args.steps),
+          keys,
+          actions,
+          args.repeats,
+          device,
+      )
+    if playground is not None:
+      row['playground'] = measure(
+          jax.vmap(playground.reset),
+          _scan_rollout(playground.step, args.steps),
+          jax.random.split(jax.random.PRNGKey(0), worlds),
+          actions,
+          args.repeats,
+          device,
+      )
+    row['raw'] = measure(
+        common.raw_reset(raw_model, jit=False),
+        common.raw_rollout(raw_model, n, args.steps, jit=False),
+        keys,
+        actions,
+        args.repeats,
+        device,
+    )
+    for name in ('ours_on', 'ours_off', 'playground', 'raw'):
+      if name in row:
+        row[name]['control_steps_per_s'] = (
+            worlds * args.steps / row[name]['seconds_per_call']
+        )
+    for ours in ('ours_on', 'ours_off'):
+      for other in ('raw', 'playground'):
+        if other in row:
+          row[f'{ours}/{other}'] = (
+              row[ours]['control_steps_per_s']
+              / row[other]['control_steps_per_s']
+          )
+    results.append(row)
+    line = ', '.join(
+        f'{name} {row[name]["control_steps_per_s"]:,.0f}'
+        for name in ('ours_on', 'ours_off', 'playground', 'raw')
+        if name in row
+    )
+    print(f'{worlds:>6} worlds, control steps/s: {line}')
+    print(
+        '        '
+        + ', '.join(f'{k} {v:.3f}' for k, v in row.items() if '/' in k)
+    )
+
+  common.write_results(
+      args.out,
+      device,
+      results,
+      task='walk',
+      steps_per_call=args.steps,
+      sub_steps=n,
+      repeats=args.repeats,
+      playground=playground_info,
+      note=(
+          'Every variant holds one random action per world. ours_on resets '
+          'worlds whose humanoid falls (head below 0.8 m), with '
+          'randomization; the others never reset within a call.'
+      ),
+  )
+  print(f'Wrote {args.out}')
+
+
+if __name__ == '__main__':
+  main()
