@@ -60,12 +60,24 @@ stepping. Arrays that span hosts are built from values every process has
 (`put_worlds`, `world_keys`) or from each process's own worlds
 (`put_local_worlds`); read them back with `local_worlds` (this process's
 rows, no communication) or `gather_worlds` (every row on every process, an
-all-gather; on CPU through JAX's gloo collectives).
+all-gather; on CPU through JAX's gloo collectives, which give up when a
+process is more than 30 s late, e.g. still compiling).
+
+Known limitation: MJX (3.17) puts a model and data on `jax.devices()[0]`
+unless given a device, and with several processes that is process 0's
+device, which the others cannot address: building an `Environment` fails
+there ("Number of addressable output shards must match ...: 0 vs. 1") until
+`Environment` passes `device=jax.local_devices()[0]` to `mjx.put_model` and
+`mjx.make_data`. `tests/test_sharding.py` patches MJX so for its
+two-process test.
 
 A world's trajectory does not depend on the number of devices or hosts that
-share the batch: its key and its actions fix it (`tests/test_sharding.py`
-runs 1, 2 and 4 devices in one process and 2 processes of 2 devices, and
-finds the same trajectories, bit for bit on CPU).
+share the batch: its key and its actions fix it. `tests/test_sharding.py`
+runs 1, 2 and 4 devices in one process and 2 processes of 2 devices: bit
+for bit equal where each device holds as many worlds, and otherwise equal
+to float32 rounding (each device compiles the program for its own number of
+worlds, and XLA may order a floating-point reduction differently for
+another batch size, as on one device).
 """
 
 from __future__ import annotations
@@ -141,14 +153,16 @@ def check_num_worlds(num_worlds: int, mesh: Mesh | None = None) -> int:
   return num_worlds
 
 
-def num_worlds(tree) -> int:
+def count_worlds(tree) -> int:
   """The size of the leading (world) axis shared by `tree`'s arrays.
 
   Raises:
     ValueError: if the tree has no array, an array has no leading axis, or
       the arrays disagree on its size.
   """
-  sizes = {np.shape(x)[0] if np.ndim(x) else None for x in _leaves(tree)}
+  sizes = {
+      np.shape(x)[0] if np.ndim(x) else None for x in jax.tree.leaves(tree)
+  }
   if not sizes:
     raise ValueError('This tree holds no array: no world axis to shard.')
   if None in sizes or len(sizes) > 1:
@@ -180,7 +194,7 @@ def put_worlds(tree, mesh: Mesh | None = None):
     ValueError: if the number of worlds does not split over the devices.
   """
   mesh = _mesh(mesh)
-  check_num_worlds(num_worlds(tree), mesh)
+  check_num_worlds(count_worlds(tree), mesh)
   sharding = world_sharding(mesh)
   if jax.process_count() == 1:
     return jax.device_put(tree, sharding)
@@ -209,7 +223,7 @@ def put_local_worlds(tree, mesh: Mesh | None = None):
     The tree of global `jax.Array`s, sharded by `world_sharding(mesh)`.
   """
   mesh = _mesh(mesh)
-  local = num_worlds(tree)
+  local = count_worlds(tree)
   local_devices = sum(
       d.process_index == jax.process_index() for d in mesh.devices.flat
   )
@@ -236,15 +250,15 @@ def put_local_worlds(tree, mesh: Mesh | None = None):
   return _map_key_data(put, tree)
 
 
-def world_keys(key, num_worlds_: int, mesh: Mesh | None = None):
-  """`jax.random.split(key, num_worlds_)`, sharded over the mesh.
+def world_keys(key, num_worlds: int, mesh: Mesh | None = None):
+  """`jax.random.split(key, num_worlds)`, sharded over the mesh.
 
   World i gets the same key whatever the mesh, so its episodes do not depend
   on how many devices share the batch.
   """
   mesh = _mesh(mesh)
-  check_num_worlds(num_worlds_, mesh)
-  return put_worlds(jax.random.split(key, num_worlds_), mesh)
+  check_num_worlds(num_worlds, mesh)
+  return put_worlds(jax.random.split(key, num_worlds), mesh)
 
 
 # -- reading arrays back -------------------------------------------------------
@@ -313,7 +327,7 @@ def gather_worlds(tree):
   tree = _key_data(tree)
   if all(
       not isinstance(x, jax.Array) or x.is_fully_addressable
-      for x in _leaves(tree)
+      for x in jax.tree.leaves(tree)
   ):
     return jax.tree.map(np.asarray, jax.device_get(tree))
   return multihost_utils.process_allgather(tree, tiled=True)
@@ -344,10 +358,10 @@ def per_device(
     donate_argnums: passed to `jax.jit`.
 
   Returns:
-    The jitted function, a `WorldProgram`. Pass it arrays placed by `put_worlds` (or outputs
-    of such functions) or numpy arrays; arrays committed to other devices are
-    refused by `jax.jit`. A batch that does not split evenly over the devices
-    raises a `ValueError` naming what would.
+    The jitted function, a `WorldProgram`. Pass it arrays placed by
+    `put_worlds` (or outputs of such functions) or numpy arrays; `jax.jit`
+    refuses arrays committed to other devices. A batch that does not split
+    evenly over the devices raises a `ValueError` saying what would.
   """
   mesh = _mesh(mesh)
   spec = P(WORLD_AXIS)
@@ -378,17 +392,19 @@ class WorldProgram:
     self.mesh = mesh
 
   def __call__(self, *args):
-    check_num_worlds(num_worlds(args), self.mesh)
+    check_num_worlds(count_worlds(args), self.mesh)
     return self.jitted(*args)
 
   def lower(self, *args):
     """`jax.jit(...).lower(*args)`, after the same check as a call."""
-    check_num_worlds(num_worlds(args), self.mesh)
+    check_num_worlds(count_worlds(args), self.mesh)
     return self.jitted.lower(*args)
 
 
 # Jitted programs per environment, so that asking again for the same
-# environment and mesh returns the same (already compiled) function.
+# environment and mesh returns the same (already compiled) function. The
+# programs reach their environment through a weak reference: an entry never
+# keeps its own key alive.
 _PROGRAMS = weakref.WeakKeyDictionary()
 
 
@@ -431,8 +447,14 @@ def _program(env, kind, mesh, donate):
   programs = _PROGRAMS.setdefault(env, {})
   key = (kind, mesh, donate)
   if key not in programs:
-    fn = jax.vmap(env.reset if kind == 'reset' else env.step)
-    programs[key] = per_device(fn, mesh, donate_argnums=(0,) if donate else ())
+    env_ref = weakref.ref(env)
+
+    def batched(*args):
+      return jax.vmap(getattr(env_ref(), kind))(*args)
+
+    programs[key] = per_device(
+        batched, mesh, donate_argnums=(0,) if donate else ()
+    )
   return programs[key]
 
 
@@ -459,10 +481,6 @@ def _is_key(x):
   return isinstance(x, jax.Array) and jnp.issubdtype(
       x.dtype, jax.dtypes.prng_key
   )
-
-
-def _leaves(tree):
-  return jax.tree.leaves(tree)
 
 
 def _key_data(tree):

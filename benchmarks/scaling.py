@@ -1,0 +1,314 @@
+"""Scaling over devices: one device against all local devices, same worlds.
+
+For `--worlds` worlds (default 65,536), first on one device and then on all
+N local devices, the world axis split over them with
+`mjx_composer.sharding` (each device steps its own worlds, with no
+communication between devices), it times:
+
+* raw:      raw MJX on the reach model: per control step, `ctrl` set and
+            `jax.vmap(mjx.step)` run n sub-steps in a `lax.fori_loop`
+            (`common.raw_rollout`), `--steps` control steps per call, from
+            `qpos0`;
+* composed: the bundled reach task (per-episode domain randomization, its
+            10 observables and policy/critic groups, episodes of
+            `--time-limit` s with same-step auto-reset), `jax.lax.scan` over
+            `jax.vmap(env.step)` (`common.env_rollout`), `--steps` per call;
+* gspmd:    (N devices only, `--gspmd`) the composed rollout jitted with
+            `jax.jit` and `NamedSharding` inputs and outputs instead, so XLA
+            partitions one batched program: its loop predicates (MJX's
+            solver, auto-reset) become all-reduces across the devices;
+* ppo:      Brax's `ppo.train` on the same task (as `train_ppo.py`: policy
+            group for policy and critic, 64x64 / 256x256 networks),
+            `max_devices_per_host=1` against N: Brax `pmap`s the training
+            over its devices, each with worlds / N worlds. One unroll of
+            `--ppo-unroll` steps per world per training step, no
+            evaluation; Brax's env steps per second of each epoch after the
+            first (which compiles), median.
+
+It reports physics steps per second (raw, composed, gspmd: control steps x
+n sub-steps; ppo: Brax's env steps x n sub-steps), the median of
+`--repeats` calls after two warm-up calls (compilation excluded), and the
+scaling efficiency, N-device steps/s over N x 1-device steps/s (1.0: linear).
+It also counts the collective operations (all-reduce, all-gather, ...) in
+the compiled raw and composed programs. Results go to stdout and to `--out` as JSON.
+
+    python benchmarks/scaling.py                     # 65,536 worlds
+    python benchmarks/scaling.py --parts raw composed --worlds 32768
+
+On CPU, forced host devices make a quick check of the script:
+
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 \\
+        python benchmarks/scaling.py --worlds 8 --steps 2
+"""
+
+import argparse
+import functools
+import statistics
+import time
+
+import jax
+
+import common  # benchmarks/common.py
+from mjx_composer import compilation_cache
+from mjx_composer import sharding
+
+PARTS = ('raw', 'composed', 'ppo')
+_COLLECTIVES = (
+    'all-reduce',
+    'all-gather',
+    'all-to-all',
+    'collective-permute',
+    'reduce-scatter',
+)
+
+
+def collectives(compiled):
+  """Counts of cross-device operations in a compiled program's HLO."""
+  text = compiled.as_text()
+  return {
+      op: text.count(f' {op}(') + text.count(f' {op}-start(')
+      for op in _COLLECTIVES
+  }
+
+
+def time_raw(env, mesh, worlds, steps, repeats):
+  """Raw MJX physics steps/s on `mesh`."""
+  n = env.n_sub_steps
+  rollout = sharding.per_device(
+      common.raw_rollout(env.mjx_model, n, steps, jit=False), mesh
+  )
+  data = sharding.put_worlds(common.raw_data(env.mjx_model, worlds), mesh)
+  actions = sharding.put_worlds(common.random_actions(env, worlds), mesh)
+  counts = collectives(rollout.lower(data, actions).compile())
+  seconds = common.time_fn(rollout, (data, actions), repeats)
+  return {'steps_per_s': worlds * steps * n / seconds, 'collectives': counts}
+
+
+def time_composed(env, mesh, worlds, steps, repeats, gspmd=False):
+  """Composed physics steps/s on `mesh`, and the program's collectives."""
+  rollout = common.env_rollout(env, steps, jit=False)
+  if gspmd:
+    world = sharding.world_sharding(mesh)
+    program = jax.jit(rollout, in_shardings=world, out_shardings=world)
+  else:
+    program = sharding.per_device(rollout, mesh)
+  states = sharding.batched_reset(env, mesh)(
+      sharding.world_keys(jax.random.key(0), worlds, mesh)
+  )
+  if gspmd:
+    # shard_map leaves empty arrays (e.g. `act` of a model without
+    # activations) replicated; jax.jit's in_shardings wants every argument
+    # as declared.
+    states = sharding.put_worlds(states, mesh)
+  actions = sharding.put_worlds(common.random_actions(env, worlds), mesh)
+  # The same executable the timed calls use (jit reuses it: no recompile).
+  counts = collectives(program.lower(states, actions).compile())
+  seconds = common.time_fn(program, (states, actions), repeats)
+  return {
+      'steps_per_s': worlds * steps * env.n_sub_steps / seconds,
+      'collectives': counts,
+  }
+
+
+def ppo_config(worlds, devices, args):
+  """Minibatches that split the worlds evenly over `devices`."""
+  minibatches = max(
+      m
+      for m in range(1, args.ppo_minibatches + 1)
+      if worlds % (m * devices) == 0
+  )
+  return {
+      'num_envs': worlds,
+      'num_minibatches': minibatches,
+      # batch_size x num_minibatches = num_envs: one unroll per world per
+      # training step.
+      'batch_size': worlds // minibatches,
+      'unroll_length': args.ppo_unroll,
+      'num_updates_per_batch': args.ppo_updates,
+  }
+
+
+def time_ppo(brax_env, worlds, devices, args):
+  """Brax PPO physics steps/s on `devices` local devices."""
+  # pylint: disable=g-import-not-at-top
+  from brax.training.agents.ppo import networks as ppo_networks
+  from brax.training.agents.ppo import train as ppo
+
+  from mjx_composer.adapters import brax as brax_adapter
+
+  # pylint: enable=g-import-not-at-top
+  config = ppo_config(worlds, devices, args)
+  per_training_step = worlds * config['unroll_length']
+  epochs = args.ppo_epochs
+  sps = []
+  start = time.perf_counter()
+  ppo.train(
+      environment=brax_env,
+      num_timesteps=epochs * args.ppo_steps_per_epoch * per_training_step,
+      num_evals=epochs + 1,  # one progress call per epoch
+      run_evals=False,
+      max_devices_per_host=devices,
+      learning_rate=3e-3,
+      entropy_cost=0.0,
+      discounting=0.95,
+      seed=0,
+      network_factory=functools.partial(
+          ppo_networks.make_ppo_networks,
+          policy_obs_key='policy',
+          value_obs_key='policy',
+          policy_hidden_layer_sizes=(64, 64),
+          value_hidden_layer_sizes=(256, 256),
+          init_noise_std=0.5,
+      ),
+      progress_fn=lambda step, metrics: sps.append(
+          float(metrics['training/sps'])
+      ),
+      **config,
+      **brax_adapter.training_kwargs(brax_env),
+  )
+  total = time.perf_counter() - start
+  n = brax_env.environment.n_sub_steps
+  return {
+      # The first epoch includes compiling the training program.
+      'steps_per_s': n * statistics.median(sps[1:] or sps),
+      'env_steps_per_s_per_epoch': sps,
+      'total_s': total,
+      **config,
+  }
+
+
+def main():
+  parser = common.make_parser(__doc__, repeats=3, out='scaling.json')
+  parser.add_argument('--worlds', type=int, default=65_536)
+  parser.add_argument(
+      '--steps', type=int, default=10, help='control steps per timed call'
+  )
+  parser.add_argument(
+      '--time-limit',
+      type=float,
+      default=1.0,
+      help='episode length in seconds (reach: 50 control steps)',
+  )
+  parser.add_argument('--parts', nargs='+', choices=PARTS, default=list(PARTS))
+  parser.add_argument(
+      '--gspmd',
+      action=argparse.BooleanOptionalAction,
+      default=True,
+      help='also time the composed rollout partitioned by XLA (jax.jit with '
+      'shardings) on all devices',
+  )
+  parser.add_argument('--ppo-epochs', type=int, default=3)
+  parser.add_argument('--ppo-steps-per-epoch', type=int, default=2)
+  parser.add_argument('--ppo-unroll', type=int, default=10)
+  parser.add_argument('--ppo-minibatches', type=int, default=32)
+  parser.add_argument('--ppo-updates', type=int, default=8)
+  args = parser.parse_args()
+  if args.ppo_epochs < 2 and 'ppo' in args.parts:
+    parser.error('--ppo-epochs must be at least 2 (the first compiles).')
+
+  cache_dir = compilation_cache.enable()
+  device = common.print_device()
+  local = jax.local_devices()
+  counts = sorted({1, len(local)})
+  for count in counts:
+    sharding.check_num_worlds(args.worlds, sharding.world_mesh(local[:count]))
+  print(
+      f'{args.worlds:,} worlds on 1 and {len(local)} devices; compilation '
+      f'cache: {cache_dir or "off"}',
+      flush=True,
+  )
+
+  env = common.make_env('reach', time_limit=args.time_limit)
+  results = {}
+
+  def record(part, count, result):
+    results.setdefault(part, {})[str(count)] = result
+    print(
+        f'{part:>9} on {count} device(s): '
+        f'{result["steps_per_s"]:,.0f} physics steps/s',
+        flush=True,
+    )
+
+  for count in counts:
+    mesh = sharding.world_mesh(local[:count])
+    if 'raw' in args.parts:
+      record(
+          'raw',
+          count,
+          time_raw(env, mesh, args.worlds, args.steps, args.repeats),
+      )
+    if 'composed' in args.parts:
+      record(
+          'composed',
+          count,
+          time_composed(env, mesh, args.worlds, args.steps, args.repeats),
+      )
+  if 'composed' in args.parts and args.gspmd and len(local) > 1:
+    # XLA's partitioning of one program; on one device it is the same
+    # program as `composed`.
+    results['gspmd'] = {'1': results['composed']['1']}
+    record(
+        'gspmd',
+        len(local),
+        time_composed(
+            env,
+            sharding.world_mesh(local),
+            args.worlds,
+            args.steps,
+            args.repeats,
+            gspmd=True,
+        ),
+    )
+  if 'ppo' in args.parts:
+    from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+    brax_env = brax_adapter.BraxEnv(env)
+    for count in counts:
+      record('ppo', count, time_ppo(brax_env, args.worlds, count, args))
+
+  n = len(local)
+  summary = []
+  for part, rows in results.items():
+    one = rows['1']['steps_per_s']
+    many = rows.get(str(n), rows['1'])['steps_per_s']
+    summary.append(
+        {
+            'part': part,
+            'one_device': one,
+            'all_devices': many,
+            'devices': n,
+            'efficiency': many / (n * one),
+        }
+    )
+
+  common.write_results(
+      args.out,
+      device,
+      {'summary': summary, 'runs': results},
+      worlds=args.worlds,
+      devices=n,
+      n_sub_steps=env.n_sub_steps,
+      steps_per_call=args.steps,
+      time_limit=args.time_limit,
+  )
+  print(
+      f'\n{args.worlds:,} worlds, {device.device_kind}; physics steps/s '
+      f'(efficiency: {n}-device / ({n} x 1-device))'
+  )
+  print(f'| part | 1 device | {n} devices | efficiency | collectives on {n} |')
+  print('|---|---|---|---|---|')
+  for row in summary:
+    many = results[row['part']].get(str(n), {})
+    if 'collectives' in many:
+      found = {k: v for k, v in many['collectives'].items() if v}
+      found = ', '.join(f'{k} x{v}' for k, v in found.items()) or 'none'
+    else:
+      found = '-'  # not counted (Brax's programs)
+    print(
+        f'| {row["part"]} | {row["one_device"]:,.0f} | '
+        f'{row["all_devices"]:,.0f} | {row["efficiency"]:.3f} | {found} |'
+    )
+
+
+if __name__ == '__main__':
+  main()
