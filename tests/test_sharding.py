@@ -27,6 +27,7 @@ bit where each device holds as many worlds (4 devices in one process against
 2 processes of 2 devices).
 """
 
+import fcntl
 import json
 import os
 import pathlib
@@ -406,8 +407,23 @@ def _free_port():
 
 @pytest.fixture(scope='module')
 def meshes(tmp_path_factory):
-  out = tmp_path_factory.mktemp('meshes')
-  _finish(_start(4, 'meshes', out))
+  """What the `meshes` worker found; run once per test run.
+
+  Under pytest-xdist, tests of this module may run in several workers, each
+  setting up this fixture: the first runs the worker process, in a folder
+  all workers of the run share (the parent of their temporary folders), and
+  the others wait on a lock and read what it wrote.
+  """
+  if 'PYTEST_XDIST_WORKER' in os.environ:
+    out = tmp_path_factory.getbasetemp().parent / 'sharding_meshes'
+    out.mkdir(exist_ok=True)
+    with open(out / 'lock', 'w') as lock:
+      fcntl.flock(lock, fcntl.LOCK_EX)
+      if not (out / 'meshes.json').exists():
+        _finish(_start(4, 'meshes', out))
+  else:
+    out = tmp_path_factory.mktemp('meshes')
+    _finish(_start(4, 'meshes', out))
   with open(out / 'meshes.pkl', 'rb') as f:
     data = pickle.load(f)
   with open(out / 'meshes.json') as f:
