@@ -226,22 +226,23 @@ def main():
         '        '
         + ', '.join(f'{k} {v:.3f}' for k, v in row.items() if '/' in k)
     )
+    # Written after every world count: a run cut short keeps its rows.
+    common.write_results(
+        args.out,
+        device,
+        results,
+        task='walk',
+        steps_per_call=args.steps,
+        sub_steps=n,
+        repeats=args.repeats,
+        playground=playground_info,
+        note=(
+            'Every variant holds one random action per world. ours_on resets '
+            'worlds whose humanoid falls (head below 0.8 m), with '
+            'randomization; the others never reset within a call.'
+        ),
+    )
 
-  common.write_results(
-      args.out,
-      device,
-      results,
-      task='walk',
-      steps_per_call=args.steps,
-      sub_steps=n,
-      repeats=args.repeats,
-      playground=playground_info,
-      note=(
-          'Every variant holds one random action per world. ours_on resets '
-          'worlds whose humanoid falls (head below 0.8 m), with '
-          'randomization; the others never reset within a call.'
-      ),
-  )
   print(f'Wrote {args.out}')
 
 

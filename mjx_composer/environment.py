@@ -140,8 +140,11 @@ class Environment:
         for key, (original, kind, composed) in handles.items()
     }
     index = element_index.ElementIndex(self._mj_model, handle_names)
-    mjx_model = mjx.put_model(self._mj_model)
-    data0 = mjx.make_data(mjx_model)
+    # This process's first device: MJX's default, `jax.devices()[0]`, is
+    # another process's on every host but the first.
+    device = jax.local_devices()[0]
+    mjx_model = mjx.put_model(self._mj_model, device=device)
+    data0 = mjx.make_data(mjx_model, device=device)
     compiled = self._hooks.after_compile(
         physics_lib.Physics(mjx_model, data0, index=index), self._random_state
     )
