@@ -56,6 +56,7 @@ def make_env(
     observables=True,
     auto_reset='same_step',
     max_reset_attempts=None,
+    share_reset_forward=None,
     **task_kwargs,
 ):
   """A bundled task's `Environment`, as the benchmarks build it.
@@ -67,6 +68,7 @@ def make_env(
     observables: False disables every observable (no observation groups).
     auto_reset: the `Environment`'s auto-reset mode.
     max_reset_attempts: passed to the `Environment` when given.
+    share_reset_forward: passed to the `Environment` when given.
     **task_kwargs: passed to the task's constructor (e.g. `randomize=False`
       for reach, `placement='ring'` for push).
 
@@ -85,6 +87,8 @@ def make_env(
   kwargs = {}
   if max_reset_attempts is not None:
     kwargs['max_reset_attempts'] = max_reset_attempts
+  if share_reset_forward is not None:
+    kwargs['share_reset_forward'] = share_reset_forward
   return environment.Environment(
       task,
       time_limit=time_limit,

@@ -12,6 +12,9 @@ its sub-steps (domain randomization off):
                every observable on (the configuration `throughput.py` times);
 * no_ends:     the same with no time limit (no world ever resets);
 * no_obs:      `no_ends` with every observable disabled;
+* ends_unshared, no_ends_unshared: `ends` and `no_ends` with
+               `share_reset_forward=False` (`mjx.step` in a `lax.scan`, the
+               restart's forward pass separate);
 * raw_fast:    `raw` on the same model with the solver's iterations capped
                (iterations 4, line-search 8), to show what the default solver
                settings (100 / 50, tolerance 1e-8) cost this contact model.
@@ -47,6 +50,17 @@ def main():
       ),
       'no_obs': common.make_env(
           'reach', randomize=False, time_limit=float('inf'), observables=False
+      ),
+      # The same two, with the restart outside the sub-step loop (a second
+      # copy of the forward pass, `mjx.step` in a `lax.scan`).
+      'ends_unshared': common.make_env(
+          'reach', randomize=False, share_reset_forward=False
+      ),
+      'no_ends_unshared': common.make_env(
+          'reach',
+          randomize=False,
+          time_limit=float('inf'),
+          share_reset_forward=False,
       ),
   }
   base = envs['ends']
@@ -86,15 +100,12 @@ def main():
         + '  '.join(f'{k} {v:,.0f}' for k, v in row.items() if k != 'worlds'),
         flush=True,
     )
+    # Written after every world count: a run cut short keeps its rows.
+    common.write_results(
+        args.out, device, results, n_sub_steps=n, steps_per_call=args.steps
+    )
 
-  common.write_results(
-      args.out,
-      device,
-      results,
-      n_sub_steps=n,
-      steps_per_call=args.steps,
-  )
-  names = ['raw_reset', 'ends', 'no_ends', 'no_obs', 'raw_fast']
+  names = ['raw_reset', *envs, 'raw_fast']
   print('\n| worlds | raw MJX (physics steps/s) | ' + ' | '.join(names) + ' |')
   print('|---|---|' + '---|' * len(names))
   for r in results:

@@ -96,6 +96,12 @@ class Environment:
     max_reset_attempts: how many times `reset` may run the
       `initialize_episode` hooks when they report a failed initialization
       (`Physics.fail_initialization`), each time with a fresh key.
+    share_reset_forward: with same-step auto-reset, restart ended episodes
+      in one more iteration of the sub-step loop, so that the step program
+      holds one copy of the forward pass (`Transitions.step_and_restart`:
+      about half the compile time, at some cost in steady-state throughput;
+      the README has figures). False runs the sub-steps as a `lax.scan` of
+      `mjx.step` and the restart separately, as `next_step` mode does.
   """
 
   def __init__(
@@ -110,6 +116,7 @@ class Environment:
       per_world_model_fields=(),
       observation_groups=None,
       max_reset_attempts=1,
+      share_reset_forward=True,
   ):
     _check_arguments(
         delayed_observation_padding,
@@ -121,6 +128,7 @@ class Environment:
     self._task = task
     self._time_limit = time_limit
     self._auto_reset = auto_reset
+    self._share_reset_forward = bool(share_reset_forward)
     if not isinstance(random_state, np.random.RandomState):
       random_state = np.random.RandomState(random_state)
     self._random_state = random_state
@@ -303,7 +311,7 @@ class Environment:
       return episode_lib.select_reset(
           state.last(), transitions.reset, (reset_key, state), stepped
       )
-    if transitions.can_fuse_restart():
+    if self._share_reset_forward and transitions.can_fuse_restart():
       return transitions.step_and_restart(state, action)
     stepped = transitions.step(state, action)
     return episode_lib.select_reset(

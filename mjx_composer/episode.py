@@ -163,7 +163,8 @@ def trace_once(fn, *args, return_shapes=False):
   return traced
 
 
-def _tree_select(pred, on_true, on_false):
+def tree_select(pred, on_true, on_false):
+  """`on_true` where `pred`, else `on_false`, leaf by leaf (one world)."""
   return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
 
 
@@ -179,7 +180,7 @@ def select_reset(done, reset_fn, operands, stepped):
   reset = trace_once(reset_fn, *operands)
 
   def select(done, operands, stepped):
-    return _tree_select(done, reset(*operands), stepped)
+    return tree_select(done, reset(*operands), stepped)
 
   select_or_skip = jax.custom_batching.custom_vmap(select)
 
@@ -212,13 +213,15 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
   iterations, plus one where `wants_reset(carry)` holds after them. Under
   `jax.vmap` a batched loop condition would turn every branch on `i` in the
   body into a select, computing the reset at every sub-step; the batching
-  rule instead keeps `i` shared by the batch, runs the extra iteration when
-  some world wants it, and keeps its result only for those worlds. Results
-  are the same either way. The body is traced once and reused by both paths.
+  rule instead keeps `i` shared by the batch and runs the extra iteration
+  when some world wants it. Results are the same either way. The body is
+  traced once and reused by both paths.
 
   Args:
     n: the iterations every world runs.
-    body: `(i, carry, operands) -> carry`, for one world.
+    body: `(i, carry, operands) -> carry`, for one world; at `i = n` it must
+      return `carry` unchanged where `wants_reset(carry)` is False (the
+      batch runs that iteration for every world).
     wants_reset: `carry -> bool`, for one world.
     carry: the initial carry.
     operands: per-world inputs the body reads.
@@ -229,13 +232,7 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
   index = jnp.zeros((), jnp.int32)
   traced = trace_once(body, index, carry, operands)
 
-  def iterate(i, carry, operands):  # one world
-    new = traced(i, carry, operands)
-    return jax.lax.cond(
-        i == n,
-        lambda: _tree_select(wants_reset(carry), new, carry),
-        lambda: new,
-    )
+  iterate = traced  # one world
 
   def run(carry, operands, any_wants, iterate):
     def again(loop):

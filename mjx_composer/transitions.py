@@ -308,7 +308,15 @@ class Transitions:
         restarted = self._first_state(
             physics.replace(data=data), ready, failures, obs_key, next_key
         )
-        return carry, obs_state, _reporting(restarted, stepped)
+        # Under vmap every world runs this iteration: keep it where the
+        # episode ended (`loop_with_reset`'s contract).
+        return (
+            carry,
+            obs_state,
+            episode_lib.tree_select(
+                stepped.last(), _reporting(restarted, stepped), stepped
+            ),
+        )
 
       return jax.lax.cond(i < n, finish_substep, finish_restart)
 

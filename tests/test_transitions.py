@@ -75,6 +75,20 @@ def test_the_fused_path_is_taken(env, monkeypatch):
       env.step, jax.eval_shape(env.reset, jax.random.key(0)), jnp.zeros(1)
   )
   assert calls
+  # share_reset_forward=False asks for the separate restart.
+  calls.clear()
+  separate = composer.Environment(
+      _RandomizedSwing(),
+      time_limit=0.05,
+      auto_reset='same_step',
+      share_reset_forward=False,
+  )
+  jax.eval_shape(
+      separate.step,
+      jax.eval_shape(separate.reset, jax.random.key(0)),
+      jnp.zeros(1),
+  )
+  assert not calls
 
 
 def test_fused_step_equals_step_then_restart(env):
