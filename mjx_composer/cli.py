@@ -30,7 +30,12 @@ _DISTANCE_LABELS = {
 }
 
 
-def make_environment(task_name='reach', time_limit=2.0, auto_reset='same_step'):
+def make_environment(
+    task_name='reach',
+    time_limit=2.0,
+    auto_reset='same_step',
+    share_reset_forward=None,
+):
   """Builds a bundled task's `Environment` with its observation groups."""
   from mjx_composer import environment  # pylint: disable=g-import-not-at-top
 
@@ -62,6 +67,7 @@ def make_environment(task_name='reach', time_limit=2.0, auto_reset='same_step'):
       time_limit=time_limit,
       auto_reset=auto_reset,
       observation_groups=groups,
+      share_reset_forward=share_reset_forward,
   )
 
 
