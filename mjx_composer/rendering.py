@@ -269,12 +269,19 @@ def render(
   elif camera is None:
     camera = free_camera(model)
   images = []
+  # A renderer uploads height fields to the GPU when it is made: with
+  # per-world terrain, each world gets a renderer made after its profile is
+  # written.
+  per_world_terrain = 'hfield_data' in host['model_fields']
   renderer = make_renderer(model, height, width)
   try:
     for world in indices:
       pick = (lambda x, w=world: np.asarray(x)[w]) if batched else np.asarray
       for name, value in host['model_fields'].items():
         _set_model_field(model, name, jax.tree.map(pick, value))
+      if per_world_terrain:
+        renderer.close()
+        renderer = make_renderer(model, height, width)
       for name in ('qpos', 'qvel', 'act', 'ctrl', 'mocap_pos', 'mocap_quat'):
         target = getattr(data, name)
         if target.size:

@@ -154,3 +154,28 @@ def test_highest_point_near_a_spot(worlds):
       near = (xs[None] - xy[0]) ** 2 + (ys[:, None] - xy[1]) ** 2 <= radius**2
       got = arena.max_height_near(physics, jnp.asarray(xy), radius)
       assert float(got) == pytest.approx(heights[near].max(), abs=1e-6)
+
+
+def test_each_world_is_rendered_with_its_own_terrain(worlds):
+  from mjx_composer import rendering  # pylint: disable=g-import-not-at-top
+
+  env, states = worlds
+  profiles = np.asarray(states.model_fields['hfield_data'])
+  assert not np.allclose(profiles[0], profiles[1])
+  images = rendering.render(env, states, worlds=[0, 1], height=48, width=64)
+  camera = rendering.free_camera(env.mj_model)
+  for world, image in enumerate(images):
+    # Independent reference: a host model holding only this world's
+    # profile (and pose), drawn by a renderer of its own.
+    model = env.mj_model.__copy__()
+    model.hfield_data[:] = profiles[world]
+    data = mujoco.MjData(model)
+    data.qpos[:] = np.asarray(states.data.qpos)[world]
+    mujoco.mj_forward(model, data)
+    renderer = rendering.make_renderer(model, 48, 64)
+    try:
+      renderer.update_scene(data, camera=camera)
+      np.testing.assert_array_equal(image, renderer.render())
+    finally:
+      renderer.close()
+  assert not np.array_equal(images[0], images[1])
