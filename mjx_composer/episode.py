@@ -168,6 +168,15 @@ def tree_select(pred, on_true, on_false):
   return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
 
 
+def _batch_all(axis_size, args, in_batched):
+  """A batching rule's arguments, the unbatched ones broadcast to the batch."""
+  return jax.tree.map(
+      lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)),
+      args,
+      tuple(in_batched),
+  )
+
+
 def select_reset(done, reset_fn, operands, stepped):
   """`reset_fn(*operands)` where `done`, else `stepped`.
 
@@ -186,13 +195,8 @@ def select_reset(done, reset_fn, operands, stepped):
 
   @select_or_skip.def_vmap
   def _batched(axis_size, in_batched, done, operands, stepped):
-    def batch(x, is_batched):
-      if is_batched:
-        return x
-      return jnp.broadcast_to(x, (axis_size,) + jnp.shape(x))
-
-    done, operands, stepped = jax.tree.map(
-        batch, (done, operands, stepped), tuple(in_batched)
+    done, operands, stepped = _batch_all(
+        axis_size, (done, operands, stepped), in_batched
     )
     out = jax.lax.cond(
         jnp.any(done),
@@ -252,11 +256,7 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
 
   @looped.def_vmap
   def _batched(axis_size, in_batched, carry, operands):
-    carry, operands = jax.tree.map(
-        lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape),
-        (carry, operands),
-        tuple(in_batched),
-    )
+    carry, operands = _batch_all(axis_size, (carry, operands), in_batched)
     out = run(
         carry,
         operands,

@@ -46,19 +46,11 @@ class Floor(arena.Arena):
     super()._build(name=name)
     self._size = tuple(float(s) for s in size)
     spec = self.mjcf_model
-    spec.add_texture(
-        name='grid',
-        type=mujoco.mjtTexture.mjTEXTURE_2D,
-        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
-        width=256,
-        height=256,
+    _add_grid_and_light(
+        spec,
         rgb1=[0.2, 0.3, 0.4],
         rgb2=[0.1, 0.2, 0.3],
-    )
-    spec.add_material(
-        name='grid',
         texrepeat=[4, 4],
-        textures=['', 'grid'] + [''] * 8,
         reflectance=reflectance,
     )
     self._ground = spec.worldbody.add_geom(
@@ -66,12 +58,6 @@ class Floor(arena.Arena):
         type=mujoco.mjtGeom.mjGEOM_PLANE,
         size=[self._size[0], self._size[1], _GROUNDPLANE_QUAD_SIZE],
         material='grid',
-    )
-    spec.worldbody.add_light(
-        name='top',
-        pos=[0, 0, 4],
-        dir=[0, 0, -1],
-        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
     )
     spec.worldbody.add_camera(
         name='overview', pos=[1.6, -1.6, 1.4], xyaxes=[1, 1, 0, -0.4, 0.4, 1]
@@ -314,32 +300,18 @@ class RoughTerrain(arena.Arena):
         ncol=self._cols,
     )
     self.regenerate(np.random.RandomState(0))
-    spec.add_texture(
-        name='grid',
-        type=mujoco.mjtTexture.mjTEXTURE_2D,
-        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
-        width=256,
-        height=256,
+    _add_grid_and_light(
+        spec,
         rgb1=[0.25, 0.3, 0.35],
         rgb2=[0.15, 0.2, 0.25],
-    )
-    spec.add_material(
-        name='grid',
         texrepeat=[8, 8],
         texuniform=True,
-        textures=['', 'grid'] + [''] * 8,
     )
     self._ground = spec.worldbody.add_geom(
         name='ground',
         type=mujoco.mjtGeom.mjGEOM_HFIELD,
         hfieldname='terrain',
         material='grid',
-    )
-    spec.worldbody.add_light(
-        name='top',
-        pos=[0, 0, 4],
-        dir=[0, 0, -1],
-        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
     )
     spec.worldbody.add_camera(
         name='overview', pos=[1.6, -1.6, 1.4], xyaxes=[1, 1, 0, -0.4, 0.4, 1]
@@ -492,3 +464,23 @@ def _linear_upsampling(coarse, fine):
   weights[np.arange(fine), lower] = 1 - frac
   weights[np.arange(fine), lower + 1] += frac
   return weights
+
+
+def _add_grid_and_light(spec, rgb1, rgb2, **material):
+  """The ground's checker material 'grid' and a directional light 'top'."""
+  spec.add_texture(
+      name='grid',
+      type=mujoco.mjtTexture.mjTEXTURE_2D,
+      builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
+      width=256,
+      height=256,
+      rgb1=rgb1,
+      rgb2=rgb2,
+  )
+  spec.add_material(name='grid', textures=['', 'grid'] + [''] * 8, **material)
+  spec.worldbody.add_light(
+      name='top',
+      pos=[0, 0, 4],
+      dir=[0, 0, -1],
+      type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
+  )

@@ -197,22 +197,17 @@ class Joystick(task.Task):
       bind(actuator, kp=scale(0.9, 1.1))
 
   def _configure_observables(self, noise_level, delay, history):
-    n = self.physics_steps_per_control_step
-    entity_obs = self._go1.observables
-    self._twins = {}
-    for name in _POLICY:
-      obs = entity_obs.get_observable(name)
-      scale = noise_level * NOISE_SCALES[name]
-      locomotion.policy_observable(
-          obs,
-          n,
-          corruptor=locomotion.uniform_noise(scale) if scale else None,
-          delay=delay,
-          history=history if name in _WITH_HISTORY else 1,
-      )
-      self._twins[f'privileged_{name}'] = locomotion.clean_twin(obs)
-    for name in _PRIVILEGED:
-      entity_obs.get_observable(name).enabled = True
+    self._twins = locomotion.split_policy_and_critic(
+        self._go1.observables,
+        _POLICY,
+        _PRIVILEGED,
+        self.physics_steps_per_control_step,
+        NOISE_SCALES,
+        noise_level,
+        delay,
+        history,
+        _WITH_HISTORY,
+    )
     state = lambda entry: observable.Generic(
         lambda physics: physics.task_state[entry]
     )

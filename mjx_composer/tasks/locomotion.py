@@ -141,6 +141,52 @@ def clean_twin(obs):
   return twin
 
 
+def split_policy_and_critic(
+    observables,
+    policy,
+    privileged,
+    n_sub_steps,
+    noise_scales,
+    noise_level,
+    delay,
+    history,
+    with_history,
+):
+  """Configures an entity's observables for a policy group and a critic group.
+
+  Args:
+    observables: the entity's `Observables`.
+    policy: names of the policy's inputs, each made a `policy_observable`
+      with uniform noise of `noise_level * noise_scales.get(name, 0)`.
+    privileged: names enabled for the critic only.
+    n_sub_steps: physics steps per control step.
+    noise_scales: `{name: noise scale}`.
+    noise_level: multiplies every noise scale (0: no noise).
+    delay: the policy inputs' delay, in physics sub-steps.
+    history: samples kept for the names in `with_history` (others keep 1).
+    with_history: names of policy inputs with a history.
+
+  Returns:
+    `{'privileged_<name>': clean_twin(...)}` for every policy input: the
+    critic's clean, current copies, to register as task observables.
+  """
+  twins = {}
+  for name in policy:
+    obs = observables.get_observable(name)
+    scale = noise_level * noise_scales.get(name, 0.0)
+    policy_observable(
+        obs,
+        n_sub_steps,
+        corruptor=uniform_noise(scale) if scale else None,
+        delay=delay,
+        history=history if name in with_history else 1,
+    )
+    twins[f'privileged_{name}'] = clean_twin(obs)
+  for name in privileged:
+    observables.get_observable(name).enabled = True
+  return twins
+
+
 # -- perturbations -------------------------------------------------------------
 
 
