@@ -57,6 +57,9 @@ def make_env(
     auto_reset='same_step',
     max_reset_attempts=None,
     share_reset_forward=None,
+    impl=None,
+    naconmax=None,
+    njmax=None,
     **task_kwargs,
 ):
   """A bundled task's `Environment`, as the benchmarks build it.
@@ -69,6 +72,8 @@ def make_env(
     auto_reset: the `Environment`'s auto-reset mode.
     max_reset_attempts: passed to the `Environment` when given.
     share_reset_forward: passed to the `Environment` when given.
+    impl, naconmax, njmax: the physics implementation ('jax', 'warp') and
+      MuJoCo Warp's buffer sizes, passed to the `Environment` when given.
     **task_kwargs: passed to the task's constructor (e.g. `randomize=False`
       for reach, `placement='ring'` for push).
 
@@ -89,6 +94,9 @@ def make_env(
     kwargs['max_reset_attempts'] = max_reset_attempts
   if share_reset_forward is not None:
     kwargs['share_reset_forward'] = share_reset_forward
+  for name, value in (('impl', impl), ('naconmax', naconmax), ('njmax', njmax)):
+    if value is not None:
+      kwargs[name] = value
   return environment.Environment(
       task,
       time_limit=time_limit,

@@ -37,6 +37,10 @@ would raise `EpisodeInitializationError`; nothing raises inside jit).
 Keys: `reset(key)` derives every random draw of the episode, and of the
 episodes that auto-reset after it, from `key` alone: the same key gives the
 same trajectory, run to run.
+
+Physics backend: `Environment(impl='warp')` runs the physics on MuJoCo Warp
+through MJX instead of MJX's JAX implementation; `backend` says what runs
+where and what Warp refuses at build.
 """
 
 from __future__ import annotations
@@ -51,6 +55,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer import backend
 from mjx_composer import element_index
 from mjx_composer import episode as episode_lib
 from mjx_composer import hooks as hooks_lib
@@ -102,8 +107,29 @@ class Environment:
       Measured on reach (README): the step program compiles in about half
       the time, and steps about 11% slower on a GPU. False runs the
       sub-steps as a `lax.scan` of `mjx.step` and the restart separately.
-      Results are bit-identical either way. Default (None): True on a CPU,
-      where runs are short and compiling dominates; False elsewhere.
+      Results are bit-identical either way. Default (None): True on a CPU
+      with impl='jax', where runs are short and compiling dominates; False
+      elsewhere. impl='warp' refuses True (`backend`).
+    impl: which MJX implementation runs the physics: 'jax' (MJX's XLA
+      implementation), 'warp' (MuJoCo Warp kernels through JAX's FFI, on a
+      CUDA GPU or the CPU; `pip install 'mjx-composer[warp]'`), or None:
+      'jax' on every device for now (whether 'warp' is faster on a GPU is
+      what `benchmarks/backends.py` measures). On 'warp', a model feature
+      or a per-world model field that MuJoCo Warp cannot run is refused
+      here, with what to do (`backend`); building then traces `reset` once
+      to find the per-world fields.
+    naconmax: impl='warp' only: the contacts MuJoCo Warp holds for all the
+      worlds of one batch (one buffer shared by the batch). Default:
+      `backend.DEFAULT_CONTACTS_PER_WORLD` (64) per world for
+      `backend.DEFAULT_WORLDS` (8,192) worlds. Contacts beyond it are
+      dropped and flagged in `backend.overflow(state.data)`.
+    njmax: impl='warp' only: constraint rows per world. Default: MuJoCo
+      Warp's estimate from the model. Rows beyond it are dropped and
+      flagged in `backend.overflow(state.data)`.
+
+  Raises:
+    ValueError, NotImplementedError, ImportError: for arguments, models or
+      per-world fields the chosen implementation cannot run (`backend`).
   """
 
   def __init__(
@@ -119,6 +145,9 @@ class Environment:
       observation_groups=None,
       max_reset_attempts=1,
       share_reset_forward=None,
+      impl=None,
+      naconmax=None,
+      njmax=None,
   ):
     _check_arguments(
         delayed_observation_padding,
@@ -152,11 +181,24 @@ class Environment:
     # This process's first device: MJX's default, `jax.devices()[0]`, is
     # another process's on every host but the first.
     device = jax.local_devices()[0]
+    self._impl = backend.resolve_impl(impl, device)
+    backend.check_buffer_arguments(self._impl, naconmax, njmax)
+    backend.check_share_reset_forward(self._impl, share_reset_forward)
+    backend.check_per_world_fields(
+        self._impl,
+        {
+            name: ('Environment(per_world_model_fields=...)',)
+            for name in per_world_model_fields
+        },
+    )
     if share_reset_forward is None:
-      share_reset_forward = device.platform == 'cpu'
+      share_reset_forward = backend.default_share_reset_forward(
+          self._impl, device
+      )
     self._share_reset_forward = bool(share_reset_forward)
-    mjx_model = mjx.put_model(self._mj_model, device=device)
-    data0 = mjx.make_data(mjx_model, device=device)
+    mjx_model, data0 = backend.put(
+        self._mj_model, self._impl, device, naconmax=naconmax, njmax=njmax
+    )
     compiled = self._hooks.after_compile(
         physics_lib.Physics(mjx_model, data0, index=index), self._random_state
     )
@@ -197,6 +239,10 @@ class Environment:
         max_reset_attempts=int(max_reset_attempts),
         declared_model_fields=tuple(per_world_model_fields),
     )
+    if self._impl == 'warp':
+      # Hooks make fields per-world when reset is traced: trace it now.
+      jax.eval_shape(self.reset, jax.random.key(0))
+      backend.check_per_world_fields(self._impl, self.per_world_model_fields)
 
   # -- properties ----------------------------------------------------------
 
@@ -208,6 +254,11 @@ class Environment:
   def mj_model(self) -> mujoco.MjModel:
     """The compiled host model."""
     return self._mj_model
+
+  @property
+  def impl(self) -> str:
+    """The MJX implementation running the physics: 'jax' or 'warp'."""
+    return self._impl
 
   @property
   def mjx_model(self) -> mjx.Model:

@@ -28,6 +28,7 @@ import jax
 import jax.extend as jex
 import jax.numpy as jnp
 
+from mjx_composer import backend
 from mjx_composer import state as state_lib
 
 AUTO_RESET_MODES = ('next_step', 'same_step')
@@ -164,17 +165,33 @@ def trace_once(fn, *args, return_shapes=False):
 
 
 def tree_select(pred, on_true, on_false):
-  """`on_true` where `pred`, else `on_false`, leaf by leaf (one world)."""
-  return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
+  """`on_true` where `pred`, else `on_false`, leaf by leaf (one world).
+
+  `mjx.Data` is merged by `Data.where` (`backend.select`): MuJoCo Warp's
+  buffers shared by the batch are kept, not selected.
+  """
+  return backend.select(pred, on_true, on_false)
 
 
 def _batch_all(axis_size, args, in_batched):
-  """A batching rule's arguments, the unbatched ones broadcast to the batch."""
+  """A batching rule's arguments, the unbatched ones broadcast to the batch.
+
+  Except MuJoCo Warp's `Data` buffers shared by the batch
+  (`backend.shared_leaves`), which stay unbatched.
+  """
   return jax.tree.map(
-      lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x)),
+      lambda x, b, shared: (
+          x if b or shared else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x))
+      ),
       args,
       tuple(in_batched),
+      backend.shared_leaves(args),
   )
+
+
+def _out_batched(out):
+  """A batching rule's output flags: all batched but Warp's shared buffers."""
+  return jax.tree.map(lambda shared: not shared, backend.shared_leaves(out))
 
 
 def select_reset(done, reset_fn, operands, stepped):
@@ -203,7 +220,7 @@ def select_reset(done, reset_fn, operands, stepped):
         lambda: jax.vmap(select)(done, operands, stepped),
         lambda: stepped,
     )
-    return out, jax.tree.map(lambda _: True, out)
+    return out, _out_batched(out)
 
   return select_or_skip(done, operands, stepped)
 
@@ -263,6 +280,6 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
         lambda carry: jnp.any(jax.vmap(wants_reset)(carry)),
         jax.vmap(iterate, in_axes=(None, 0, 0)),
     )
-    return out, jax.tree.map(lambda _: True, out)
+    return out, _out_batched(out)
 
   return looped(carry, operands)

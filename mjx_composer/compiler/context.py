@@ -11,6 +11,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer import backend
 from mjx_composer import kinematics
 from mjx_composer.compiler import inertia
 
@@ -35,6 +36,11 @@ class Host:
   def qpos0_kinematics(self) -> kinematics.ReferenceKinematics:
     """Positions and com-based quantities of the host model at `qpos0`."""
     return kinematics.ReferenceKinematics(self.m)
+
+  @functools.cached_property
+  def jax_model(self) -> mjx.Model:
+    """The host model on the device with `impl='jax'` (`backend.jax_twin`)."""
+    return backend.put_jax_twin(self.m)
 
   def body_name(self, b: int) -> str:
     return mujoco.mj_id2name(self.m, mujoco.mjtObj.mjOBJ_BODY, b)

@@ -7,7 +7,8 @@ and light `*_pos0/_poscom0/_mat0/_dir0`, body connect/weld `eq_data`,
 the reflected inertia `1 / (moment . M^-1 . moment)`), and the statistics
 (`meaninertia`, `meanmass`, `meansize`, `extent`, `center`) unless the spec
 sets them. Follows `engine_setconst.c`; only the quantities that the plan
-says can change are computed.
+says can change are computed. Runs on MJX's JAX implementation, also for a
+'warp' model (on its JAX twin, `backend.jax_twin`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer import backend
 from mjx_composer.compiler import frames
 from mjx_composer.compiler import inertia
 from mjx_composer.utils import transformations as tr
@@ -49,7 +51,11 @@ def update(host, plan, fields, auto_stat):
   m = host.m
   nv = m.nv
   model = fields.model
+  # MJX implements crb, full_m and transmission on 'jax' only: on 'warp',
+  # compute on the JAX twin of the world's model (public fields out).
   mx = model.replace(**fields.fields)
+  if backend.is_warp(mx):
+    mx = backend.jax_twin(mx, host.jax_model)
   # Positions at qpos0 come from the host where the bound attributes
   # cannot move them (e.g. masses, sizes, colours): see `kinematics`.
   d = host.qpos0_kinematics.apply(

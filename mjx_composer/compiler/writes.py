@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any, Callable
 
+import jax.numpy as jnp
 import mujoco
 
 from mjx_composer import element_index
@@ -74,7 +75,11 @@ def geom_size(fields, g, size):
   gtype = int(m.geom_type[g])
   fields.put('geom_size', g, size)
   fields.put('geom_rbound', g, inertia.geom_rbound(gtype, size))
-  fields.put('geom_aabb', g, inertia.geom_aabb(gtype, size))
+  # MuJoCo's (6,) row; a 'warp' model lays it out as (2, 3).
+  aabb_shape = fields.get('geom_aabb').shape[1:]
+  fields.put(
+      'geom_aabb', g, jnp.reshape(inertia.geom_aabb(gtype, size), aabb_shape)
+  )
 
 
 def joint_range(fields, j, value):

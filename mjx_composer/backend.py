@@ -1,0 +1,351 @@
+"""Which MJX implementation runs the physics: 'jax' or 'warp'.
+
+MJX 3.17 runs the same `mjx.Model`/`mjx.Data` API on two implementations:
+'jax' (XLA, every device) and 'warp' (MuJoCo Warp kernels called through
+JAX's FFI, on a CUDA GPU or, compiled through LLVM, on the CPU). An
+`Environment(impl=...)` picks one when it is built (`resolve_impl`); this
+module holds what differs between them and refuses, when the environment
+is built, what MuJoCo Warp cannot run:
+
+* the model itself: MuJoCo Warp's `put_model` refuses some geom, sensor and
+  actuator types, plugins and options; `put` re-raises that with what to do.
+* per-world model fields: MuJoCo Warp runs one kernel over every world of
+  a batch, and only some model fields may differ between worlds (those
+  with a batch dimension in `mujoco.mjx.warp.types._BATCH_DIM['Model']`:
+  masses, inertias, frames, sizes, frictions, gains, option vectors, ...).
+  A hook that writes any other field per world, e.g. a per-world height
+  field profile (`hfield_data`), is refused (`check_per_world_fields`).
+  Fields that MuJoCo Warp does not read at all (`dof_M0`, `stat`) may vary:
+  they only matter to the 'jax' implementation.
+* the fused same-step restart (`Environment(share_reset_forward=True)`):
+  it runs the integrator (`mjx.euler`, `mjx.implicit`) apart from
+  `mjx.forward`, which MJX provides on 'jax' only; on 'warp' the sub-steps
+  run `mjx.step` and the restart is separate.
+
+What runs where on 'warp':
+
+* `mjx.step`, `mjx.forward`, `mjx.kinematics`, `mjx.com_pos`,
+  `mjx.tendon`: MuJoCo Warp, batched over the worlds of a `jax.vmap`.
+* the derived quantities of a randomized model (`compiler.set_const`: mass
+  matrix at `qpos0`, `invweight0`, `actuator_acc0`, ...): MJX's JAX
+  implementation, on a JAX twin of the world's model (`jax_twin`): the
+  world's public fields over the host model put on the device with
+  `impl='jax'`. Their results are public model fields, which MuJoCo Warp
+  reads.
+* kinematics the host already knows (`kinematics.ReferenceKinematics`):
+  public `Data` fields, the same on both.
+
+Contacts and constraints (`naconmax`, `njmax`): MuJoCo Warp keeps the
+contacts of all the worlds of a batch in one buffer of `naconmax` contacts
+(shared by the batch: those `Data` fields are not per world, see
+`shared_fields`), and `njmax` constraint rows per world. Both are fixed
+when the environment is built. A world that needs more loses contacts or
+constraints; MuJoCo Warp flags it in its per-world overflow bitmask, which
+`overflow` reads: check it (the benchmarks and tests do) when choosing the
+sizes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+
+IMPLS = ('jax', 'warp')
+INSTALL_HINT = "pip install 'mjx-composer[warp]'"
+
+# The contacts per world that the default contact buffer holds, and the
+# worlds it holds them for: `naconmax` defaults to their product.
+DEFAULT_CONTACTS_PER_WORLD = 64
+DEFAULT_WORLDS = 8192
+
+
+def warp_installed() -> bool:
+  """Whether MJX can use MuJoCo Warp (`warp-lang` imports)."""
+  import mujoco.mjx.warp as mjx_warp  # pylint: disable=g-import-not-at-top
+
+  return bool(mjx_warp.WARP_INSTALLED)
+
+
+def resolve_impl(impl, device) -> str:
+  """The implementation an environment on `device` runs: 'jax' or 'warp'.
+
+  Args:
+    impl: 'jax', 'warp', or None for the default: 'jax' on every device
+      (Warp's speed on GPUs against 'jax' for these tasks is measured by
+      `benchmarks/backends.py`; the default changes only on its results).
+    device: the JAX device the environment runs on.
+
+  Raises:
+    ValueError: for an unknown `impl`, or 'warp' on a device that is
+      neither a CUDA GPU nor a CPU.
+    ImportError: for 'warp' when `warp-lang` is not installed.
+  """
+  if impl is None:
+    return 'jax'
+  if impl not in IMPLS:
+    raise ValueError(f"impl must be 'jax', 'warp' or None, got {impl!r}.")
+  if impl == 'warp':
+    if device.platform not in ('cpu', 'gpu'):
+      raise ValueError(
+          "impl='warp' runs on a CUDA GPU or on the CPU; this environment's "
+          f"device is {device} ({device.platform}). Use impl='jax'."
+      )
+    if not warp_installed():
+      raise ImportError(
+          "impl='warp' needs MuJoCo Warp's runtime, warp-lang, which is not "
+          f'installed (or failed to import). Install it with: {INSTALL_HINT}'
+          " (or use impl='jax')."
+      )
+  return impl
+
+
+def default_share_reset_forward(impl: str, device) -> bool:
+  """`Environment(share_reset_forward=None)`: True on a CPU with 'jax'."""
+  return impl == 'jax' and device.platform == 'cpu'
+
+
+def check_share_reset_forward(impl: str, share_reset_forward) -> None:
+  if impl == 'warp' and share_reset_forward:
+    raise ValueError(
+        "share_reset_forward=True cannot run on impl='warp': the fused "
+        'restart runs the integrator (mjx.euler / mjx.implicit) apart from '
+        "mjx.forward, and MJX implements those on impl='jax' only. Leave "
+        "share_reset_forward unset (on 'warp' the sub-steps run mjx.step "
+        'and the restart of ended episodes is separate; results are the '
+        "same), or use impl='jax'."
+    )
+
+
+def check_buffer_arguments(impl: str, naconmax, njmax) -> None:
+  """`naconmax` and `njmax` size MuJoCo Warp's buffers: 'warp' only."""
+  if impl != 'warp' and (naconmax is not None or njmax is not None):
+    raise ValueError(
+        "naconmax and njmax size MuJoCo Warp's contact and constraint "
+        f"buffers: pass them with impl='warp' only (impl is {impl!r})."
+    )
+  for name, value in (('naconmax', naconmax), ('njmax', njmax)):
+    if value is not None and (int(value) != value or value < 1):
+      raise ValueError(f'{name} must be a positive integer, got {value!r}.')
+
+
+def put(mj_model, impl: str, device, naconmax=None, njmax=None):
+  """`(mjx.Model, mjx.Data)` of `mj_model` on `device` with `impl`.
+
+  Args:
+    mj_model: the compiled host model.
+    impl: 'jax' or 'warp' (`resolve_impl`).
+    device: the JAX device.
+    naconmax: 'warp': contacts held for all the worlds of a batch (default
+      `DEFAULT_CONTACTS_PER_WORLD * DEFAULT_WORLDS`).
+    njmax: 'warp': constraint rows per world (default: MuJoCo Warp's
+      estimate from the model).
+
+  Raises:
+    NotImplementedError: the model uses something MuJoCo Warp does not
+      implement (its own message, with what to do).
+  """
+  if impl == 'jax':
+    model = mjx.put_model(mj_model, device=device, impl='jax')
+    return model, mjx.make_data(model, device=device, impl='jax')
+  if naconmax is None:
+    naconmax = DEFAULT_CONTACTS_PER_WORLD * DEFAULT_WORLDS
+  try:
+    model = mjx.put_model(mj_model, device=device, impl='warp')
+    data = mjx.make_data(
+        mj_model,
+        device=device,
+        impl='warp',
+        naconmax=int(naconmax),
+        njmax=None if njmax is None else int(njmax),
+    )
+  except (NotImplementedError, ValueError) as e:
+    raise NotImplementedError(
+        f"MuJoCo Warp (impl='warp') cannot run the composed model: {e} "
+        "Change the entity that adds it, or use impl='jax'."
+    ) from e
+  return model, data
+
+
+# -- per-world model fields ---------------------------------------------------
+
+
+def _model_batch_dims() -> dict[str, bool]:
+  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
+
+  return warp_types._BATCH_DIM['Model']  # pylint: disable=protected-access
+
+
+def unbatchable_fields(names) -> list[str]:
+  """The model fields of `names` that cannot differ between Warp's worlds.
+
+  A field MuJoCo Warp reads (it has an entry in `_BATCH_DIM['Model']`)
+  without a batch dimension. 'opt' and 'stat' are judged by their leaves:
+  every option MJX's `Option` carries is batchable or unread by Warp, and
+  Warp never reads the statistics.
+  """
+  batch = _model_batch_dims()
+  return sorted(n for n in names if batch.get(n) is False)
+
+
+def check_per_world_fields(impl: str, writers: dict) -> None:
+  """Refuses, on 'warp', per-world fields that Warp cannot batch.
+
+  Args:
+    impl: 'jax' or 'warp'.
+    writers: `{model field: the hooks that made it per-world}`
+      (`Environment.per_world_model_fields`).
+
+  Raises:
+    NotImplementedError: naming each field, who writes it, and what to do.
+  """
+  if impl != 'warp':
+    return
+  bad = unbatchable_fields(writers)
+  if not bad:
+    return
+  lines = '; '.join(f'{n} (written by {", ".join(writers[n])})' for n in bad)
+  raise NotImplementedError(
+      "impl='warp' cannot vary these model fields per world: "
+      f'{lines}. MuJoCo Warp runs one kernel over all the worlds of a batch '
+      'and reads these fields from one copy shared by every world (they '
+      "have no batch dimension in mujoco.mjx.warp.types._BATCH_DIM['Model']"
+      '). Keep them the same in every world (switch off the variation or '
+      "hook that writes them), or use impl='jax', which varies any field."
+  )
+
+
+# -- the JAX twin of a Warp model -----------------------------------------------
+
+
+def is_warp(model_or_data) -> bool:
+  return model_or_data.impl == mjx.Impl.WARP
+
+
+def put_jax_twin(mj_model: mujoco.MjModel) -> mjx.Model:
+  """`mj_model` put on this process's first device with `impl='jax'`."""
+  return mjx.put_model(mj_model, device=jax.local_devices()[0], impl='jax')
+
+
+def jax_twin(model: mjx.Model, base: mjx.Model) -> mjx.Model:
+  """The 'jax' implementation's model with `model`'s values.
+
+  For computing, on a 'warp' model, what only MJX's JAX implementation
+  provides (`mjx.crb`, `mjx.full_m`, `mjx.transmission`, and `make_data` of
+  a device model): `base`, the host model put with `impl='jax'`
+  (`put_jax_twin`), with every public field whose value the JAX
+  implementation holds on the device replaced by `model`'s (the per-world
+  ones among them). Fields the JAX implementation holds as host constants
+  (structure: ids, types, addresses) cannot differ between worlds and are
+  kept.
+  """
+  twin = base
+  updates = {}
+  for f in dataclasses.fields(mjx.Model):
+    name = f.name
+    if name in ('_impl', 'opt', 'stat'):
+      continue
+    mine, theirs = getattr(twin, name), getattr(model, name)
+    if not isinstance(mine, jax.Array) and not isinstance(
+        theirs, jax.core.Tracer
+    ):
+      continue  # host structure, the same in every world
+    if name == 'geom_aabb':
+      theirs = jnp.reshape(theirs, jnp.shape(mine))
+    updates[name] = theirs
+  opt = {
+      f.name: getattr(model.opt, f.name)
+      for f in dataclasses.fields(type(model.opt))
+      if f.name != '_impl' and isinstance(getattr(twin.opt, f.name), jax.Array)
+  }
+  return twin.replace(opt=twin.opt.replace(**opt), stat=model.stat, **updates)
+
+
+# -- Data: per-world and shared fields ------------------------------------------
+
+
+def _shared_names() -> frozenset:
+  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
+
+  return frozenset(warp_types.DATA_NON_VMAP)
+
+
+def shared_leaves(tree):
+  """A tree of bools like `tree`: True at Warp `Data` fields the batch shares.
+
+  MuJoCo Warp's contact buffer (`naconmax` contacts for all the worlds of
+  a batch) and its counters are one copy per batch, not per world: under
+  `jax.vmap` they stay unbatched, and must never be broadcast to the
+  batch or selected per world (`Data.where` keeps them). Every leaf of a
+  'jax' `Data`, and of anything else, is per world (False).
+  """
+  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
+
+  names = _shared_names()
+
+  def mark(node):
+    if isinstance(node, warp_types.DataWarp):
+      return jax.tree_util.tree_map_with_path(
+          lambda path, _: path[0].name in names, node
+      )
+    return jax.tree.map(lambda _: False, node)
+
+  return jax.tree.map(
+      mark, tree, is_leaf=lambda x: isinstance(x, warp_types.DataWarp)
+  )
+
+
+def select(pred, on_true, on_false):
+  """`on_true` where `pred`, else `on_false`, for one world's pytrees.
+
+  `mjx.Data` is merged by `Data.where` (on 'warp' the shared fields come
+  from `on_false`, unselected); every other leaf by `jnp.where`.
+  """
+
+  def one(a, b):
+    if isinstance(a, mjx.Data):
+      return b.where(pred, a)
+    return jnp.where(pred, a, b)
+
+  return jax.tree.map(
+      one, on_true, on_false, is_leaf=lambda x: isinstance(x, mjx.Data)
+  )
+
+
+def overflow(data) -> jax.Array:
+  """MuJoCo Warp's overflow bitmask per world (0: nothing lost).
+
+  Bits (`mujoco.mjx.third_party.mujoco_warp.OverflowType`): 1 constraint
+  rows beyond `njmax`, 8 contacts beyond `naconmax`, ... Zeros for 'jax'
+  data, which has no fixed buffers.
+  """
+  if data.impl != mjx.Impl.WARP:
+    return jnp.zeros(jnp.shape(data.time), jnp.int32)
+  return data._impl.overflow  # pylint: disable=protected-access
+
+
+def contacts_in_use(data) -> jax.Array:
+  """Contacts in MuJoCo Warp's shared buffer after the last collision.
+
+  Compare it with `naconmax` to size the buffer; 0 for 'jax' data.
+  """
+  if data.impl != mjx.Impl.WARP:
+    return jnp.zeros((), jnp.int32)
+  return data._impl.nacon[0]  # pylint: disable=protected-access
+
+
+def naconmax(data) -> int:
+  """The contact buffer's size ('warp'); 0 for 'jax' data."""
+  if data.impl != mjx.Impl.WARP:
+    return 0
+  return int(data._impl.naconmax)  # pylint: disable=protected-access
+
+
+def njmax(data) -> int:
+  """Constraint rows per world ('warp'); 0 for 'jax' data."""
+  if data.impl != mjx.Impl.WARP:
+    return 0
+  return int(data._impl.njmax)  # pylint: disable=protected-access
