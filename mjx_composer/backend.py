@@ -34,15 +34,26 @@ What runs where on 'warp':
   reads.
 * kinematics the host already knows (`kinematics.ReferenceKinematics`):
   public `Data` fields, the same on both.
+* `PropPlacer`'s collision tests: MJX's JAX narrow phase on the JAX twin
+  (`jax_view`). Its `settle_physics=True` is refused on 'warp' (below).
 
 Contacts and constraints (`naconmax`, `njmax`): MuJoCo Warp keeps the
 contacts of all the worlds of a batch in one buffer of `naconmax` contacts
 (shared by the batch: those `Data` fields are not per world, see
-`shared_fields`), and `njmax` constraint rows per world. Both are fixed
+`shared_leaves`), and `njmax` constraint rows per world. Both are fixed
 when the environment is built. A world that needs more loses contacts or
 constraints; MuJoCo Warp flags it in its per-world overflow bitmask, which
 `overflow` reads: check it (the benchmarks and tests do) when choosing the
 sizes.
+
+The shared buffers must stay one copy per batch. MJX's `Data.where`
+merges per world and keeps them (`select`, which `episode` uses), but a
+`lax.cond` or `lax.while_loop` whose condition differs between worlds
+batches all of its operands: with a `Data` among them, it would copy the
+buffer once per world (and MuJoCo Warp's next call refuses the result).
+The reset's retry loop (`max_reset_attempts > 1`) therefore carries the
+data without them (`drop_shared`, `restore_shared`); hooks with such loops
+over the whole `Physics` should do the same, or keep the `Data` out.
 """
 
 from __future__ import annotations
@@ -167,7 +178,31 @@ def put(mj_model, impl: str, device, naconmax=None, njmax=None):
         f"MuJoCo Warp (impl='warp') cannot run the composed model: {e} "
         "Change the entity that adds it, or use impl='jax'."
     ) from e
+  # MuJoCo Warp prints a warning from its kernels whenever a flag in
+  # `warn_overflow` is raised. Keep the buffer overflows (lost contacts or
+  # constraints); drop the solver's iteration limits, which models reach
+  # by design (e.g. Playground's iterations=1) and 'jax' reaches silently.
+  opt_impl = model.opt._impl  # pylint: disable=protected-access
+  model = model.replace(
+      opt=model.opt.replace(
+          _impl=opt_impl.replace(
+              warn_overflow=int(opt_impl.warn_overflow) & ~_solver_limits()
+          )
+      )
+  )
   return model, data
+
+
+def _overflow_type():
+  from mujoco.mjx.third_party import mujoco_warp  # pylint: disable=g-import-not-at-top
+
+  return mujoco_warp.OverflowType
+
+
+def _solver_limits() -> int:
+  """The overflow bits that say the solver stopped at its iteration limit."""
+  kind = _overflow_type()
+  return int(kind.ITERATIONS | kind.LS_ITERATIONS)
 
 
 # -- per-world model fields ---------------------------------------------------
@@ -225,9 +260,23 @@ def is_warp(model_or_data) -> bool:
   return model_or_data.impl == mjx.Impl.WARP
 
 
-def put_jax_twin(mj_model: mujoco.MjModel) -> mjx.Model:
-  """`mj_model` put on this process's first device with `impl='jax'`."""
-  return mjx.put_model(mj_model, device=jax.local_devices()[0], impl='jax')
+# {id(host model): (host model, its 'jax' model, its 'jax' data)}
+_JAX_BASES = {}
+
+
+def jax_base(mj_model: mujoco.MjModel):
+  """`mj_model` put with `impl='jax'`, and its data (cached per model).
+
+  On this process's first device. The host model is kept alive with them,
+  so that its id is not reused.
+  """
+  entry = _JAX_BASES.get(id(mj_model))
+  if entry is None or entry[0] is not mj_model:
+    device = jax.local_devices()[0]
+    model = mjx.put_model(mj_model, device=device, impl='jax')
+    entry = (mj_model, model, mjx.make_data(model, device=device, impl='jax'))
+    _JAX_BASES[id(mj_model)] = entry
+  return entry[1], entry[2]
 
 
 def jax_twin(model: mjx.Model, base: mjx.Model) -> mjx.Model:
@@ -236,7 +285,7 @@ def jax_twin(model: mjx.Model, base: mjx.Model) -> mjx.Model:
   For computing, on a 'warp' model, what only MJX's JAX implementation
   provides (`mjx.crb`, `mjx.full_m`, `mjx.transmission`, and `make_data` of
   a device model): `base`, the host model put with `impl='jax'`
-  (`put_jax_twin`), with every public field whose value the JAX
+  (`jax_base`), with every public field whose value the JAX
   implementation holds on the device replaced by `model`'s (the per-world
   ones among them). Fields the JAX implementation holds as host constants
   (structure: ids, types, addresses) cannot differ between worlds and are
@@ -262,6 +311,27 @@ def jax_twin(model: mjx.Model, base: mjx.Model) -> mjx.Model:
       if f.name != '_impl' and isinstance(getattr(twin.opt, f.name), jax.Array)
   }
   return twin.replace(opt=twin.opt.replace(**opt), stat=model.stat, **updates)
+
+
+def jax_view(model: mjx.Model, data: mjx.Data, mj_model: mujoco.MjModel):
+  """`(model, data)` on MJX's JAX implementation, with their values.
+
+  For MJX functions that only the JAX implementation has, e.g. its
+  narrow-phase colliders (`initializers.contacts`): the JAX twin of
+  `model` (`jax_twin`), and the host model's 'jax' data with `data`'s
+  public fields. A 'jax' pair is returned as it is.
+  """
+  if not is_warp(model):
+    return model, data
+  base_model, base_data = jax_base(mj_model)
+  public = {}
+  for f in dataclasses.fields(mjx.Data):
+    if f.name == '_impl':
+      continue
+    value, like = getattr(data, f.name), getattr(base_data, f.name)
+    if jnp.shape(value) == jnp.shape(like):
+      public[f.name] = value
+  return jax_twin(model, base_model), base_data.replace(**public)
 
 
 # -- Data: per-world and shared fields ------------------------------------------
@@ -298,6 +368,33 @@ def shared_leaves(tree):
   )
 
 
+def drop_shared(tree):
+  """`tree` with Warp's batch-shared `Data` buffers emptied (zero rows).
+
+  For loops whose carry holds a `Data` and whose condition differs between
+  worlds: under `jax.vmap` such a loop batches its whole carry, and would
+  copy the shared contact buffer once per world. Emptied, the buffers cost
+  nothing; `restore_shared` puts them back before the next Warp call.
+  """
+  return jax.tree.map(
+      lambda x, shared: jnp.zeros((0,) + jnp.shape(x)[1:], x.dtype)
+      if shared
+      else x,
+      tree,
+      shared_leaves(tree),
+  )
+
+
+def restore_shared(tree, source):
+  """`tree` with Warp's batch-shared `Data` buffers taken from `source`."""
+  return jax.tree.map(
+      lambda x, y, shared: y if shared else x,
+      tree,
+      source,
+      shared_leaves(tree),
+  )
+
+
 def select(pred, on_true, on_false):
   """`on_true` where `pred`, else `on_false`, for one world's pytrees.
 
@@ -316,15 +413,19 @@ def select(pred, on_true, on_false):
 
 
 def overflow(data) -> jax.Array:
-  """MuJoCo Warp's overflow bitmask per world (0: nothing lost).
+  """MuJoCo Warp's buffer overflows per world since the reset (0: none).
 
-  Bits (`mujoco.mjx.third_party.mujoco_warp.OverflowType`): 1 constraint
-  rows beyond `njmax`, 8 contacts beyond `naconmax`, ... Zeros for 'jax'
-  data, which has no fixed buffers.
+  A bitmask of `mujoco.mjx.third_party.mujoco_warp.OverflowType`: 1
+  constraint rows beyond `njmax`, 8 contacts beyond `naconmax` (the whole
+  batch's), ...: contacts or constraints that were dropped. The solver
+  reaching its iteration limits (`ITERATIONS`, `LS_ITERATIONS`) is left
+  out: that is the model's setting, as on 'jax'. Zeros for 'jax' data,
+  which has no fixed buffers.
   """
   if data.impl != mjx.Impl.WARP:
     return jnp.zeros(jnp.shape(data.time), jnp.int32)
-  return data._impl.overflow  # pylint: disable=protected-access
+  flags = data._impl.overflow  # pylint: disable=protected-access
+  return flags & ~jnp.asarray(_solver_limits(), flags.dtype)
 
 
 def contacts_in_use(data) -> jax.Array:

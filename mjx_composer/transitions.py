@@ -18,6 +18,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer import backend
 from mjx_composer import episode as episode_lib
 from mjx_composer import kinematics as kinematics_lib
 from mjx_composer import physics as physics_lib
@@ -187,7 +188,9 @@ class Transitions:
       )
       carry = attempt(key, start)
       failed = carry.initialization_failed.astype(jnp.int32)
-      return attempts + 1, failures + failed, carry
+      # A per-world loop condition batches the whole carry: keep Warp's
+      # batch-shared buffers (contacts) out of it (`backend.drop_shared`).
+      return attempts + 1, failures + failed, backend.drop_shared(carry)
 
     def again(loop):
       attempts, _, carry = loop
@@ -198,13 +201,16 @@ class Transitions:
           ),
       )
 
-    placeholder = jax.tree.map(_zeros_like_shape, shapes)
+    placeholder = backend.drop_shared(jax.tree.map(_zeros_like_shape, shapes))
     _, failures, carry = jax.lax.while_loop(
         again,
         body,
         (jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32), placeholder),
     )
-    return carry, failures
+    return (
+        carry.replace(data=backend.restore_shared(carry.data, start.data)),
+        failures,
+    )
 
   # -- step ----------------------------------------------------------------
 

@@ -40,7 +40,7 @@ class Host:
   @functools.cached_property
   def jax_model(self) -> mjx.Model:
     """The host model on the device with `impl='jax'` (`backend.jax_twin`)."""
-    return backend.put_jax_twin(self.m)
+    return backend.jax_base(self.m)[0]
 
   def body_name(self, b: int) -> str:
     return mujoco.mj_id2name(self.m, mujoco.mjtObj.mjOBJ_BODY, b)

@@ -34,6 +34,8 @@ from mujoco.mjx._src import collision_driver
 from mujoco.mjx._src import math as mjx_math
 import numpy as np
 
+from mjx_composer import backend
+
 
 def pair_groups(model: mujoco.MjModel, geoms, excluded=()):
   """MJX's collision pairs that involve `geoms` and none of `excluded`.
@@ -75,7 +77,9 @@ def group_distances(model: mjx.Model, data: mjx.Data, key, pairs):
   return jnp.reshape(dist, (pairs.shape[0], -1))
 
 
-def min_distance(model: mjx.Model, data: mjx.Data, groups, valid=None):
+def min_distance(
+    model: mjx.Model, data: mjx.Data, groups, valid=None, mj_model=None
+):
   """Smallest signed distance over the pairs of `groups` (+inf if none).
 
   Args:
@@ -83,10 +87,17 @@ def min_distance(model: mjx.Model, data: mjx.Data, groups, valid=None):
     data: `mjx.Data` whose `geom_xpos`/`geom_xmat` hold the poses to test.
     groups: as returned by `pair_groups` (pairs may be traced arrays).
     valid: optional per-group `(n,)` bool masks; masked pairs do not count.
+    mj_model: the compiled host model; needed for a 'warp' model, whose
+      distances come from MJX's JAX colliders on its JAX twin
+      (`backend.jax_view`).
 
   Returns:
     A scalar: `<= 0` exactly when one of the pairs touches or penetrates.
   """
+  if backend.is_warp(model):
+    if mj_model is None:
+      raise ValueError("min_distance needs mj_model for a 'warp' model.")
+    model, data = backend.jax_view(model, data, mj_model)
   distances = []
   for i, (key, pairs) in enumerate(groups):
     dist = group_distances(model, data, key, pairs)
@@ -117,7 +128,7 @@ def welded_chains(model: mujoco.MjModel, frame_body: int, geom_ids):
     body = int(model.geom_bodyid[geom])
     while body != frame_body:
       if body == 0:
-        raise ValueError(f'Geom {geom} is not below body {frame_body}.')
+        raise ValueError(f"Geom {geom} is not below body {frame_body}.")
       if model.body_jntnum[body]:
         return None
       chain.append(body)

@@ -57,6 +57,7 @@ import jax.numpy as jnp
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer import backend
 from mjx_composer import initializer
 from mjx_composer import element_index
 from mjx_composer.initializers import contacts
@@ -480,7 +481,15 @@ class PropPlacer(initializer.Initializer):
     def collides(pose):
       candidate = prop.set_pose(physics, *pose)
       data = mjx.kinematics(candidate.model, candidate.data)
-      return contacts.min_distance(candidate.model, data, step.pair_groups) <= 0
+      return (
+          contacts.min_distance(
+              candidate.model,
+              data,
+              step.pair_groups,
+              mj_model=physics.mj_model,
+          )
+          <= 0
+      )
 
     pose, states, found = self._search(
         jax.random.fold_in(key, step.prop_index), initial, states, collides
@@ -509,7 +518,12 @@ class PropPlacer(initializer.Initializer):
             geom_xmat=geom_xmat.at[geom_ids].set(xmat, mode='drop'),
         )
         groups = tuple(zip(run.keys, pairs))
-        return contacts.min_distance(model, candidate, groups, valid) <= 0
+        return (
+            contacts.min_distance(
+                model, candidate, groups, valid, mj_model=physics.mj_model
+            )
+            <= 0
+        )
 
       initial = (
           jax.lax.dynamic_slice(qpos, (adr,), (3,)),
@@ -557,6 +571,13 @@ class PropPlacer(initializer.Initializer):
 
   def _place_and_settle(self, physics, key, tables, states):
     """Rounds of placing then settling until one settles, per world."""
+    if backend.is_warp(physics.data):
+      raise NotImplementedError(
+          "PropPlacer(settle_physics=True) does not run on impl='warp' yet: "
+          'its per-world settling loops carry the whole mjx.Data, which '
+          "would copy MuJoCo Warp's contact buffer (shared by the batch) "
+          "once per world. Use settle_physics=False or impl='jax'."
+      )
     fields = tables.fixed_fields
 
     def unpack(carry):

@@ -1,0 +1,224 @@
+"""`Environment(impl='warp')`: MuJoCo Warp against MJX's JAX implementation.
+
+One Warp environment (the bundled reach task, randomized per world) is
+compiled for the module: MuJoCo Warp compiles its kernels per model, so
+every Warp test here shares the reach model's. Its reset is checked against
+the JAX implementation's, built as `test_tasks_reach.py` builds it (the
+same batched reset program, which the persistent compilation cache holds
+when that test ran first); its steps against MuJoCo's C library on the
+host, world by world with each world's own model (a JAX step program would
+add a minute of compiling on CI's CPU).
+"""
+
+import copy
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+import numpy as np
+import pytest
+
+from mjx_composer import backend
+from mjx_composer import environment
+from mjx_composer.tasks import joystick
+from mjx_composer.tasks import reach
+from tests import conftest
+
+WORLDS = 8
+STEPS = 3
+# Warp runs float32, MuJoCo float64, and the constraint solvers stop at
+# the same tolerance from different iterates: after 3 control steps of 5
+# sub-steps positions agree to 1.3e-8 and velocities to 1.9e-7 (measured),
+# so ATOL keeps three orders of magnitude of margin; the arm moves 7.5e-3
+# or more in that time, and a wrong gear or mass (reach varies them by up
+# to 20-30%) moves it by more than ATOL.
+ATOL = 1e-5
+
+
+@pytest.fixture(scope='module')
+def warp_env():
+  # max_reset_attempts=2: the reset's retry loop, whose carry must leave
+  # Warp's batch-shared contact buffer out (`backend.drop_shared`).
+  return environment.Environment(
+      reach.Reach(),
+      time_limit=0.1,
+      impl='warp',
+      naconmax=16 * WORLDS,
+      max_reset_attempts=2,
+  )
+
+
+@pytest.fixture(scope='module')
+def warp_fns(warp_env):
+  return {
+      'reset': jax.jit(jax.vmap(warp_env.reset)),
+      'step': jax.jit(jax.vmap(warp_env.step)),
+  }
+
+
+@pytest.fixture(scope='module')
+def jax_env():
+  # As test_tasks_reach.py builds it: the same reset program.
+  return environment.Environment(reach.Reach(), time_limit=0.1)
+
+
+def _keys():
+  return jax.random.split(jax.random.key(0), WORLDS)
+
+
+def _actions(env):
+  shape = (WORLDS,) + env.action_spec().shape
+  return jax.random.uniform(jax.random.key(1), shape, minval=-1.0, maxval=1.0)
+
+
+def _rollout(fns, env):
+  states = fns['reset'](_keys())
+  trajectory = [states]
+  for _ in range(STEPS):
+    states = fns['step'](states, _actions(env))
+    trajectory.append(states)
+  return trajectory
+
+
+@pytest.fixture(scope='module')
+def warp_rollout(warp_env, warp_fns):
+  return _rollout(warp_fns, warp_env)
+
+
+def test_warp_reset_equals_jax_reset(warp_env, warp_rollout, jax_env):
+  assert warp_env.impl == 'warp' and jax_env.impl == 'jax'
+  warp = warp_rollout[0]
+  ref = jax.jit(jax.vmap(jax_env.reset))(_keys())
+  # Randomized per world: the same draws, the same derived fields (the
+  # compiler runs on MJX's JAX implementation for both).
+  assert set(warp.model_fields) == set(ref.model_fields)
+  assert 'body_mass' in warp.model_fields
+  for name, value in ref.model_fields.items():
+    jax.tree.map(
+        lambda w, j, name=name: np.testing.assert_allclose(
+            np.reshape(w, np.shape(j)), j, rtol=1e-6, atol=1e-7, err_msg=name
+        ),
+        warp.model_fields[name],
+        value,
+    )
+  np.testing.assert_array_equal(warp.data.qpos, ref.data.qpos)
+  jax.tree.map(
+      lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5),
+      warp.observation,
+      ref.observation,
+  )
+  np.testing.assert_array_equal(backend.overflow(warp.data), 0)
+  assert backend.naconmax(warp.data) == 16 * WORLDS
+
+
+def _host_rollout(env, state, world, actions):
+  """World `world` of `state` stepped by MuJoCo (C, float64) on the host.
+
+  With the world's own model: its per-world fields written into a copy of
+  the compiled host model.
+  """
+  m = copy.deepcopy(env.mj_model)
+  for name, value in state.model_fields.items():
+    if name in ('opt', 'stat'):
+      continue  # reach varies no option; the statistics do not step
+    field = getattr(m, name)
+    field[...] = np.reshape(np.asarray(value)[world], field.shape)
+  d = mujoco.MjData(m)
+  for name in ('qpos', 'qvel', 'act', 'qacc_warmstart', 'mocap_pos'):
+    getattr(d, name)[...] = np.asarray(getattr(state.data, name))[world]
+  d.time = float(state.data.time[world])
+  for _ in range(STEPS):
+    d.ctrl[:] = np.asarray(actions)[world]
+    mujoco.mj_step(m, d, env.n_sub_steps)
+  return d.qpos.copy(), d.qvel.copy()
+
+
+def test_warp_steps_agree_with_mujoco(warp_env, warp_rollout):
+  """Each world's Warp trajectory against MuJoCo's, with its own model."""
+  start, end = warp_rollout[0], warp_rollout[-1]
+  assert np.all(np.asarray(end.step_type) == int(environment.StepType.MID))
+  actions = _actions(warp_env)
+  for world in range(WORLDS):
+    qpos, qvel = _host_rollout(warp_env, start, world, actions)
+    np.testing.assert_allclose(end.data.qpos[world], qpos, atol=ATOL)
+    np.testing.assert_allclose(end.data.qvel[world], qvel, atol=10 * ATOL)
+  # The worlds moved: this compares trajectories, not resting arms.
+  moved = np.abs(end.data.qpos - start.data.qpos).max(axis=1)
+  assert np.all(moved > 1e-3), moved
+  np.testing.assert_array_equal(backend.overflow(end.data), 0)
+  np.testing.assert_array_equal(end.metrics['diverged'], 0)
+
+
+def test_warp_same_key_same_result(warp_env, warp_fns, warp_rollout):
+  again = _rollout(warp_fns, warp_env)
+  for first, second in zip(warp_rollout, again):
+    jax.tree.map(
+        lambda a, b: np.testing.assert_array_equal(
+            jax.random.key_data(a)
+            if jnp.issubdtype(a.dtype, jax.dtypes.prng_key)
+            else a,
+            jax.random.key_data(b)
+            if jnp.issubdtype(b.dtype, jax.dtypes.prng_key)
+            else b,
+        ),
+        first,
+        second,
+    )
+
+
+def test_warp_keeps_the_contact_buffer_shared_by_the_batch(warp_rollout):
+  """Warp's contacts are one buffer per batch, never copied per world."""
+  data = warp_rollout[-1].data
+  assert data.qpos.shape[0] == WORLDS
+  contact_dist = data._impl.contact__dist  # pylint: disable=protected-access
+  assert jnp.shape(contact_dist) == (backend.naconmax(data),)
+  assert jax.tree.leaves(backend.shared_leaves(data)).count(True) > 10
+
+
+# -- refusals -------------------------------------------------------------------
+
+
+def test_warp_refuses_a_per_world_height_field():
+  with pytest.raises(NotImplementedError) as raised:
+    environment.Environment(joystick.Joystick(terrain='rough'), impl='warp')
+  message = str(raised.value)
+  assert 'hfield_data' in message
+  assert 'Joystick.initialize_episode' in message
+  assert "impl='jax'" in message
+
+
+def test_warp_refuses_declared_unbatchable_fields():
+  with pytest.raises(NotImplementedError, match='hfield_data'):
+    conftest.make_swing_env(
+        impl='warp', per_world_model_fields=('hfield_data',)
+    )
+
+
+def test_warp_refuses_the_shared_reset_forward():
+  with pytest.raises(ValueError, match='share_reset_forward=True'):
+    conftest.make_swing_env(impl='warp', share_reset_forward=True)
+
+
+def test_warp_buffer_sizes_need_warp():
+  with pytest.raises(ValueError, match="impl='warp' only"):
+    conftest.make_swing_env(naconmax=64)
+  with pytest.raises(ValueError, match='positive integer'):
+    conftest.make_swing_env(impl='warp', njmax=0)
+
+
+def test_unknown_impl_is_refused():
+  with pytest.raises(ValueError, match="impl must be 'jax', 'warp'"):
+    conftest.make_swing_env(impl='cpp')
+
+
+def test_warp_not_installed_says_how_to_install(monkeypatch):
+  monkeypatch.setattr(backend, 'warp_installed', lambda: False)
+  with pytest.raises(ImportError, match=r"pip install 'mjx-composer\[warp\]'"):
+    conftest.make_swing_env(impl='warp')
+
+
+def test_default_impl_is_jax():
+  env = conftest.make_swing_env()
+  assert env.impl == 'jax'
+  assert env.mjx_model.impl == mjx.Impl.JAX
