@@ -52,6 +52,18 @@ def forward_without_actuation(physics):
   return physics.replace(data=mjx.forward(model, physics.data))
 
 
+def _named_scope(method):
+  """Names a step's piece in the program (profiles attribute time to it)."""
+  name = method.__name__.lstrip('_')
+
+  @functools.wraps(method)
+  def scoped(*args, **kwargs):
+    with jax.named_scope(name):
+      return method(*args, **kwargs)
+
+  return scoped
+
+
 @dataclasses.dataclass(frozen=True)
 class Transitions:
   """Reset and step of one world (see `Environment` for their contract).
@@ -113,10 +125,11 @@ class Transitions:
 
   def reset(self, key, previous: state_lib.State | None = None):
     """A new episode; `previous` is the world's last state on auto-reset."""
-    init_key, obs_key, next_key = jax.random.split(key, 3)
-    carry, failures = self._initialize(init_key, self._start(previous))
-    physics = forward_without_actuation(self._restore(carry))
-    return self._first_state(physics, carry, failures, obs_key, next_key)
+    with jax.named_scope('reset'):
+      init_key, obs_key, next_key = jax.random.split(key, 3)
+      carry, failures = self._initialize(init_key, self._start(previous))
+      physics = forward_without_actuation(self._restore(carry))
+      return self._first_state(physics, carry, failures, obs_key, next_key)
 
   def restart(self, stepped: state_lib.State) -> state_lib.State:
     """Same-step auto-reset: the next episode, reporting the ended one."""
@@ -337,6 +350,7 @@ class Transitions:
 
   # The pieces of a step, shared by `step` and `step_and_restart`.
 
+  @_named_scope
   def _before_step(self, state, action, keys):
     start = self.physics(state)
     physics = self.hooks.scheduled(start, keys.before)
@@ -344,6 +358,7 @@ class Transitions:
     _check_step_writes(start, physics, tuple(state.model_fields), 'before_step')
     return physics
 
+  @_named_scope
   def _before_substep(self, physics, action, keys, i, fields):
     sub_key = jax.random.fold_in(keys.substep, i)
     start = physics
@@ -353,6 +368,7 @@ class Transitions:
     _check_step_writes(start, physics, fields, 'before_substep')
     return physics
 
+  @_named_scope
   def _after_substep(self, physics, obs_state, keys, i, fields):
     """After-substep hooks and observation updates: (carry, obs_state)."""
     sub_key = jax.random.fold_in(keys.substep, i)
@@ -377,6 +393,7 @@ class Transitions:
       )
     return physics.carry(fields), obs_state
 
+  @_named_scope
   def _end_step(self, state, physics, obs_state, keys):
     fields = tuple(state.model_fields)
     start = physics
@@ -388,7 +405,7 @@ class Transitions:
         self.updater.update(obs_state, physics, keys.obs, self.n_sub_steps),
         self.updater,
         keys.next,
-        self.episode.end_of_step(state, physics),
+        jax.named_scope('episode')(self.episode.end_of_step)(state, physics),
     )
 
 

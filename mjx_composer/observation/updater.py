@@ -352,6 +352,7 @@ class Updater:
       )
     return UpdaterState(t=t, buffers=tuple(buffers))
 
+  @jax.named_scope('observation_update')
   def update(
       self, state: UpdaterState, physics, key, substep, *, substep_bounds=None
   ) -> UpdaterState:

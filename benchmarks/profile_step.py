@@ -1,0 +1,262 @@
+"""Where a composed step program's device time goes, kernel by kernel.
+
+For one bundled task and number of worlds, this profiles (`jax.profiler`,
+a Perfetto trace) one call of `--steps` control steps of:
+
+* raw:       raw MJX on the task's compiled model (`common.raw_rollout`),
+             from the composed environment's reset states;
+* composed:  `vmap(env.step)` of the task (`common.env_rollout`);
+* each variant named with `--variants`: `no_ends` (no time limit),
+  `no_obs` (no time limit, every observable disabled), `shared`
+  (`share_reset_forward=True`), `unshared` (False).
+
+Every kernel's device time is attributed to the innermost scope of the JAX
+name stack it came from that names a piece of the program (an MJX function
+such as `collision` or `solve`, or one of ours such as `updater`), and the
+table compares the scopes' totals per control step between each program and
+raw. Walk defaults to `walk.PLAYGROUND_EQUIVALENT` (noise, delay, history,
+randomization, pushes and fall terminations off, the 'policy' group only),
+the configuration `playground_compare.py` calls ours_off.
+
+    python benchmarks/profile_step.py --task walk --worlds 8192
+
+The traces are left in `--trace-dir` (open them in Perfetto); the per-scope
+totals go to `--out`.
+"""
+
+import collections
+import glob
+import gzip
+import json
+import os
+import re
+import tempfile
+
+import jax
+
+import common  # benchmarks/common.py
+
+
+def _make_envs(task, variants):
+  """`{name: Environment}` for the composed programs to profile."""
+  kwargs = {}
+  if task == 'walk':
+    from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+
+    kwargs = dict(walk.PLAYGROUND_EQUIVALENT, time_limit=walk.EPISODE_SECONDS)
+  elif task == 'reach':
+    kwargs = dict(randomize=False)
+  envs = {'composed': common.make_env(task, **kwargs)}
+  inf = float('inf')
+  for name in variants:
+    if name == 'no_ends':
+      envs[name] = common.make_env(task, **{**kwargs, 'time_limit': inf})
+    elif name == 'no_obs':
+      envs[name] = common.make_env(
+          task, **{**kwargs, 'time_limit': inf}, observables=False
+      )
+    elif name in ('shared', 'unshared'):
+      envs[name] = common.make_env(
+          task, **kwargs, share_reset_forward=name == 'shared'
+      )
+    else:
+      raise ValueError(f'Unknown variant {name!r}.')
+  return envs
+
+
+# Name-stack components that say nothing about which piece of the program
+# ran: transformations, control flow and the benchmark's own functions.
+_GENERIC = frozenset(
+    (
+        'jit',
+        'vmap',
+        'while',
+        'body',
+        'cond',
+        'branch',
+        'scan',
+        'checkpoint',
+        'remat',
+        'pjit',
+        'custom_vmap',
+        'custom_jvp',
+        'jvp',
+        'transpose',
+        'closed_call',
+        'core_call',
+        'rollout',
+        'control_step',
+        '<lambda>',
+        'run',
+        'one_world',
+        'select',
+        'fori_loop',
+        'while_loop',
+    )
+)
+
+
+def _scope(op_name, depth=2):
+  """The outermost and the innermost `depth` informative scopes of an op.
+
+  `('forward', 'fwd_position/collision')` for an op of MJX's collision
+  detection inside `mjx.forward`: the outermost says which piece of the
+  step, the innermost which part of it.
+  """
+  names = []
+  # The last component is the primitive itself (`add`, `dot_general`).
+  for part in op_name.split('/')[:-1]:
+    # `vmap(observation_update)`: a transformation around a named scope.
+    for piece in re.findall(r'[^()]+', part):
+      piece = piece.strip()
+      if piece and piece not in _GENERIC and not piece.isdigit():
+        names.append(piece)
+  if not names:
+    return '(none)', '(none)'
+  return names[0], '/'.join(names[-depth:])
+
+
+def _op_names(hlo_text):
+  """`{HLO instruction name: JAX op_name}` of a compiled program's text."""
+  pattern = (
+      r'^\s*(?:ROOT\s+)?%?([\w.\-]+) = .*?metadata=\{[^}]*op_name="([^"]*)"'
+  )
+  return dict(re.findall(pattern, hlo_text, re.M))
+
+
+def _kernel_times(trace_dir, op_names):
+  """Device microseconds per outer and inner scope, and the kernel count."""
+  paths = glob.glob(
+      os.path.join(trace_dir, '**', 'perfetto_trace.json.gz'), recursive=True
+  )
+  if not paths:
+    raise RuntimeError(f'No Perfetto trace under {trace_dir}.')
+  with gzip.open(max(paths, key=os.path.getmtime), 'rt') as f:
+    trace = json.load(f)
+  events = trace['traceEvents'] if isinstance(trace, dict) else trace
+  process = {
+      e['pid']: str(e.get('args', {}).get('name', ''))
+      for e in events
+      if e.get('ph') == 'M' and e.get('name') == 'process_name'
+  }
+  # Kernels run on the accelerator's rows; on a CPU the host runs them.
+  accelerator = {p for p, n in process.items() if '/device:' in n}
+  rows = accelerator or set(process)
+  outer, inner = collections.Counter(), collections.Counter()
+  kernels = 0
+  for e in events:
+    if e.get('ph') != 'X' or e.get('pid') not in rows:
+      continue
+    op = e.get('args', {}).get('hlo_op')
+    if op is None:
+      continue
+    first, last = _scope(op_names.get(op, op))
+    outer[first] += float(e.get('dur', 0))
+    inner[last] += float(e.get('dur', 0))
+    kernels += 1
+  return dict(outer), dict(inner), kernels
+
+
+def _profile(fn, args, trace_dir):
+  """Compiles `fn`, then profiles its third call (`fn` returns its args)."""
+  compiled = jax.jit(fn).lower(*args).compile()
+  out = jax.block_until_ready(compiled(*args))
+  out = jax.block_until_ready(compiled(*out))
+  with jax.profiler.trace(trace_dir, create_perfetto_trace=True):
+    jax.block_until_ready(compiled(*out))
+  return _kernel_times(trace_dir, _op_names(compiled.as_text()))
+
+
+def main():
+  parser = common.make_parser(__doc__, worlds=[8192], out='profile_step.json')
+  parser.add_argument('--task', default='walk', choices=common.TASKS)
+  parser.add_argument('--steps', type=int, default=20)
+  parser.add_argument(
+      '--variants', nargs='*', default=['no_ends', 'no_obs'], help='see above'
+  )
+  parser.add_argument('--trace-dir', default=None)
+  args = parser.parse_args()
+  device = common.print_device()
+  trace_root = args.trace_dir or tempfile.mkdtemp(prefix='profile_step_')
+
+  envs = _make_envs(args.task, args.variants)
+  base = envs['composed']
+  worlds = args.worlds[0]
+  keys = jax.random.split(jax.random.key(0), worlds)
+  actions = common.random_actions(base, worlds)
+  programs = {}
+  states = jax.jit(jax.vmap(base.reset))(keys)
+  programs['raw'] = (
+      common.raw_rollout(
+          base.mjx_model, base.n_sub_steps, args.steps, jit=False
+      ),
+      (states.data, actions),
+  )
+  for name, env in envs.items():
+    states = jax.jit(jax.vmap(env.reset))(keys)
+    programs[name] = (
+        common.env_rollout(env, args.steps, jit=False),
+        (states, actions),
+    )
+
+  results = {}
+  for name, (fn, fn_args) in programs.items():
+    outer, inner, kernels = _profile(
+        fn, fn_args, os.path.join(trace_root, name)
+    )
+    per_step = lambda totals: {
+        k: v / args.steps for k, v in sorted(totals.items())
+    }
+    results[name] = {
+        'kernels': kernels,
+        'total_us_per_control_step': sum(outer.values()) / args.steps,
+        'outer_us_per_control_step': per_step(outer),
+        'inner_us_per_control_step': per_step(inner),
+    }
+    print(
+        f'{name}: {kernels} kernels, '
+        f'{results[name]["total_us_per_control_step"]:,.0f} us of device time '
+        'per control step',
+        flush=True,
+    )
+    common.write_results(
+        args.out,
+        device,
+        [results],
+        task=args.task,
+        worlds=worlds,
+        steps=args.steps,
+        trace_dir=trace_root,
+    )
+
+  names = list(results)
+  for level, rows in (('outer', 12), ('inner', 40)):
+    key = f'{level}_us_per_control_step'
+    scopes = sorted(
+        {s for r in results.values() for s in r[key]},
+        key=lambda s, key=key: -max(
+            r[key].get(s, 0.0) for r in results.values()
+        ),
+    )
+    print(
+        f'\n| {level} scope (us per control step) | ' + ' | '.join(names) + ' |'
+    )
+    print('|---|' + '---|' * len(names))
+    print(
+        '| total | '
+        + ' | '.join(
+            f'{results[n]["total_us_per_control_step"]:,.0f}' for n in names
+        )
+        + ' |'
+    )
+    for s in scopes[:rows]:
+      print(
+          f'| {s} | '
+          + ' | '.join(f'{results[n][key].get(s, 0.0):,.0f}' for n in names)
+          + ' |'
+      )
+  print(f'Traces in {trace_root}; wrote {args.out}')
+
+
+if __name__ == '__main__':
+  main()
