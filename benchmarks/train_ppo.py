@@ -27,10 +27,19 @@ progress bar, evaluates `--num-evals` times, and writes to `--out`:
   threshold (needs matplotlib; skipped with a warning without it);
 * `policy.pkl`: `{'params': (normalizer, policy, value), 'config': ...}` with
   numpy leaves; `load_policy(path)` below rebuilds the inference function;
-* `rollout.png` (an image strip: one row per world, columns in time) and
-  `rollout.gif` of the trained deterministic policy (needs a headless OpenGL;
-  skipped with a warning without it);
+* `rollout.png` (an image strip: one row per world, columns in time),
+  `rollout_frames/step_NNN.png` (the strip's columns, each a grid of the
+  worlds) and `rollout.gif` of the trained deterministic policy (needs a
+  headless OpenGL; skipped with a warning without it). Walk and joystick
+  are drawn from the robot's tracking camera (`ROLLOUT_CAMERAS`), which
+  follows its centre of mass;
 * `summary.json`, including `time_to_threshold_s`.
+
+`--max-wall-s S` ends training after the first evaluation from which the
+next one would finish later than S seconds after the start of `ppo.train`
+(the interval between the last two evaluations is the estimate), then saves
+the last evaluated policy and writes everything as usual (`summary.json`
+records `stopped_early`), so a run fits a time limit.
 
 The last lines printed are a short table. Time to threshold is the wall-clock
 time from the start of `ppo.train` (compilation included) to the first
@@ -84,6 +93,7 @@ TASK_DEFAULTS = {
         init_noise_std=1.0,
         policy_layers=(32, 32, 32, 32),
         value_layers=(256, 256, 256, 256, 256),
+        render_steps=200,
     ),
     'joystick': dict(
         num_timesteps=200_000_000,
@@ -104,6 +114,7 @@ TASK_DEFAULTS = {
         policy_layers=(512, 256, 128),
         value_layers=(512, 256, 128),
         obs='asymmetric',
+        render_steps=200,
     ),
 }
 TASK_DEFAULTS['joystick_rough'] = TASK_DEFAULTS['joystick']
@@ -199,7 +210,20 @@ def parse_args(argv=None):
       default=4,
       help='worlds in the rollout images (0: none)',
   )
-  parser.add_argument('--render-steps', type=int, default=50)
+  parser.add_argument(
+      '--render-steps',
+      type=int,
+      default=50,
+      help='control steps rendered (walk, joystick: 200)',
+  )
+  parser.add_argument(
+      '--max-wall-s',
+      type=float,
+      default=None,
+      help='stop after the evaluation from which the next one would end '
+      'later than this many seconds after the start of ppo.train '
+      '(default: train to --num-timesteps)',
+  )
   parser.add_argument(
       '--render-from',
       metavar='POLICY_PKL',
@@ -302,8 +326,32 @@ def _write_plot(path, rows, threshold, title):
   return True
 
 
-def _rollout_images(env, brax_env, policy, args, out):
-  """Renders the trained policy on a few worlds: a strip and a GIF."""
+# Cameras for the rollout images: the robots' own cameras that track their
+# centre of mass (MuJoCo's 'trackcom' mode); other tasks use `_FREE_CAMERA`.
+ROLLOUT_CAMERAS = {
+    'walk': 'humanoid/side',
+    'joystick': 'go1/tracking',
+    'joystick_rough': 'go1/tracking',
+}
+_FREE_CAMERA = dict(
+    distance=2.2, elevation=-25.0, azimuth=135.0, lookat=[0.0, 0.0, 0.25]
+)
+_ROLLOUT_COLUMNS = 6
+
+
+def rollout_images(env, brax_env, policy, args, out):
+  """Renders `policy` on `args.render_worlds` worlds into `out`.
+
+  Runs `args.render_steps` control steps from a reset seeded with
+  `args.seed + 1` and writes `rollout.png` (one row per world, six columns
+  evenly spaced in time), the same six frames as
+  `rollout_frames/step_NNN.png` (a grid of the worlds each, NNN the control
+  step) and `rollout.gif` (every step, at real time). The camera is
+  `ROLLOUT_CAMERAS[args.task]`, else a fixed free camera.
+
+  Returns:
+    The paths written.
+  """
   from mjx_composer import rendering  # pylint: disable=g-import-not-at-top
   from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
 
@@ -313,9 +361,7 @@ def _rollout_images(env, brax_env, policy, args, out):
   state = reset(jax.random.split(jax.random.PRNGKey(args.seed + 1), n))
   key = jax.random.PRNGKey(args.seed + 2)
   frames = []
-  camera = dict(
-      distance=2.2, elevation=-25.0, azimuth=135.0, lookat=[0.0, 0.0, 0.25]
-  )
+  camera = ROLLOUT_CAMERAS.get(args.task, _FREE_CAMERA)
   for _ in range(args.render_steps):
     inner = brax_adapter.composer_state(state)
     target = (
@@ -331,29 +377,159 @@ def _rollout_images(env, brax_env, policy, args, out):
     key, sub = jax.random.split(key)
     state = step(state, sub)
   frames = np.stack(frames)  # (T, worlds, H, W, 3)
-  columns = np.linspace(0, len(frames) - 1, 6).astype(int)
+  columns = np.linspace(0, len(frames) - 1, _ROLLOUT_COLUMNS).astype(int)
   strip = rendering.image_grid(
       frames[columns]
       .transpose(1, 0, 2, 3, 4)
       .reshape((-1,) + frames.shape[2:]),
       columns=len(columns),
   )
-  rendering.save_image(os.path.join(out, 'rollout.png'), strip)
+  paths = [os.path.join(out, 'rollout.png')]
+  rendering.save_image(paths[0], strip)
   grid_columns = int(np.ceil(np.sqrt(n)))
+  frame_dir = os.path.join(out, 'rollout_frames')
+  os.makedirs(frame_dir, exist_ok=True)
+  for column in columns:
+    paths.append(os.path.join(frame_dir, f'step_{column:03d}.png'))
+    rendering.save_image(
+        paths[-1], rendering.image_grid(frames[column], columns=grid_columns)
+    )
+  paths.append(os.path.join(out, 'rollout.gif'))
   rendering.save_gif(
-      os.path.join(out, 'rollout.gif'),
+      paths[-1],
       [rendering.image_grid(f, columns=grid_columns) for f in frames],
       fps=1.0 / env.control_timestep(),
   )
+  return paths
+
+
+# -- pieces shared with train_compare.py -------------------------------------
+
+
+def make_brax_env(args):
+  """`(env, brax_env)`: the task's `Environment` and its `BraxEnv`.
+
+  Built with `args.task`, `args.time_limit` and `args.share_reset_forward`,
+  same-step auto-reset, and the task's observation groups (Brax sees the
+  dict of groups; `make_networks` picks from it).
+  """
+  from mjx_composer import cli  # pylint: disable=g-import-not-at-top
+  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+  env = cli.make_environment(
+      args.task,
+      time_limit=args.time_limit,
+      auto_reset='same_step',
+      share_reset_forward=args.share_reset_forward,
+  )
+  return env, brax_adapter.BraxEnv(env)
+
+
+def ppo_kwargs(args, brax_env, devices):
+  """The `ppo.train` arguments this script trains with, but the callbacks.
+
+  Everything from `args` (sizes, PPO coefficients, networks, seed) plus the
+  adapter's `training_kwargs`, deterministic evaluation and
+  `max_devices_per_host=devices`; `progress_fn` and `policy_params_fn` are
+  the caller's.
+  """
+  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+  return dict(
+      num_timesteps=args.num_timesteps,
+      num_envs=args.num_envs,
+      batch_size=args.batch_size,
+      num_minibatches=args.num_minibatches,
+      unroll_length=args.unroll_length,
+      num_updates_per_batch=args.num_updates_per_batch,
+      learning_rate=args.learning_rate,
+      entropy_cost=args.entropy_cost,
+      discounting=args.discounting,
+      reward_scaling=args.reward_scaling,
+      max_grad_norm=args.max_grad_norm,
+      normalize_observations=args.normalize,
+      num_evals=args.num_evals,
+      num_eval_envs=args.num_eval_envs,
+      deterministic_eval=True,
+      seed=args.seed,
+      max_devices_per_host=devices,
+      network_factory=make_networks(args),
+      **brax_adapter.training_kwargs(brax_env),
+  )
+
+
+def eval_row(step, metrics, wall_s):
+  """One evaluation's record from Brax's `progress_fn(step, metrics)`.
+
+  Keys: step (env steps so far), wall_s (the caller's clock: seconds since
+  the start of `ppo.train`), train_walltime_s (Brax's training time, without
+  compiling and evaluating), train_sps, eval_walltime_s (Brax's total time
+  spent evaluating so far, this evaluation included), eval_return and
+  eval_return_std (over the evaluation episodes), eval_episode_length.
+  """
+  return {
+      'step': int(step),
+      'wall_s': float(wall_s),
+      'train_walltime_s': float(metrics.get('training/walltime', 0.0)),
+      'train_sps': float(metrics.get('training/sps', 0.0)),
+      'eval_walltime_s': float(metrics.get('eval/walltime', 0.0)),
+      'eval_return': float(metrics['eval/episode_reward']),
+      'eval_return_std': float(metrics['eval/episode_reward_std']),
+      'eval_episode_length': float(metrics['eval/avg_episode_length']),
+  }
+
+
+def append_csv(path, row, header):
+  """Appends `row` (a dict) to the CSV at `path`, writing `header` first."""
+  with open(path, 'a', newline='') as f:
+    writer = csv.DictWriter(f, fieldnames=list(row))
+    if header:
+      writer.writeheader()
+    writer.writerow(row)
+
+
+class StopTraining(Exception):
+  """Raised by a `progress_fn` to end `ppo.train` after an evaluation."""
+
+
+def next_eval_too_late(rows, max_wall_s):
+  """Whether the evaluation after `rows[-1]` would end after `max_wall_s`.
+
+  The next evaluation is expected as long after the last as the last was
+  after the one before it (after the start, for the first). False when
+  `max_wall_s` is None.
+  """
+  if max_wall_s is None or not rows:
+    return False
+  last = rows[-1]['wall_s']
+  interval = last - (rows[-2]['wall_s'] if len(rows) > 1 else 0.0)
+  return last + interval > max_wall_s
+
+
+def policy_config(args, brax_env):
+  """What `load_policy` needs to rebuild the networks, as plain data."""
+  return {
+      'task': args.task,
+      'observation_size': brax_env.observation_size,
+      'action_size': brax_env.action_size,
+      'value_obs_key': 'critic' if args.obs == 'asymmetric' else 'policy',
+      'normalize': args.normalize,
+      'policy_layers': list(args.policy_layers),
+      'value_layers': list(args.value_layers),
+  }
+
+
+def save_policy(path, params, config):
+  """Writes `{'params': params (numpy leaves), 'config': config}`."""
+  with open(path, 'wb') as f:
+    pickle.dump({'params': jax.device_get(params), 'config': config}, f)
 
 
 def main(argv=None):
   args = parse_args(argv)
   # pylint: disable=g-import-not-at-top
   from brax.training.agents.ppo import train as ppo
-  from mjx_composer import cli
   from mjx_composer import compilation_cache
-  from mjx_composer.adapters import brax as brax_adapter
   # pylint: enable=g-import-not-at-top
   cache_dir = compilation_cache.enable(
       enabled=False if args.no_compilation_cache else None
@@ -374,13 +550,7 @@ def main(argv=None):
       f'{cache_dir or "off"}'
   )
 
-  env = cli.make_environment(
-      args.task,
-      time_limit=args.time_limit,
-      auto_reset='same_step',
-      share_reset_forward=args.share_reset_forward,
-  )
-  brax_env = brax_adapter.BraxEnv(env)
+  env, brax_env = make_brax_env(args)
   print(
       f'Task {args.task!r}: episodes of {brax_env.episode_length} steps; '
       f'observations {brax_env.observation_size}, '
@@ -389,7 +559,7 @@ def main(argv=None):
 
   if args.render_from:
     policy = load_policy(args.render_from)
-    _rollout_images(env, brax_env, policy, args, args.out)
+    rollout_images(env, brax_env, policy, args, args.out)
     print(
         f'Rendered {args.render_worlds} worlds of {args.render_from} into '
         f'{args.out}.'
@@ -409,29 +579,22 @@ def main(argv=None):
   )
   start = None
   hit = None
+  # The policy of the latest evaluation, for a run stopped by --max-wall-s.
+  latest = {}
   # Each evaluation is appended as it comes, so an interrupted run keeps
   # its returns.
   log_path = os.path.join(args.out, 'returns.csv')
   if os.path.exists(log_path):
     os.remove(log_path)
 
+  def keep_params(unused_step, make_policy, params):
+    latest.update(make_policy=make_policy, params=params)
+
   def progress(step, metrics):
     nonlocal hit
-    row = {
-        'step': int(step),
-        'wall_s': time.perf_counter() - start,
-        'train_walltime_s': float(metrics.get('training/walltime', 0.0)),
-        'train_sps': float(metrics.get('training/sps', 0.0)),
-        'eval_return': float(metrics['eval/episode_reward']),
-        'eval_return_std': float(metrics['eval/episode_reward_std']),
-        'eval_episode_length': float(metrics['eval/avg_episode_length']),
-    }
+    row = eval_row(step, metrics, time.perf_counter() - start)
     rows.append(row)
-    with open(log_path, 'a', newline='') as f:
-      writer = csv.DictWriter(f, fieldnames=list(row))
-      if len(rows) == 1:
-        writer.writeheader()
-      writer.writerow(row)
+    append_csv(log_path, row, header=len(rows) == 1)
     if hit is None and row['eval_return'] >= args.threshold:
       hit = row
     bar.set_description(f'return {row["eval_return"]:.1f}')
@@ -442,33 +605,28 @@ def main(argv=None):
         f'  ({row["train_sps"]:,.0f} steps/s)',
         file=sys.stdout,
     )
+    if next_eval_too_late(rows, args.max_wall_s) and 'params' in latest:
+      raise StopTraining
 
   start = time.perf_counter()
-  make_policy, params, _ = ppo.train(
-      environment=brax_env,
-      num_timesteps=args.num_timesteps,
-      num_envs=args.num_envs,
-      batch_size=args.batch_size,
-      num_minibatches=args.num_minibatches,
-      unroll_length=args.unroll_length,
-      num_updates_per_batch=args.num_updates_per_batch,
-      learning_rate=args.learning_rate,
-      entropy_cost=args.entropy_cost,
-      discounting=args.discounting,
-      reward_scaling=args.reward_scaling,
-      max_grad_norm=args.max_grad_norm,
-      normalize_observations=args.normalize,
-      num_evals=args.num_evals,
-      num_eval_envs=args.num_eval_envs,
-      deterministic_eval=True,
-      seed=args.seed,
-      max_devices_per_host=devices,
-      network_factory=make_networks(args),
-      progress_fn=progress,
-      **brax_adapter.training_kwargs(brax_env),
-  )
+  stopped_early = False
+  try:
+    make_policy, params, _ = ppo.train(
+        environment=brax_env,
+        progress_fn=progress,
+        policy_params_fn=keep_params,
+        **ppo_kwargs(args, brax_env, devices),
+    )
+  except StopTraining:
+    stopped_early = True
+    make_policy, params = latest['make_policy'], latest['params']
   total = time.perf_counter() - start
   bar.close()
+  if stopped_early:
+    print(
+        f'Stopped after {total:.1f}s (--max-wall-s {args.max_wall_s:g}), '
+        f'at step {rows[-1]["step"]:,}.'
+    )
 
   # Returns log and plot.
   with open(os.path.join(args.out, 'returns.json'), 'w') as f:
@@ -481,23 +639,16 @@ def main(argv=None):
   )
 
   # The policy, with what it takes to rebuild it.
-  obs_size = brax_env.observation_size
-  config = {
-      'task': args.task,
-      'observation_size': obs_size,
-      'action_size': brax_env.action_size,
-      'value_obs_key': 'critic' if args.obs == 'asymmetric' else 'policy',
-      'normalize': args.normalize,
-      'policy_layers': list(args.policy_layers),
-      'value_layers': list(args.value_layers),
-  }
-  with open(os.path.join(args.out, 'policy.pkl'), 'wb') as f:
-    pickle.dump({'params': jax.device_get(params), 'config': config}, f)
+  save_policy(
+      os.path.join(args.out, 'policy.pkl'),
+      params,
+      policy_config(args, brax_env),
+  )
 
   rendered = False
   if args.render_worlds > 0:
     try:
-      _rollout_images(
+      rollout_images(
           env, brax_env, make_policy(params, deterministic=True), args, args.out
       )
       rendered = True
@@ -518,6 +669,7 @@ def main(argv=None):
       'best_return': max(r['eval_return'] for r in rows),
       'initial_return': rows[0]['eval_return'],
       'total_s': total,
+      'stopped_early': stopped_early,
       'episode_length': brax_env.episode_length,
       'rendered': rendered,
       'compilation_cache': cache_dir,
