@@ -1,0 +1,829 @@
+"""Brax PPO on Playground's HumanoidWalk and on our walk task, several seeds.
+
+Trains Brax's PPO (`brax.training.agents.ppo.train`) with MuJoCo
+Playground's hyper-parameters for `HumanoidWalk` on each environment of
+`--envs`, for each seed of `--seeds`, one run after the other, and records
+every evaluation: env steps, wall-clock seconds since the start of
+`ppo.train` (compilation included), Brax's evaluation return (mean and std
+over `--eval-envs` episodes) and Brax's own training and evaluation times.
+
+    python benchmarks/train_compare.py --out runs/compare          # 3 seeds x 2
+    python benchmarks/train_compare.py --out runs/compare --envs ours --seeds 1
+    python benchmarks/train_compare.py --out runs/compare --gpus 0,1,2,3,4,5
+    python benchmarks/train_compare.py --out runs/compare --plot
+
+Environments (`--envs`):
+
+* playground: `mujoco_playground.registry.load('HumanoidWalk')` with the
+  config overrides `{'impl': --playground-impl}` (default 'jax', MJX's JAX
+  implementation, like ours; Playground's training script takes `--impl`
+  too), trained the way Playground's `learning/train_jax_ppo.py` does: its
+  PPO config as `ppo.train`'s arguments, Brax's default PPO networks, a
+  second instance as `eval_env`, `wrap_env_fn=wrapper.wrap_for_brax_training`;
+* ours: `--task walk` as `train_ppo.py` builds it (`train_ppo.make_brax_env`,
+  its networks and `ppo.train` arguments), through `mjx_composer.adapters.
+  brax`: the walk task as shipped (policy noise, latency and history,
+  per-episode randomization, pushes, falls end episodes), the policy and
+  critic both seeing the 'policy' group;
+* ours_off: the walk task with those additions off
+  (`walk.PLAYGROUND_EQUIVALENT`, the 'policy' group only: HumanoidWalk's
+  observation, reward and episodes), otherwise as `ours`.
+
+Hyper-parameters: `mujoco_playground.config.dm_control_suite_params.
+brax_ppo_config('HumanoidWalk')` read at run time when Playground imports
+(otherwise `train_ppo.TASK_DEFAULTS['walk']`, a copy of it, plus
+`FALLBACK_EXTRA`), the same for every environment. The flags below override
+single entries (for smoke runs). Evaluation follows Playground's script:
+`--eval-envs` 128, stochastic policy (`--deterministic-eval` to change).
+Brax runs `(num_evals - 1) x max(num_resets_per_eval, 1) x
+ceil(num_timesteps / ((num_evals - 1) x max(num_resets_per_eval, 1) x
+batch_size x unroll_length x num_minibatches))` training steps of
+`batch_size x unroll_length x num_minibatches` env steps each; with
+Playground's config that is 90 x 983,040 = 88.5 M env steps (not 60 M),
+resetting every world after each training step. `--num-evals 31
+--num-resets-per-eval 3` keeps that schedule with three times as many
+evaluations. The script prints the env steps Brax will run.
+
+Playground's training script also sets `XLA_PYTHON_CLIENT_PREALLOCATE=false`
+and adds `--xla_gpu_triton_gemm_any=True` to `XLA_FLAGS`; this script does
+the same for every environment (`--no-playground-xla-flags` to not).
+JAX's persistent compilation cache is off (cold-start times) unless
+`--compilation-cache`.
+
+Outputs, in `--out` (runs of several invocations merge there; a run of an
+(env, seed) already there is replaced):
+
+* `runs/<env>_seed<seed>.json` and `.csv`: one run, rewritten (JSON) or
+  appended to (CSV) after every evaluation, so a run cut off keeps its
+  evaluations; its `status` is running, finished, stopped (by
+  `--max-wall-s`) or failed;
+* `results.json` and `results.csv`: every run of `runs/`, regenerated after
+  every evaluation;
+* `runs/<env>_seed<seed>_policy.pkl`: the policy of the latest evaluation
+  (for ours, `train_ppo.py --task walk --render-from` renders it).
+
+`--gpus 0,1,...` runs each (env, seed) in its own process pinned to one GPU
+(`CUDA_VISIBLE_DEVICES`), as many at a time as GPUs are listed, with logs in
+`logs/`, then prints the table. `--max-wall-s` stops a run after the
+evaluation from which the next one would end past that many seconds (for a
+command time limit); its status is then 'stopped'.
+
+`--plot` trains nothing: it reads `runs/` and draws `returns.png` (return
+against wall-clock time: a colour per environment, a thin line per seed,
+their mean in bold), prints a table and writes it to `table.md` and
+`summary.json`: per environment, the final return (mean ± std over seeds),
+each seed's wall-clock time to the reference return (the first evaluation
+at or above it) and its total time. The reference return is the mean over
+seeds of `--reference`'s (default playground) final returns, or
+`--threshold`.
+
+A CPU smoke run (a few minutes for two environments):
+
+    python benchmarks/train_compare.py --out /tmp/cmp --seeds 0 \\
+        --num-timesteps 2000 --num-envs 8 --batch-size 8 \\
+        --num-minibatches 2 --unroll-length 5 --num-evals 2 --eval-envs 4 \\
+        --num-resets-per-eval 1 --episode-length 50
+"""
+
+import argparse
+import csv
+import glob
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+import traceback
+
+import numpy as np
+
+import train_ppo  # benchmarks/train_ppo.py
+
+ENVS = ('playground', 'ours', 'ours_off')
+PLAYGROUND_ENV = 'HumanoidWalk'
+# Playground 0.2.0's HumanoidWalk PPO config entries that
+# `train_ppo.TASK_DEFAULTS['walk']` has no flag for.
+FALLBACK_EXTRA = {
+    'episode_length': 1000,
+    'action_repeat': 1,
+    'num_resets_per_eval': 10,
+}
+# walk.Walk's default control timestep, Playground's ctrl_dt (seconds).
+_WALK_CONTROL_TIMESTEP = 0.025
+# train_ppo's flag -> ppo.train's argument, for the entries both have.
+_TRAIN_PPO_NAMES = {
+    'num_timesteps': 'num_timesteps',
+    'num_evals': 'num_evals',
+    'reward_scaling': 'reward_scaling',
+    'normalize': 'normalize_observations',
+    'unroll_length': 'unroll_length',
+    'num_minibatches': 'num_minibatches',
+    'num_updates_per_batch': 'num_updates_per_batch',
+    'discounting': 'discounting',
+    'learning_rate': 'learning_rate',
+    'entropy_cost': 'entropy_cost',
+    'num_envs': 'num_envs',
+    'batch_size': 'batch_size',
+}
+# Command-line overrides of single hyper-parameters (flag dest = ppo name).
+_OVERRIDES = (
+    'num_timesteps',
+    'num_evals',
+    'num_resets_per_eval',
+    'num_envs',
+    'batch_size',
+    'num_minibatches',
+    'unroll_length',
+    'num_updates_per_batch',
+    'episode_length',
+)
+_CSV_FIELDS = (
+    'env',
+    'seed',
+    'step',
+    'wall_s',
+    'train_walltime_s',
+    'train_sps',
+    'eval_walltime_s',
+    'eval_return',
+    'eval_return_std',
+    'eval_episode_length',
+)
+_COLOURS = {
+    'playground': 'tab:blue',
+    'ours': 'tab:orange',
+    'ours_off': 'tab:green',
+}
+
+
+def parse_args(argv=None):
+  parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
+  parser.add_argument('--out', default='runs/train_compare')
+  parser.add_argument(
+      '--envs', nargs='+', choices=ENVS, default=['playground', 'ours']
+  )
+  parser.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2])
+  for name in _OVERRIDES:
+    parser.add_argument(
+        '--' + name.replace('_', '-'),
+        type=int,
+        default=None,
+        help="override Playground's value",
+    )
+  parser.add_argument(
+      '--eval-envs',
+      type=int,
+      default=128,
+      help="evaluation episodes (Playground's script: 128)",
+  )
+  parser.add_argument(
+      '--deterministic-eval',
+      action='store_true',
+      help="evaluate the policy's mean action (Playground: sampled)",
+  )
+  parser.add_argument(
+      '--playground-impl',
+      choices=('jax', 'warp'),
+      default='jax',
+      help="Playground's MJX implementation",
+  )
+  parser.add_argument(
+      '--devices',
+      type=int,
+      default=1,
+      help="local devices each run trains on (Brax's max_devices_per_host)",
+  )
+  parser.add_argument(
+      '--share-reset-forward',
+      action=argparse.BooleanOptionalAction,
+      default=None,
+      help='ours: Environment(share_reset_forward=...); default: on a CPU only',
+  )
+  parser.add_argument(
+      '--max-wall-s',
+      type=float,
+      default=None,
+      help='stop a run after the evaluation from which the next one would '
+      'end later than this many seconds after the start of ppo.train',
+  )
+  parser.add_argument(
+      '--compilation-cache',
+      action='store_true',
+      help="use JAX's persistent compilation cache (default: off, cold starts)",
+  )
+  parser.add_argument(
+      '--no-playground-xla-flags',
+      action='store_true',
+      help="don't set the XLA flags Playground's training script sets",
+  )
+  parser.add_argument(
+      '--gpus',
+      default=None,
+      help='comma-separated GPU indices: one process per (env, seed), each '
+      'on one of them, as many at a time as listed',
+  )
+  parser.add_argument(
+      '--plot', action='store_true', help='only plot and tabulate --out'
+  )
+  parser.add_argument(
+      '--reference',
+      default='playground',
+      help='the environment whose mean final return is the threshold',
+  )
+  parser.add_argument(
+      '--threshold',
+      type=float,
+      default=None,
+      help='the return to time (default: from --reference)',
+  )
+  return parser.parse_args(argv)
+
+
+# -- hyper-parameters ----------------------------------------------------------
+
+
+def playground_config():
+  """(Playground's HumanoidWalk PPO config as a dict, version) or (None, why)."""
+  try:
+    # pylint: disable=g-import-not-at-top
+    import importlib.metadata
+    from mujoco_playground.config import dm_control_suite_params
+    # pylint: enable=g-import-not-at-top
+  except Exception as e:  # pylint: disable=broad-except
+    return None, f'mujoco_playground cannot be imported: {e!r}'
+  config = dm_control_suite_params.brax_ppo_config(PLAYGROUND_ENV).to_dict()
+  try:
+    version = importlib.metadata.version('playground')
+  except importlib.metadata.PackageNotFoundError:
+    version = 'unknown'
+  return config, f'playground {version}'
+
+
+def fallback_config():
+  """Playground's config as `train_ppo.TASK_DEFAULTS['walk']` copies it."""
+  walk = train_ppo.TASK_DEFAULTS['walk']
+  config = {ppo: walk[flag] for flag, ppo in _TRAIN_PPO_NAMES.items()}
+  config.update(FALLBACK_EXTRA)
+  return config
+
+
+def hyperparameters(args):
+  """`(config, source)`: the `ppo.train` hyper-parameters every run uses.
+
+  Playground's config (or the fallback), less its network factory (Brax's
+  defaults, as for HumanoidWalk), with the command line's overrides.
+  """
+  config, source = playground_config()
+  if config is None:
+    print(f'Hyper-parameters: train_ppo.TASK_DEFAULTS["walk"] ({source})')
+    config, source = fallback_config(), 'train_ppo.TASK_DEFAULTS["walk"]'
+  else:
+    config.pop('network_factory', None)
+    copy = fallback_config()
+    differ = {
+        k: (config.get(k), v) for k, v in copy.items() if config.get(k) != v
+    }
+    if differ:
+      print(
+          'Warning: train_ppo.TASK_DEFAULTS["walk"] differs from '
+          f'{source} (playground, copy): {differ}'
+      )
+  for name in _OVERRIDES:
+    value = getattr(args, name)
+    if value is not None:
+      config[name] = value
+  return config, source
+
+
+def brax_env_steps(config):
+  """The env steps `ppo.train` runs for `config` (see the module docstring)."""
+  per_step = (
+      config['batch_size']
+      * config['unroll_length']
+      * config['num_minibatches']
+      * config.get('action_repeat', 1)
+  )
+  epochs = max(config['num_evals'] - 1, 1) * max(
+      config.get('num_resets_per_eval', 0), 1
+  )
+  steps_per_epoch = math.ceil(config['num_timesteps'] / (epochs * per_step))
+  return epochs * steps_per_epoch * per_step
+
+
+# -- environments ----------------------------------------------------------------
+
+
+def _playground_setup(config, args):
+  """(env, ppo.train kwargs, policy config) for Playground's HumanoidWalk."""
+  # pylint: disable=g-import-not-at-top
+  from brax.training.agents.ppo import networks as ppo_networks
+  from mujoco_playground import registry
+  from mujoco_playground import wrapper
+  from mjx_composer.adapters import brax as brax_adapter
+  # pylint: enable=g-import-not-at-top
+
+  brax_adapter.install_jax_compat()  # Brax 0.14 on JAX >= 0.10.
+  overrides = {'impl': args.playground_impl}
+  env = registry.load(
+      PLAYGROUND_ENV,
+      config=registry.get_default_config(PLAYGROUND_ENV),
+      config_overrides=overrides,
+  )
+  eval_env = registry.load(
+      PLAYGROUND_ENV,
+      config=registry.get_default_config(PLAYGROUND_ENV),
+      config_overrides=overrides,
+  )
+  kwargs = dict(config)
+  kwargs.update(
+      network_factory=ppo_networks.make_ppo_networks,
+      wrap_env_fn=wrapper.wrap_for_brax_training,
+      eval_env=eval_env,
+  )
+  policy = {
+      'env': 'playground',
+      'observation_size': env.observation_size,
+      'action_size': env.action_size,
+      'normalize': config['normalize_observations'],
+      'network_factory': 'brax ppo_networks.make_ppo_networks defaults',
+  }
+  return env, kwargs, policy
+
+
+def _ours_setup(name, config, args):
+  """(env, ppo.train kwargs, policy config) for ours / ours_off.
+
+  `train_ppo`'s walk arguments with Playground's values, built by
+  `train_ppo.make_brax_env` (ours) and trained with `train_ppo.ppo_kwargs`.
+  """
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer import environment
+  from mjx_composer.adapters import brax as brax_adapter
+  from mjx_composer.tasks import walk
+  # pylint: enable=g-import-not-at-top
+
+  targs = train_ppo.parse_args(['--task', 'walk'])
+  for flag, ppo in _TRAIN_PPO_NAMES.items():
+    setattr(targs, flag, config[ppo])
+  targs.time_limit = config['episode_length'] * _WALK_CONTROL_TIMESTEP
+  targs.share_reset_forward = args.share_reset_forward
+  targs.num_eval_envs = args.eval_envs
+  if name == 'ours':
+    env, brax_env = train_ppo.make_brax_env(targs)
+  else:
+    task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)
+    env = environment.Environment(
+        task,
+        time_limit=targs.time_limit,
+        auto_reset='same_step',
+        observation_groups={'policy': task.observation_groups()['policy']},
+        share_reset_forward=args.share_reset_forward,
+    )
+    brax_env = brax_adapter.BraxEnv(env)
+  if brax_env.episode_length != config['episode_length']:
+    raise ValueError(
+        f'{name}: episodes of {brax_env.episode_length} steps, Playground '
+        f'{config["episode_length"]}.'
+    )
+  kwargs = train_ppo.ppo_kwargs(targs, brax_env, args.devices)
+  # What train_ppo has no flag for, as Playground trains.
+  for key in ('num_resets_per_eval', 'action_repeat'):
+    kwargs[key] = config[key]
+  different = {
+      k: (kwargs[k], v)
+      for k, v in config.items()
+      if k in kwargs and kwargs[k] != v
+  }
+  if different:
+    raise AssertionError(f'{name} would train with other values: {different}')
+  policy = train_ppo.policy_config(targs, brax_env)
+  return brax_env, kwargs, policy
+
+
+# -- results -------------------------------------------------------------------
+
+
+def run_name(env, seed):
+  return f'{env}_seed{seed}'
+
+
+def _write_json(path, data):
+  """Writes `data` to `path` atomically (other processes read it)."""
+  tmp = f'{path}.{os.getpid()}.tmp'
+  with open(tmp, 'w') as f:
+    json.dump(data, f, indent=1, default=str)
+  os.replace(tmp, path)
+
+
+def load_runs(out):
+  """Every run in `out/runs/*.json` (else `out/results.json`), sorted."""
+  paths = sorted(glob.glob(os.path.join(out, 'runs', '*.json')))
+  runs = []
+  for path in paths:
+    with open(path) as f:
+      runs.append(json.load(f))
+  if not paths and os.path.exists(os.path.join(out, 'results.json')):
+    with open(os.path.join(out, 'results.json')) as f:
+      runs = json.load(f)['runs']
+  return sorted(runs, key=lambda r: (r['env'], r['seed']))
+
+
+def write_merged(out):
+  """Regenerates `results.json` and `results.csv` from `out/runs/`."""
+  runs = load_runs(out)
+  _write_json(os.path.join(out, 'results.json'), {'runs': runs})
+  tmp = os.path.join(out, f'results.csv.{os.getpid()}.tmp')
+  with open(tmp, 'w', newline='') as f:
+    writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS, extrasaction='ignore')
+    writer.writeheader()
+    for run in runs:
+      for row in run['rows']:
+        writer.writerow({'env': run['env'], 'seed': run['seed'], **row})
+  os.replace(tmp, os.path.join(out, 'results.csv'))
+  return runs
+
+
+def train_one(env_name, seed, config, source, args):
+  """Trains one (environment, seed); returns its run record."""
+  # pylint: disable=g-import-not-at-top
+  import jax
+  from brax.training.agents.ppo import train as ppo
+  # pylint: enable=g-import-not-at-top
+
+  run_dir = os.path.join(args.out, 'runs')
+  os.makedirs(run_dir, exist_ok=True)
+  name = run_name(env_name, seed)
+  json_path = os.path.join(run_dir, name + '.json')
+  csv_path = os.path.join(run_dir, name + '.csv')
+  policy_path = os.path.join(run_dir, name + '_policy.pkl')
+  for path in (json_path, csv_path, policy_path):
+    if os.path.exists(path):
+      os.remove(path)
+  device = jax.devices()[0]
+  run = {
+      'env': env_name,
+      'seed': seed,
+      'status': 'building',
+      'device': f'{device.platform}: {device.device_kind}',
+      'devices': args.devices,
+      'jax': jax.__version__,
+      'hyperparameters': config,
+      'hyperparameters_from': source,
+      'env_steps_planned': brax_env_steps(config),
+      'eval_envs': args.eval_envs,
+      'deterministic_eval': args.deterministic_eval,
+      'playground_impl': args.playground_impl
+      if env_name == 'playground'
+      else None,
+      'xla_flags': os.environ.get('XLA_FLAGS', ''),
+      'started_at': time.strftime('%Y-%m-%d %H:%M:%S'),
+      'total_s': None,
+      'rows': [],
+  }
+  t0 = time.perf_counter()
+  if env_name == 'playground':
+    env, kwargs, policy_config = _playground_setup(config, args)
+  else:
+    env, kwargs, policy_config = _ours_setup(env_name, config, args)
+  run['build_s'] = time.perf_counter() - t0
+  kwargs.update(
+      seed=seed,
+      num_eval_envs=args.eval_envs,
+      deterministic_eval=args.deterministic_eval,
+      max_devices_per_host=args.devices,
+  )
+  run['status'] = 'running'
+  _write_json(json_path, run)
+  print(
+      f'{name}: training {run["env_steps_planned"]:,} env steps on '
+      f'{run["device"]} (built in {run["build_s"]:.1f}s)',
+      flush=True,
+  )
+  rows = run['rows']
+  start = None
+
+  def save_params(unused_step, unused_make_policy, params):
+    train_ppo.save_policy(policy_path, params, policy_config)
+
+  def progress(step, metrics):
+    row = train_ppo.eval_row(step, metrics, time.perf_counter() - start)
+    rows.append(row)
+    train_ppo.append_csv(csv_path, row, header=len(rows) == 1)
+    _write_json(json_path, run)
+    write_merged(args.out)
+    print(
+        f'{name}: step {row["step"]:>11,} {row["wall_s"]:8.1f}s  return '
+        f'{row["eval_return"]:8.2f} ± {row["eval_return_std"]:6.2f}  '
+        f'({row["train_sps"]:,.0f} steps/s)',
+        flush=True,
+    )
+    if train_ppo.next_eval_too_late(rows, args.max_wall_s):
+      raise train_ppo.StopTraining
+
+  start = time.perf_counter()
+  try:
+    ppo.train(
+        environment=env,
+        progress_fn=progress,
+        policy_params_fn=save_params,
+        **kwargs,
+    )
+    run['status'] = 'finished'
+  except train_ppo.StopTraining:
+    run['status'] = 'stopped'
+  except Exception:  # pylint: disable=broad-except
+    run['status'] = 'failed'
+    run['error'] = traceback.format_exc()
+    print(run['error'], file=sys.stderr)
+  run['total_s'] = time.perf_counter() - start
+  _write_json(json_path, run)
+  write_merged(args.out)
+  print(f'{name}: {run["status"]} after {run["total_s"]:.1f}s', flush=True)
+  return run
+
+
+# -- several GPUs ------------------------------------------------------------------
+
+
+def _child_argv(argv, env, seed):
+  """`argv` without `--gpus`, for one (env, seed)."""
+  out, skip = [], False
+  for token in argv:
+    if skip:
+      skip = False
+      continue
+    if token == '--gpus':
+      skip = True
+      continue
+    if token.startswith('--gpus='):
+      continue
+    out.append(token)
+  return out + ['--envs', env, '--seeds', str(seed)]
+
+
+def run_parallel(args, argv):
+  """Runs each (env, seed) in its own process, one per GPU of `--gpus`."""
+  gpus = [g for g in args.gpus.split(',') if g]
+  jobs = [(e, s) for s in args.seeds for e in args.envs]
+  log_dir = os.path.join(args.out, 'logs')
+  os.makedirs(log_dir, exist_ok=True)
+  running = {}  # gpu -> (Popen, name, log file)
+  failed = []
+  script = os.path.abspath(__file__)
+  while jobs or running:
+    for gpu in gpus:
+      if gpu not in running and jobs:
+        env, seed = jobs.pop(0)
+        name = run_name(env, seed)
+        log = open(os.path.join(log_dir, name + '.log'), 'w')
+        child_env = dict(os.environ, CUDA_VISIBLE_DEVICES=gpu)
+        proc = subprocess.Popen(
+            [sys.executable, script] + _child_argv(argv, env, seed),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=child_env,
+        )
+        running[gpu] = (proc, name, log)
+        print(f'{name}: started on GPU {gpu} (pid {proc.pid})', flush=True)
+    time.sleep(1.0)
+    for gpu, (proc, name, log) in list(running.items()):
+      if proc.poll() is not None:
+        log.close()
+        del running[gpu]
+        print(f'{name}: exit status {proc.returncode}', flush=True)
+        if proc.returncode:
+          failed.append(name)
+  return failed
+
+
+# -- plot and table ----------------------------------------------------------------
+
+
+def time_to(rows, threshold):
+  """(wall_s, step) of the first row with eval_return >= threshold, or None."""
+  for row in rows:
+    if row['eval_return'] >= threshold:
+      return row['wall_s'], row['step']
+  return None
+
+
+def mean_curve(runs):
+  """The seeds' mean (wall_s, return) at each evaluation index all reached."""
+  n = min(len(r['rows']) for r in runs)
+  wall = [np.mean([r['rows'][i]['wall_s'] for r in runs]) for i in range(n)]
+  ret = [np.mean([r['rows'][i]['eval_return'] for r in runs]) for i in range(n)]
+  return np.array(wall), np.array(ret)
+
+
+def summarize(runs, reference='playground', threshold=None):
+  """Per-environment summary of `runs` (the `--plot` table's contents).
+
+  Returns:
+    `{'threshold': float or None, 'threshold_from': str, 'envs': {env:
+    {...}}}` where each environment has `seeds`, `final_return_mean`/`_std`
+    (over seeds, of each seed's last evaluation), `final_steps`, and per
+    seed (in `per_seed`): `final_return`, `time_to_threshold_s` and
+    `steps_to_threshold` (None where never reached), `total_s` (the run's
+    time in `ppo.train`, or its last evaluation's for a run still going)
+    and `status`.
+  """
+  by_env = {}
+  for run in runs:
+    if run['rows']:
+      by_env.setdefault(run['env'], []).append(run)
+  source = '--threshold'
+  if threshold is None:
+    ref = by_env.get(reference)
+    if ref:
+      threshold = float(np.mean([r['rows'][-1]['eval_return'] for r in ref]))
+      source = f"{reference}'s mean final return"
+    else:
+      source = f'no {reference} runs'
+  envs = {}
+  for env, env_runs in by_env.items():
+    finals = [r['rows'][-1]['eval_return'] for r in env_runs]
+    per_seed = {}
+    for r in env_runs:
+      hit = time_to(r['rows'], threshold) if threshold is not None else None
+      per_seed[r['seed']] = {
+          'final_return': r['rows'][-1]['eval_return'],
+          'final_step': r['rows'][-1]['step'],
+          'time_to_threshold_s': hit[0] if hit else None,
+          'steps_to_threshold': hit[1] if hit else None,
+          'total_s': r['total_s']
+          if r.get('total_s') is not None
+          else r['rows'][-1]['wall_s'],
+          'status': r['status'],
+      }
+    envs[env] = {
+        'seeds': sorted(per_seed),
+        'final_return_mean': float(np.mean(finals)),
+        'final_return_std': float(np.std(finals)),
+        'final_steps': sorted({r['rows'][-1]['step'] for r in env_runs}),
+        'per_seed': per_seed,
+    }
+  return {'threshold': threshold, 'threshold_from': source, 'envs': envs}
+
+
+def format_table(summary):
+  """The summary as a Markdown table (one row per environment)."""
+  threshold = summary['threshold']
+  label = 'n/a' if threshold is None else f'{threshold:.1f}'
+  lines = [
+      f'| env | seeds | env steps | final return | time to {label} per seed '
+      '[s] | total per seed [s] |',
+      '|---|---|---|---|---|---|',
+  ]
+  for env, s in summary['envs'].items():
+    seeds = s['per_seed']
+
+    def fmt(seed, d=seeds):
+      t = d[seed]['time_to_threshold_s']
+      return '–' if t is None else f'{t:.0f}'
+
+    hits = ', '.join(fmt(k) for k in s['seeds'])
+    totals = ', '.join(
+        f'{seeds[k]["total_s"]:.0f}'
+        + (
+            ''
+            if seeds[k]['status'] == 'finished'
+            else f' ({seeds[k]["status"]})'
+        )
+        for k in s['seeds']
+    )
+    steps = ', '.join(
+        f'{x / 1e6:.1f} M' if x >= 100_000 else f'{x:,}'
+        for x in s['final_steps']
+    )
+    lines.append(
+        f'| {env} | {", ".join(map(str, s["seeds"]))} | {steps} | '
+        f'{s["final_return_mean"]:.1f} ± {s["final_return_std"]:.1f} | '
+        f'{hits} | {totals} |'
+    )
+  return '\n'.join(lines)
+
+
+def plot(out, runs, summary):
+  """Draws `out/returns.png`; returns False without matplotlib."""
+  try:
+    # pylint: disable=g-import-not-at-top
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    # pylint: enable=g-import-not-at-top
+  except ImportError:
+    print('matplotlib is not installed: no returns.png.')
+    return False
+  fig, ax = plt.subplots(figsize=(7, 4.5))
+  by_env = {}
+  for run in runs:
+    if run['rows']:
+      by_env.setdefault(run['env'], []).append(run)
+  for env, env_runs in by_env.items():
+    colour = _COLOURS.get(env)
+    for run in env_runs:
+      ax.plot(
+          [r['wall_s'] for r in run['rows']],
+          [r['eval_return'] for r in run['rows']],
+          color=colour,
+          alpha=0.35,
+          linewidth=1,
+      )
+    wall, ret = mean_curve(env_runs)
+    ax.plot(
+        wall,
+        ret,
+        color=colour,
+        linewidth=2.5,
+        marker='o',
+        markersize=3,
+        label=f'{env} (mean of {len(env_runs)} seeds)',
+    )
+  if summary['threshold'] is not None:
+    ax.axhline(
+        summary['threshold'],
+        color='k',
+        linestyle='--',
+        linewidth=1,
+        label=summary['threshold_from'],
+    )
+  ax.set_xlabel('wall-clock time since the start of ppo.train [s]')
+  ax.set_ylabel('evaluation episode return')
+  ax.set_title(f'Brax PPO, {PLAYGROUND_ENV} hyper-parameters')
+  ax.legend(loc='lower right', fontsize=8)
+  fig.tight_layout()
+  fig.savefig(os.path.join(out, 'returns.png'), dpi=110)
+  plt.close(fig)
+  return True
+
+
+def report(args):
+  """The `--plot` mode: plot, table, summary.json, table.md."""
+  runs = load_runs(args.out)
+  if not runs:
+    print(f'No runs in {args.out}.')
+    return 1
+  summary = summarize(runs, args.reference, args.threshold)
+  table = format_table(summary)
+  plotted = plot(args.out, runs, summary)
+  _write_json(os.path.join(args.out, 'summary.json'), summary)
+  with open(os.path.join(args.out, 'table.md'), 'w') as f:
+    f.write(table + '\n')
+  threshold = summary['threshold']
+  print(
+      'Reference return: '
+      + ('none' if threshold is None else f'{threshold:.2f}')
+      + f' ({summary["threshold_from"]}); time is wall-clock since the start '
+      'of ppo.train, compilation and evaluations included.'
+  )
+  print(table)
+  if plotted:
+    print(f'Wrote {os.path.join(args.out, "returns.png")}')
+  return 0
+
+
+# -- main --------------------------------------------------------------------------
+
+
+def main(argv=None):
+  argv = sys.argv[1:] if argv is None else list(argv)
+  args = parse_args(argv)
+  if args.plot:
+    return report(args)
+  os.makedirs(args.out, exist_ok=True)
+  if args.gpus:
+    failed = run_parallel(args, argv)
+    report(args)
+    return 1 if failed else 0
+  if not args.no_playground_xla_flags:
+    # As Playground's training script, before JAX starts its backend.
+    os.environ['XLA_PYTHON_CLIENT_PREALLOCATE'] = 'false'
+    flags = os.environ.get('XLA_FLAGS', '')
+    if '--xla_gpu_triton_gemm_any' not in flags:
+      os.environ['XLA_FLAGS'] = (
+          flags + ' --xla_gpu_triton_gemm_any=True'
+      ).strip()
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer import compilation_cache
+  # pylint: enable=g-import-not-at-top
+  cache = compilation_cache.enable(enabled=args.compilation_cache)
+  config, source = hyperparameters(args)
+  print(f'Hyper-parameters ({source}): {config}')
+  print(
+      f'Brax will run {brax_env_steps(config):,} env steps per run; '
+      f'compilation cache: {cache or "off"}.',
+      flush=True,
+  )
+  status = 0
+  for seed in args.seeds:
+    for env in args.envs:
+      run = train_one(env, seed, config, source, args)
+      status |= run['status'] == 'failed'
+  report(args)
+  return int(status)
+
+
+if __name__ == '__main__':
+  sys.exit(main())
