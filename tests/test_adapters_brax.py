@@ -1,5 +1,6 @@
 """Tests for `mjx_composer.adapters.brax`: a composed task as a Brax `Env`."""
 
+import collections
 import functools
 
 import jax
@@ -230,8 +231,24 @@ def _reach_task():
   return reach.Reach(physics_timestep=0.02)
 
 
+# Programs traced, by function name: `jax.monitoring` reports every trace.
+_traces = collections.Counter()
+jax.monitoring.register_event_duration_secs_listener(
+    lambda event, duration, **kwargs: _traces.update(
+        [kwargs.get('fun_name')]
+        if event == '/jax/core/compile/jaxpr_trace_duration'
+        else []
+    )
+)
+
+
 def test_ppo_improves_reach_through_the_adapter():
-  """Brax's PPO, unchanged, on the bundled reach task: eval return rises."""
+  """Brax's PPO, unchanged, on the bundled reach task: eval return rises.
+
+  Its evaluator traces (so compiles) its unroll once for both evaluations:
+  before the adapter placed the evaluator's first state like the states
+  the unroll returns (`wrap_for_training`), it compiled it twice.
+  """
   env = environment_lib.Environment(
       _reach_task(),
       time_limit=0.5,
@@ -247,6 +264,7 @@ def test_ppo_improves_reach_through_the_adapter():
   )
   evals = []
   num_eval_envs = 128
+  unrolls_traced = _traces['generate_eval_unroll']
   _, params, metrics = ppo.train(
       environment=brax_env,
       num_timesteps=500_000,
@@ -274,6 +292,7 @@ def test_ppo_improves_reach_through_the_adapter():
   )
   print('PPO evaluations (step, mean return, std):', evals)
   assert len(evals) == 2 and evals[0][0] == 0, evals
+  assert _traces['generate_eval_unroll'] - unrolls_traced == 1
   (_, before, before_std), (_, after, after_std) = evals
   assert metrics['eval/avg_episode_length'] == brax_env.episode_length
   # The untrained policy's deterministic return is about 1.9 (of at most 25);

@@ -55,6 +55,7 @@ What a Brax `State` holds (per world; batched under vmap):
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 from typing import Mapping, Sequence, Union
@@ -91,8 +92,18 @@ def install_jax_compat():
     # training returns have the same type and sharding: otherwise every
     # jitted function they reach (the evaluator, the training epoch) compiles
     # twice.
+    global _pending_eval_sharding
     mesh = jax.sharding.Mesh(np.array(devices), ('i',))
     sharding = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec('i'))
+    # On one device, what Brax unpmaps from this state (the policy's
+    # parameters) keeps this mesh in its type, and so does every state its
+    # evaluator's unroll returns; the evaluator's first state must match
+    # (`wrap_for_training`, which Brax calls for the evaluator next).
+    _pending_eval_sharding = (
+        jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
+        if len(devices) == 1
+        else None
+    )
 
     def put(y):
       y = jnp.asarray(y)
@@ -107,6 +118,10 @@ def install_jax_compat():
   )
   jax.device_put_replicated = device_put_replicated
 
+
+# The sharding for the evaluator's environment's states, set by our
+# `device_put_replicated` and taken by the next `wrap_for_training` (see there).
+_pending_eval_sharding = None
 
 # Keys that Brax's own AutoResetWrapper adds to `info`.
 _BRAX_AUTO_RESET_KEYS = ('first_pipeline_state', 'first_obs')
@@ -188,6 +203,10 @@ class BraxEnv(brax_base.Env):
       )
     self._episode_length = int(episode_length)
     self._abstract_state_cache = None
+    self._reset_sharding = None
+    # A replication before this environment existed was not Brax's for it.
+    global _pending_eval_sharding
+    _pending_eval_sharding = None
 
   # -- Brax's Env interface ------------------------------------------------
 
@@ -228,7 +247,15 @@ class BraxEnv(brax_base.Env):
   def reset(self, rng: jax.Array) -> brax_base.State:
     """Resets one world, or a batch if `rng` is a batch of keys."""
     if _key_batch_ndim(rng):
-      return jax.vmap(self.reset)(rng)
+      state = jax.vmap(self.reset)(rng)
+      # Only where the keys carry no mesh (the evaluator's plain `jit`s),
+      # never inside Brax's pmapped training.
+      if (
+          self._reset_sharding is not None
+          and not jax.typeof(rng).sharding.mesh.axis_names
+      ):
+        state = jax.lax.with_sharding_constraint(state, self._reset_sharding)
+      return state
     return self._wrap(self._env.reset(rng), first=True)
 
   def step(self, state: brax_base.State, action: jax.Array) -> brax_base.State:
@@ -370,7 +397,19 @@ def wrap_for_training(
         f'{env.episode_length} control steps (its time_limit): pass '
         'episode_length=env.episode_length, or change the time_limit.'
     )
-  return env
+  global _pending_eval_sharding
+  sharding, _pending_eval_sharding = _pending_eval_sharding, None
+  if sharding is None:
+    return env
+  # Brax's PPO and SAC wrap the evaluator's environment right after they
+  # replicate the training state over one device. Their evaluator compiles
+  # its unroll for the type of its first state, which comes from a plain
+  # `jit` of `reset` (no mesh), and gets back states typed with the
+  # training mesh, so it compiled the unroll a second time: states placed
+  # like those keep it to one compile.
+  placed = copy.copy(env)
+  placed._reset_sharding = sharding  # pylint: disable=protected-access
+  return placed
 
 
 def training_kwargs(env: BraxEnv) -> dict:
