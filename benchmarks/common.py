@@ -107,6 +107,29 @@ def make_env(
   )
 
 
+def make_walk_like_playground(time_limit, **env_kwargs):
+  """The walk task as Playground's HumanoidWalk: additions off, 'policy' only.
+
+  `walk.PLAYGROUND_EQUIVALENT` (no noise, latency, history, randomization,
+  pushes or fall terminations) observing only the 'policy' group, which is
+  then HumanoidWalk's observation; same-step auto-reset. `env_kwargs` go to
+  the `Environment` (e.g. `share_reset_forward`).
+  """
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer import environment
+  from mjx_composer.tasks import walk
+
+  # pylint: enable=g-import-not-at-top
+  task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)
+  return environment.Environment(
+      task,
+      time_limit=time_limit,
+      auto_reset='same_step',
+      observation_groups={'policy': task.observation_groups()['policy']},
+      **env_kwargs,
+  )
+
+
 def random_actions(env, worlds, seed=1):
   """`(worlds,) + action shape` uniform actions in [-1, 1]."""
   spec = env.action_spec()

@@ -104,19 +104,10 @@ def measure(reset, rollout, keys, actions, repeats, device):
 
 def _env_variants():
   """ours_on and ours_off environments (walk task)."""
-  # pylint: disable=g-import-not-at-top
-  from mjx_composer import environment
-  from mjx_composer.tasks import walk
+  from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
 
-  # pylint: enable=g-import-not-at-top
   on = common.make_env('walk', time_limit=walk.EPISODE_SECONDS)
-  task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)
-  off = environment.Environment(
-      task,
-      time_limit=walk.EPISODE_SECONDS,
-      auto_reset='same_step',
-      observation_groups={'policy': task.observation_groups()['policy']},
-  )
+  off = common.make_walk_like_playground(walk.EPISODE_SECONDS)
   return {'ours_on': on, 'ours_off': off}
 
 

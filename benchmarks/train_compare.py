@@ -98,6 +98,7 @@ import traceback
 
 import numpy as np
 
+import common  # benchmarks/common.py
 import train_ppo  # benchmarks/train_ppo.py
 
 ENVS = ('playground', 'ours', 'ours_off')
@@ -358,9 +359,7 @@ def _ours_setup(name, config, args):
   `train_ppo.make_brax_env` (ours) and trained with `train_ppo.ppo_kwargs`.
   """
   # pylint: disable=g-import-not-at-top
-  from mjx_composer import environment
   from mjx_composer.adapters import brax as brax_adapter
-  from mjx_composer.tasks import walk
   # pylint: enable=g-import-not-at-top
 
   targs = train_ppo.parse_args(['--task', 'walk'])
@@ -372,13 +371,8 @@ def _ours_setup(name, config, args):
   if name == 'ours':
     env, brax_env = train_ppo.make_brax_env(targs)
   else:
-    task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)
-    env = environment.Environment(
-        task,
-        time_limit=targs.time_limit,
-        auto_reset='same_step',
-        observation_groups={'policy': task.observation_groups()['policy']},
-        share_reset_forward=args.share_reset_forward,
+    env = common.make_walk_like_playground(
+        targs.time_limit, share_reset_forward=args.share_reset_forward
     )
     brax_env = brax_adapter.BraxEnv(env)
   if brax_env.episode_length != config['episode_length']:
