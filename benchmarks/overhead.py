@@ -26,6 +26,7 @@ calls of `--steps` control steps, and each ratio to `raw` of the same run.
 """
 
 import copy
+import functools
 
 import jax
 from mujoco import mjx
@@ -37,6 +38,12 @@ def main():
   parser = common.make_parser(__doc__, worlds=[1024])
   parser.add_argument(
       '--steps', type=int, default=100, help='control steps per timed call'
+  )
+  parser.add_argument(
+      '--programs',
+      nargs='+',
+      default=None,
+      help="measure only these (and 'raw', which the ratios divide by)",
   )
   common.add_repeats_arg(parser, 3)
   common.add_out_arg(parser, 'overhead.json')
@@ -74,38 +81,50 @@ def main():
     row = {'worlds': worlds}
     actions = common.random_actions(base, worlds)
     keys = jax.random.split(jax.random.key(0), worlds)
-    rate = lambda seconds: worlds * args.steps * n / seconds
-    data = common.raw_data(base.mjx_model, worlds)
     raw = common.raw_rollout(base.mjx_model, n, args.steps)
-    row['raw'] = rate(common.time_fn(raw, (data, actions), args.repeats))
-    states = jax.jit(jax.vmap(base.reset))(keys)
-    row['raw_reset'] = rate(
-        common.time_fn(raw, (states.data, actions), args.repeats)
-    )
-    for name, env in envs.items():
-      states = jax.jit(jax.vmap(env.reset))(keys)
-      rollout = common.env_rollout(env, args.steps)
-      row[name] = rate(common.time_fn(rollout, (states, actions), args.repeats))
-    data = common.raw_data(fast, worlds)
-    row['raw_fast'] = rate(
-        common.time_fn(
-            common.raw_rollout(fast, n, args.steps),
-            (data, actions),
-            args.repeats,
-        )
-    )
-    results.append(row)
-    print(
-        f'{worlds:>7} worlds: '
-        + '  '.join(f'{k} {v:,.0f}' for k, v in row.items() if k != 'worlds'),
-        flush=True,
-    )
-    # Written after every world count: a run cut short keeps its rows.
-    common.write_results(
-        args.out, device, results, n_sub_steps=n, steps_per_call=args.steps
-    )
 
-  names = ['raw_reset', *envs, 'raw_fast']
+    def from_reset(env, rollout):
+      states = jax.jit(jax.vmap(env.reset))(keys)
+      return common.time_fn(rollout, (states, actions), args.repeats)
+
+    programs = {
+        'raw': lambda: common.time_fn(
+            raw,
+            (common.raw_data(base.mjx_model, worlds), actions),
+            args.repeats,
+        ),
+        'raw_reset': lambda: common.time_fn(
+            raw,
+            (jax.jit(jax.vmap(base.reset))(keys).data, actions),
+            args.repeats,
+        ),
+        **{
+            name: functools.partial(
+                from_reset, env, common.env_rollout(env, args.steps)
+            )
+            for name, env in envs.items()
+        },
+        'raw_fast': lambda: common.time_fn(
+            common.raw_rollout(fast, n, args.steps),
+            (common.raw_data(fast, worlds), actions),
+            args.repeats,
+        ),
+    }
+    if args.programs:
+      programs = {
+          k: v for k, v in programs.items() if k == 'raw' or k in args.programs
+      }
+    results.append(row)
+    for name, measure in programs.items():
+      row[name] = worlds * args.steps * n / measure()
+      print(f'{worlds:>7} worlds: {name} {row[name]:,.0f}', flush=True)
+      # Written after every program: a run cut short keeps what it measured
+      # (each program compiles for tens of seconds on a GPU).
+      common.write_results(
+          args.out, device, results, n_sub_steps=n, steps_per_call=args.steps
+      )
+
+  names = [k for k in results[0] if k not in ('worlds', 'raw')]
   print('\n| worlds | raw MJX (physics steps/s) | ' + ' | '.join(names) + ' |')
   print('|---|---|' + '---|' * len(names))
   for r in results:

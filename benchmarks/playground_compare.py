@@ -151,6 +151,13 @@ def main():
   parser.add_argument(
       '--steps', type=int, default=100, help='control steps per timed call'
   )
+  parser.add_argument(
+      '--programs',
+      nargs='+',
+      default=None,
+      choices=('ours_on', 'ours_off', 'playground', 'raw'),
+      help='measure only these (default: all)',
+  )
   args = parser.parse_args()
   device = common.print_device()
 
@@ -168,70 +175,64 @@ def main():
     keys = jax.random.split(jax.random.key(0), worlds)
     actions = common.random_actions(envs['ours_off'], worlds)
     row = {'worlds': worlds}
-    for name, env in envs.items():
-      row[name] = measure(
-          jax.vmap(env.reset),
-          _scan_rollout(env.step, args.steps),
-          keys,
-          actions,
-          args.repeats,
-          device,
-      )
+    results.append(row)
+    programs = {
+        name: (jax.vmap(env.reset), _scan_rollout(env.step, args.steps), keys)
+        for name, env in envs.items()
+    }
     if playground is not None:
-      row['playground'] = measure(
+      programs['playground'] = (
           jax.vmap(playground.reset),
           _scan_rollout(playground.step, args.steps),
           jax.random.split(jax.random.PRNGKey(0), worlds),
-          actions,
-          args.repeats,
-          device,
       )
-    row['raw'] = measure(
+    programs['raw'] = (
         common.raw_reset(raw_model, jit=False),
         common.raw_rollout(raw_model, n, args.steps, jit=False),
         keys,
-        actions,
-        args.repeats,
-        device,
     )
-    for name in ('ours_on', 'ours_off', 'playground', 'raw'):
-      if name in row:
-        row[name]['control_steps_per_s'] = (
-            worlds * args.steps / row[name]['seconds_per_call']
-        )
-    for ours in ('ours_on', 'ours_off'):
-      for other in ('raw', 'playground'):
-        if other in row:
-          row[f'{ours}/{other}'] = (
-              row[ours]['control_steps_per_s']
-              / row[other]['control_steps_per_s']
-          )
-    results.append(row)
-    line = ', '.join(
-        f'{name} {row[name]["control_steps_per_s"]:,.0f}'
-        for name in ('ours_on', 'ours_off', 'playground', 'raw')
-        if name in row
-    )
-    print(f'{worlds:>6} worlds, control steps/s: {line}')
+    if args.programs:
+      programs = {k: v for k, v in programs.items() if k in args.programs}
+    for name, (reset, rollout, reset_keys) in programs.items():
+      row[name] = measure(
+          reset, rollout, reset_keys, actions, args.repeats, device
+      )
+      row[name]['control_steps_per_s'] = (
+          worlds * args.steps / row[name]['seconds_per_call']
+      )
+      print(
+          f'{worlds:>6} worlds: {name} '
+          f'{row[name]["control_steps_per_s"]:,.0f} control steps/s, '
+          f'first call {row[name]["first_call_s"]:.1f} s',
+          flush=True,
+      )
+      for ours in ('ours_on', 'ours_off'):
+        for other in ('raw', 'playground'):
+          if ours in row and other in row:
+            row[f'{ours}/{other}'] = (
+                row[ours]['control_steps_per_s']
+                / row[other]['control_steps_per_s']
+            )
+      # Written after every program: a run cut short keeps what it measured
+      # (each program compiles for tens of seconds on a GPU).
+      common.write_results(
+          args.out,
+          device,
+          results,
+          task='walk',
+          steps_per_call=args.steps,
+          sub_steps=n,
+          repeats=args.repeats,
+          playground=playground_info,
+          note=(
+              'Every variant holds one random action per world. ours_on '
+              'resets worlds whose humanoid falls (head below 0.8 m), with '
+              'randomization; the others never reset within a call.'
+          ),
+      )
     print(
         '        '
         + ', '.join(f'{k} {v:.3f}' for k, v in row.items() if '/' in k)
-    )
-    # Written after every world count: a run cut short keeps its rows.
-    common.write_results(
-        args.out,
-        device,
-        results,
-        task='walk',
-        steps_per_call=args.steps,
-        sub_steps=n,
-        repeats=args.repeats,
-        playground=playground_info,
-        note=(
-            'Every variant holds one random action per world. ours_on resets '
-            'worlds whose humanoid falls (head below 0.8 m), with '
-            'randomization; the others never reset within a call.'
-        ),
     )
 
   print(f'Wrote {args.out}')
