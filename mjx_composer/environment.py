@@ -101,9 +101,11 @@ class Environment:
     max_reset_attempts: how many times `reset` may run the
       `initialize_episode` hooks when they report a failed initialization
       (`Physics.fail_initialization`), each time with a fresh key.
-    share_reset_forward: with same-step auto-reset, restart ended episodes
-      in one more iteration of the sub-step loop, so that the step program
-      holds one copy of the forward pass (`Transitions.step_and_restart`).
+    share_reset_forward: reset worlds (an ended episode's restart with
+      same-step auto-reset, a LAST state's reset with next-step) in one more
+      iteration of the sub-step loop, so that the step program holds one
+      copy of the forward pass (`Transitions.step_and_restart`,
+      `Transitions.reset_or_step`).
       Measured on reach (README): the step program compiles in about half
       the time, and steps about 11% slower on a GPU. False runs the
       sub-steps as a `lax.scan` of `mjx.step` and the restart separately.
@@ -360,13 +362,16 @@ class Environment:
     _check_one_world(state)
     action = self._check_action(action)
     transitions = self._transitions
+    fuse = self._share_reset_forward and transitions.can_fuse_restart()
     if self._auto_reset == 'next_step':
+      if fuse:
+        return transitions.reset_or_step(state, action)
       reset_key, step_key = jax.random.split(state.key)
       stepped = transitions.step(state.replace(key=step_key), action)
       return episode_lib.select_reset(
           state.last(), transitions.reset, (reset_key, state), stepped
       )
-    if self._share_reset_forward and transitions.can_fuse_restart():
+    if fuse:
       return transitions.step_and_restart(state, action)
     stepped = transitions.step(state, action)
     return episode_lib.select_reset(

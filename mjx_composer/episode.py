@@ -228,10 +228,10 @@ def select_reset(done, reset_fn, operands, stepped):
 def loop_with_reset(n, body, wants_reset, carry, operands):
   """`body(i, carry, operands)` for `i < n`, then `i = n` where it is wanted.
 
-  The step loop of a same-step auto-reset whose last iteration restarts the
-  episode, so that the reset's forward pass is the sub-steps' forward pass
-  (one copy in the program). For one world this is a while loop of `n`
-  iterations, plus one where `wants_reset(carry)` holds after them. Under
+  The step loop of an auto-reset whose last iteration resets the episode,
+  so that the reset's forward pass is the sub-steps' forward pass (one copy
+  in the program). For one world this is a while loop of `n` iterations,
+  plus one where `wants_reset(carry, operands)` holds after them. Under
   `jax.vmap` a batched loop condition would turn every branch on `i` in the
   body into a select, computing the reset at every sub-step; the batching
   rule instead keeps `i` shared by the batch and runs the extra iteration
@@ -241,9 +241,9 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
   Args:
     n: the iterations every world runs.
     body: `(i, carry, operands) -> carry`, for one world; at `i = n` it must
-      return `carry` unchanged where `wants_reset(carry)` is False (the
-      batch runs that iteration for every world).
-    wants_reset: `carry -> bool`, for one world.
+      return `carry` unchanged where `wants_reset` is False (the batch runs
+      that iteration for every world).
+    wants_reset: `(carry, operands) -> bool`, for one world.
     carry: the initial carry.
     operands: per-world inputs the body reads.
 
@@ -258,7 +258,9 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
   def run(carry, operands, any_wants, iterate):
     def again(loop):
       i, carry = loop
-      return jnp.logical_or(i < n, jnp.logical_and(i == n, any_wants(carry)))
+      return jnp.logical_or(
+          i < n, jnp.logical_and(i == n, any_wants(carry, operands))
+      )
 
     def step(loop):
       i, carry = loop
@@ -277,7 +279,7 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
     out = run(
         carry,
         operands,
-        lambda carry: jnp.any(jax.vmap(wants_reset)(carry)),
+        lambda carry, operands: jnp.any(jax.vmap(wants_reset)(carry, operands)),
         jax.vmap(iterate, in_axes=(None, 0, 0)),
     )
     return out, _out_batched(out)

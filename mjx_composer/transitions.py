@@ -275,15 +275,51 @@ class Transitions:
     compensation (`can_fuse_restart`); otherwise `Environment.step` runs
     `step` and `restart`.
     """
+    return self._step_in_one_loop(state, action, None)
+
+  def reset_or_step(self, state, action) -> state_lib.State:
+    """Next-step auto-reset: `reset` where `state` is LAST, else `step`.
+
+    With `reset_key, step_key = split(state.key)`, the same as
+    `select(state.last(), reset(reset_key, previous=state),
+    step(state with step_key, action))`, with one copy of the forward pass
+    in the program instead of two, as in `step_and_restart`: the reset is
+    one more iteration of the sub-step loop (a world that resets discards
+    its sub-steps, as the select does). Same conditions
+    (`can_fuse_restart`).
+    """
+    reset_key, step_key = jax.random.split(state.key)
+    return self._step_in_one_loop(
+        state.replace(key=step_key), action, (reset_key, state)
+    )
+
+  def _step_in_one_loop(self, state, action, next_step_reset):
+    """The sub-steps and a reset in one loop (see the two callers).
+
+    Args:
+      state: the state the sub-steps start from (its key is the step's).
+      action: the control step's action.
+      next_step_reset: None for a same-step restart (of the stepped state,
+        where it is LAST, with its key); else `(reset_key, previous)`, a
+        next-step reset of `previous` (where it is LAST, with `reset_key`).
+    """
     keys = _StepKeys.split(state.key)
     fields = tuple(state.model_fields)
     physics = self._before_step(state, action, keys)
     n = self.n_sub_steps
     integrate = _INTEGRATORS[int(self.initial.model.opt.integrator)]
 
+    def reset_from(stepped, operands):
+      """(key, previous state, whether it resets) of the reset iteration."""
+      if next_step_reset is None:
+        return stepped.key, stepped, stepped.last()
+      reset_key, previous = operands[3:]
+      return reset_key, previous, previous.last()
+
     def body(i, loop, operands):
       carry, obs_state, stepped = loop
-      state, action, keys = operands
+      state, action, keys = operands[:3]
+      reset_key, previous, resets = reset_from(stepped, operands)
 
       def prepare_substep():
         physics = self._before_substep(
@@ -293,8 +329,8 @@ class Transitions:
         return physics.carry(fields), jnp.zeros((), jnp.int32)
 
       def prepare_restart():
-        init_key, _, _ = jax.random.split(stepped.key, 3)
-        return self._initialize(init_key, self._start(stepped))
+        init_key, _, _ = jax.random.split(reset_key, 3)
+        return self._initialize(init_key, self._start(previous))
 
       ready, failures = jax.lax.cond(i == n, prepare_restart, prepare_substep)
       physics = self._restore(ready)
@@ -323,32 +359,35 @@ class Transitions:
             act_dot=jnp.zeros_like(physics.data.act_dot),
             actuator_force=ready.data.actuator_force,
         )
-        _, obs_key, next_key = jax.random.split(stepped.key, 3)
+        _, obs_key, next_key = jax.random.split(reset_key, 3)
         restarted = self._first_state(
             physics.replace(data=data), ready, failures, obs_key, next_key
         )
+        if next_step_reset is None:
+          restarted = _reporting(restarted, stepped)
         # Under vmap every world runs this iteration: keep it where the
-        # episode ended (`loop_with_reset`'s contract).
+        # world resets (`loop_with_reset`'s contract).
         return (
             carry,
             obs_state,
-            episode_lib.tree_select(
-                stepped.last(), _reporting(restarted, stepped), stepped
-            ),
+            episode_lib.tree_select(resets, restarted, stepped),
         )
 
       return jax.lax.cond(i < n, finish_substep, finish_restart)
 
+    operands = (state, action, keys)
+    if next_step_reset is not None:
+      operands += tuple(next_step_reset)
     _, _, stepped = episode_lib.loop_with_reset(
         n,
         body,
-        lambda loop: loop[2].last(),
+        lambda loop, operands: reset_from(loop[2], operands)[2],
         (physics.carry(fields), state.obs_state, state),
-        (state, action, keys),
+        operands,
     )
     return stepped
 
-  # The pieces of a step, shared by `step` and `step_and_restart`.
+  # The pieces of a step, shared by `step` and `_step_in_one_loop`.
 
   @_named_scope
   def _before_step(self, state, action, keys):

@@ -1,10 +1,12 @@
-"""Tests for `transitions`: the fused same-step auto-reset.
+"""Tests for `transitions`: the fused auto-reset.
 
-`Environment.step` with `auto_reset='same_step'` runs
-`Transitions.step_and_restart`, whose restart shares the sub-steps' forward
-pass. These tests hold it to the composition it replaces (`step`, then
-`restart` where the episode ended, selected per world) and its masked
-forward pass to MuJoCo's forward pass with actuation disabled.
+With `share_reset_forward`, `Environment.step` runs
+`Transitions.step_and_restart` (same-step auto-reset) or
+`Transitions.reset_or_step` (next-step), whose reset shares the sub-steps'
+forward pass. These tests hold both to the composition they replace (`step`,
+and `restart` where the episode ended or `reset` where the state is LAST,
+selected per world) and the masked forward pass to MuJoCo's forward pass
+with actuation disabled.
 """
 
 import jax
@@ -42,24 +44,32 @@ class _RandomizedSwing(conftest.SwingTask):
     return super().initialize_episode(physics, key)
 
 
-@pytest.fixture(scope='module')
-def env():
+@pytest.fixture(scope='module', params=['same_step', 'next_step'])
+def env(request):
   return composer.Environment(
-      _RandomizedSwing(), time_limit=0.05, auto_reset='same_step'
+      _RandomizedSwing(), time_limit=0.05, auto_reset=request.param
   )
 
 
 def _step_then_restart(env):
-  """What `step_and_restart` replaces, for one world."""
+  """What the fused step replaces, for one world: `Environment.step` with
+  `share_reset_forward=False`."""
   transitions = env._transitions  # pylint: disable=protected-access
 
-  def step(state, action):
+  def same_step(state, action):
     stepped = transitions.step(state, action)
     return episode_lib.select_reset(
         stepped.last(), transitions.restart, (stepped,), stepped
     )
 
-  return step
+  def next_step(state, action):
+    reset_key, step_key = jax.random.split(state.key)
+    stepped = transitions.step(state.replace(key=step_key), action)
+    return episode_lib.select_reset(
+        state.last(), transitions.reset, (reset_key, state), stepped
+    )
+
+  return same_step if env.auto_reset == 'same_step' else next_step
 
 
 def test_the_fused_path_is_taken(env, monkeypatch):
@@ -75,12 +85,12 @@ def test_the_fused_path_is_taken(env, monkeypatch):
       env.step, jax.eval_shape(env.reset, jax.random.key(0)), jnp.zeros(1)
   )
   assert calls
-  # share_reset_forward=False asks for the separate restart.
+  # share_reset_forward=False asks for the separate reset.
   calls.clear()
   separate = composer.Environment(
       _RandomizedSwing(),
       time_limit=0.05,
-      auto_reset='same_step',
+      auto_reset=env.auto_reset,
       share_reset_forward=False,
   )
   jax.eval_shape(
@@ -99,14 +109,14 @@ def test_fused_step_equals_step_then_restart(env):
       jax.random.key(4), (8, 3, 1), minval=-1, maxval=1
   )
   a = b = jax.jit(jax.vmap(env.reset))(keys)
-  restarted_alone = False
+  reset_alone = False
   for t in range(8):
     a, b = fused(a, actions[t]), reference(b, actions[t])
     # Bit for bit: the same computations, in one loop instead of two.
     test_environment.assert_trees_equal(a, b)
-    last = np.asarray(a.last())
-    restarted_alone |= bool(last.any() and not last.all())
-  assert restarted_alone  # some world restarted while others went on
+    first = np.asarray(a.first() if env.auto_reset == 'next_step' else a.last())
+    reset_alone |= bool(first.any() and not first.all())
+  assert reset_alone  # some world reset while others went on
   sizes = np.asarray(a.model_fields['geom_size'])
   assert len({float(s) for s in sizes[:, -1, 0]}) > 1  # drawn per world
 
@@ -115,10 +125,13 @@ def test_fused_single_world_equals_step_then_restart(env):
   reference = jax.jit(_step_then_restart(env))
   fused = jax.jit(env.step)
   a = b = jax.jit(env.reset)(jax.random.key(5))
+  resets = 0
   for t in range(7):
     action = jnp.full((1,), np.sin(t))
     a, b = fused(a, action), reference(b, action)
     test_environment.assert_trees_equal(a, b)
+    resets += bool(a.first() if env.auto_reset == 'next_step' else a.last())
+  assert resets  # the reset iteration ran
 
 
 def _flat_eqn_count(jaxpr):
