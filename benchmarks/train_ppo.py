@@ -191,6 +191,13 @@ def parse_args(argv=None):
       '--num-envs and --batch-size must be multiples of it',
   )
   parser.add_argument(
+      '--impl',
+      choices=('jax', 'warp'),
+      default=None,
+      help="Environment(impl=...): MJX's JAX physics or MuJoCo Warp's; "
+      'default: jax',
+  )
+  parser.add_argument(
       '--share-reset-forward',
       action=argparse.BooleanOptionalAction,
       default=None,
@@ -409,7 +416,8 @@ def rollout_images(env, brax_env, policy, args, out):
 def make_brax_env(args):
   """`(env, brax_env)`: the task's `Environment` and its `BraxEnv`.
 
-  Built with `args.task`, `args.time_limit` and `args.share_reset_forward`,
+  Built with `args.task`, `args.time_limit`, `args.share_reset_forward` and
+  `args.impl` (when given),
   same-step auto-reset, and the task's observation groups (Brax sees the
   dict of groups; `make_networks` picks from it).
   """
@@ -421,6 +429,7 @@ def make_brax_env(args):
       time_limit=args.time_limit,
       auto_reset='same_step',
       share_reset_forward=args.share_reset_forward,
+      impl=getattr(args, 'impl', None),
   )
   return env, brax_adapter.BraxEnv(env)
 

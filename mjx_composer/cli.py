@@ -35,8 +35,13 @@ def make_environment(
     time_limit=2.0,
     auto_reset='same_step',
     share_reset_forward=None,
+    impl=None,
 ):
-  """Builds a bundled task's `Environment` with its observation groups."""
+  """Builds a bundled task's `Environment` with its observation groups.
+
+  `impl` chooses the physics implementation ('jax' or 'warp', see
+  `Environment`); a task that cannot run on it is refused at build.
+  """
   from mjx_composer import environment  # pylint: disable=g-import-not-at-top
 
   if task_name == 'reach':
@@ -68,6 +73,7 @@ def make_environment(
       auto_reset=auto_reset,
       observation_groups=groups,
       share_reset_forward=share_reset_forward,
+      impl=impl,
   )
 
 
@@ -133,6 +139,13 @@ def demo_parser():
   )
   parser.add_argument('--seed', type=int, default=0)
   parser.add_argument(
+      '--impl',
+      choices=('jax', 'warp'),
+      default=None,
+      help="physics implementation: MJX's JAX one or MuJoCo Warp "
+      "(pip install 'mjx-composer[warp]'); default: jax",
+  )
+  parser.add_argument(
       '--no-compilation-cache',
       action='store_true',
       help="don't read or write JAX's persistent compilation cache "
@@ -159,7 +172,7 @@ def demo(argv=None):
       f'{cache_dir or "off"}'
   )
   t0 = time.perf_counter()
-  env = make_environment(args.task, args.time_limit)
+  env = make_environment(args.task, args.time_limit, impl=args.impl)
   print(
       f'Task {args.task!r}: {env.mj_model.nbody} bodies, '
       f'{env.mj_model.nu} actuators, {env.n_sub_steps} sub-steps per '

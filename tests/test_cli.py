@@ -36,3 +36,17 @@ def test_compilation_cache_flag():
   parser = cli.demo_parser()
   assert not parser.parse_args([]).no_compilation_cache
   assert parser.parse_args(['--no-compilation-cache']).no_compilation_cache
+
+
+def test_impl_flag_reaches_the_environment(monkeypatch):
+  from mjx_composer import environment  # pylint: disable=g-import-not-at-top
+
+  parser = cli.demo_parser()
+  assert parser.parse_args([]).impl is None
+  assert parser.parse_args(['--impl', 'warp']).impl == 'warp'
+  built = []
+  monkeypatch.setattr(
+      environment, 'Environment', lambda task, **kwargs: built.append(kwargs)
+  )
+  cli.make_environment('reach', impl='warp')
+  assert built[0]['impl'] == 'warp'
