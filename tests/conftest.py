@@ -6,6 +6,16 @@ import os
 import shutil
 import tempfile
 
+# Compile with LLVM's optimizations off (XLA's HLO passes, which decide
+# fusion and the order of reductions, still run). Most tests run a few
+# control steps of a few worlds and spend most of their time compiling;
+# this cuts a compile by about a quarter on a CPU. Tests that run long
+# (training) are marked `optimized`. Set in the environment, so the
+# processes tests start (the CLI, notebook kernels, multi-device workers)
+# compile the same way; JAX_DISABLE_MOST_OPTIMIZATIONS=0 switches it off.
+os.environ.setdefault('JAX_DISABLE_MOST_OPTIMIZATIONS', '1')
+
+# pylint: disable=g-import-not-at-top,wrong-import-position
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -19,6 +29,26 @@ from mjx_composer import compilation_cache
 # Tests that build the same environment then load its programs instead of
 # compiling them again, within one run too.
 compilation_cache.enable()
+
+jax.config.update(
+    'jax_disable_most_optimizations',
+    os.environ['JAX_DISABLE_MOST_OPTIMIZATIONS'] not in ('', '0', 'false'),
+)
+
+
+@pytest.fixture(autouse=True)
+def _optimized_compiles(request):
+  """Compiles fully optimized in tests marked `optimized` (see above)."""
+  if request.node.get_closest_marker('optimized') is None:
+    yield
+    return
+  before = jax.config.read('jax_disable_most_optimizations')
+  jax.config.update('jax_disable_most_optimizations', False)
+  try:
+    yield
+  finally:
+    jax.config.update('jax_disable_most_optimizations', before)
+
 
 # -- the cache's use, reported at the end of the run -------------------------
 

@@ -242,6 +242,7 @@ jax.monitoring.register_event_duration_secs_listener(
 )
 
 
+@pytest.mark.optimized  # Trains for minutes: compiled code runs faster.
 def test_ppo_improves_reach_through_the_adapter():
   """Brax's PPO, unchanged, on the bundled reach task: eval return rises.
 
