@@ -20,6 +20,10 @@ the configuration `playground_compare.py` calls ours_off.
 
     python benchmarks/profile_step.py --task walk --worlds 8192
 
+Each program's unprofiled call is timed too (`wall_us_per_control_step`):
+wall-clock time minus the kernels' device time is what the device spends
+between kernels (launches, host round trips of data-dependent loops).
+
 The traces are left in `--trace-dir` (open them in Perfetto); the per-scope
 totals go to `--out`.
 """
@@ -31,6 +35,7 @@ import json
 import os
 import re
 import tempfile
+import time
 
 import jax
 
@@ -158,13 +163,21 @@ def _kernel_times(trace_dir, op_names):
 
 
 def _profile(fn, args, trace_dir):
-  """Compiles `fn`, then profiles its third call (`fn` returns its args)."""
+  """Compiles `fn`, times its third call, then profiles its fourth.
+
+  `fn` returns its own next arguments. Returns the kernel times by scope
+  (`_kernel_times`) and the unprofiled call's wall-clock seconds: their
+  difference is the time the device spends between kernels.
+  """
   compiled = jax.jit(fn).lower(*args).compile()
   out = jax.block_until_ready(compiled(*args))
   out = jax.block_until_ready(compiled(*out))
+  start = time.perf_counter()
+  out = jax.block_until_ready(compiled(*out))
+  wall = time.perf_counter() - start
   with jax.profiler.trace(trace_dir, create_perfetto_trace=True):
     jax.block_until_ready(compiled(*out))
-  return _kernel_times(trace_dir, _op_names(compiled.as_text()))
+  return (*_kernel_times(trace_dir, _op_names(compiled.as_text())), wall)
 
 
 def main():
@@ -201,7 +214,7 @@ def main():
 
   results = {}
   for name, (fn, fn_args) in programs.items():
-    outer, inner, kernels = _profile(
+    outer, inner, kernels, wall = _profile(
         fn, fn_args, os.path.join(trace_root, name)
     )
     per_step = lambda totals: {
@@ -210,13 +223,15 @@ def main():
     results[name] = {
         'kernels': kernels,
         'total_us_per_control_step': sum(outer.values()) / args.steps,
+        'wall_us_per_control_step': wall * 1e6 / args.steps,
         'outer_us_per_control_step': per_step(outer),
         'inner_us_per_control_step': per_step(inner),
     }
     print(
         f'{name}: {kernels} kernels, '
         f'{results[name]["total_us_per_control_step"]:,.0f} us of device time '
-        'per control step',
+        f'and {results[name]["wall_us_per_control_step"]:,.0f} us of wall-clock '
+        'time per control step',
         flush=True,
     )
     common.write_results(
