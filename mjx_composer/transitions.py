@@ -309,17 +309,17 @@ class Transitions:
     n = self.n_sub_steps
     integrate = _INTEGRATORS[int(self.initial.model.opt.integrator)]
 
-    def reset_from(stepped, operands):
+    def reset_from(stepped, next_reset):
       """(key, previous state, whether it resets) of the reset iteration."""
-      if next_step_reset is None:
+      if next_reset is None:
         return stepped.key, stepped, stepped.last()
-      reset_key, previous = operands[3:]
+      reset_key, previous = next_reset
       return reset_key, previous, previous.last()
 
     def body(i, loop, operands):
       carry, obs_state, stepped = loop
-      state, action, keys = operands[:3]
-      reset_key, previous, resets = reset_from(stepped, operands)
+      state, action, keys, next_reset = operands
+      reset_key, previous, resets = reset_from(stepped, next_reset)
 
       def prepare_substep():
         physics = self._before_substep(
@@ -363,7 +363,7 @@ class Transitions:
         restarted = self._first_state(
             physics.replace(data=data), ready, failures, obs_key, next_key
         )
-        if next_step_reset is None:
+        if next_reset is None:
           restarted = _reporting(restarted, stepped)
         # Under vmap every world runs this iteration: keep it where the
         # world resets (`loop_with_reset`'s contract).
@@ -375,15 +375,12 @@ class Transitions:
 
       return jax.lax.cond(i < n, finish_substep, finish_restart)
 
-    operands = (state, action, keys)
-    if next_step_reset is not None:
-      operands += tuple(next_step_reset)
     _, _, stepped = episode_lib.loop_with_reset(
         n,
         body,
-        lambda loop, operands: reset_from(loop[2], operands)[2],
+        lambda loop, operands: reset_from(loop[2], operands[3])[2],
         (physics.carry(fields), state.obs_state, state),
-        operands,
+        (state, action, keys, next_step_reset),
     )
     return stepped
 
