@@ -57,7 +57,7 @@ def make_env(
     auto_reset='same_step',
     max_reset_attempts=None,
     share_reset_forward=None,
-    impl=None,
+    impl='jax',
     naconmax=None,
     njmax=None,
     **task_kwargs,
@@ -72,8 +72,11 @@ def make_env(
     auto_reset: the `Environment`'s auto-reset mode.
     max_reset_attempts: passed to the `Environment` when given.
     share_reset_forward: passed to the `Environment` when given.
-    impl, naconmax, njmax: the physics implementation ('jax', 'warp') and
-      MuJoCo Warp's buffer sizes, passed to the `Environment` when given.
+    impl, naconmax, njmax: the physics implementation ('jax', 'warp', or
+      None for the `Environment`'s default) and MuJoCo Warp's buffer sizes,
+      passed to the `Environment` when given. The benchmarks measure MJX's
+      JAX implementation unless they say otherwise: `impl` is 'jax' by
+      default, not the `Environment`'s default (Warp on a CUDA GPU).
     **task_kwargs: passed to the task's constructor (e.g. `randomize=False`
       for reach, `placement='ring'` for push).
 

@@ -195,7 +195,8 @@ def parse_args(argv=None):
       choices=('jax', 'warp'),
       default=None,
       help="Environment(impl=...): MJX's JAX physics or MuJoCo Warp's; "
-      'default: jax',
+      "default: Environment's (warp on a CUDA GPU where it is installed "
+      'and runs the task, else jax)',
   )
   parser.add_argument(
       '--share-reset-forward',

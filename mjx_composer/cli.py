@@ -40,7 +40,8 @@ def make_environment(
   """Builds a bundled task's `Environment` with its observation groups.
 
   `impl` chooses the physics implementation ('jax' or 'warp', see
-  `Environment`); a task that cannot run on it is refused at build.
+  `Environment`); a task that cannot run on it is refused at build. None
+  is `Environment`'s default.
   """
   from mjx_composer import environment  # pylint: disable=g-import-not-at-top
 
@@ -143,7 +144,8 @@ def demo_parser():
       choices=('jax', 'warp'),
       default=None,
       help="physics implementation: MJX's JAX one or MuJoCo Warp "
-      "(pip install 'mjx-composer[warp]'); default: jax",
+      "(pip install 'mjx-composer[warp]'); default: Environment's (warp on "
+      'a CUDA GPU where it is installed and runs the task, else jax)',
   )
   parser.add_argument(
       '--no-compilation-cache',

@@ -115,11 +115,13 @@ class Environment:
     impl: which MJX implementation runs the physics: 'jax' (MJX's XLA
       implementation), 'warp' (MuJoCo Warp kernels through JAX's FFI, on a
       CUDA GPU or the CPU; `pip install 'mjx-composer[warp]'`), or None:
-      'jax' on every device for now (whether 'warp' is faster on a GPU is
-      what `benchmarks/backends.py` measures). On 'warp', a model feature
-      or a per-world model field that MuJoCo Warp cannot run is refused
-      here, with what to do (`backend`); building then traces `reset` once
-      to find the per-world fields.
+      'warp' on a CUDA GPU where MuJoCo Warp is installed (unless
+      `share_reset_forward=True`), falling back to 'jax' with a logged
+      warning when Warp refuses the environment; 'jax' everywhere else
+      (`backend.default_impls`). On 'warp', a model feature or a per-world
+      model field that MuJoCo Warp cannot run is refused here, with what to
+      do (`backend`); building then traces `reset` once to find the
+      per-world fields.
     naconmax: impl='warp' only: the contacts MuJoCo Warp holds for all the
       worlds of one batch (one buffer shared by the batch). Default:
       `backend.DEFAULT_CONTACTS_PER_WORLD` (64) per world for
@@ -183,7 +185,68 @@ class Environment:
     # This process's first device: MJX's default, `jax.devices()[0]`, is
     # another process's on every host but the first.
     device = jax.local_devices()[0]
-    self._impl = backend.resolve_impl(impl, device)
+    candidates = backend.resolve_impl(impl, device, share_reset_forward)
+    random_state = self._random_state.get_state()
+    for i, candidate in enumerate(candidates):
+      try:
+        self._build_physics(
+            candidate,
+            device,
+            index,
+            time_limit=time_limit,
+            n_sub_steps=n_sub_steps,
+            strip_singleton_obs_buffer_dim=strip_singleton_obs_buffer_dim,
+            delayed_observation_padding=delayed_observation_padding,
+            per_world_model_fields=per_world_model_fields,
+            observation_groups=observation_groups,
+            max_reset_attempts=max_reset_attempts,
+            share_reset_forward=share_reset_forward,
+            naconmax=naconmax,
+            njmax=njmax,
+        )
+        break
+      except backend.WarpUnsupportedError as e:
+        if i + 1 == len(candidates):
+          raise
+        # impl=None: the default tries Warp first on a CUDA GPU. Rebuild on
+        # the next implementation, its build-time hooks drawing from the
+        # same random state as if it had been the only one tried.
+        logging.warning(
+            'impl=None: MuJoCo Warp cannot run this environment, so it runs '
+            'on impl=%r. %s',
+            candidates[i + 1],
+            e,
+        )
+        self._random_state.set_state(random_state)
+
+  def _build_physics(
+      self,
+      impl,
+      device,
+      index,
+      *,
+      time_limit,
+      n_sub_steps,
+      strip_singleton_obs_buffer_dim,
+      delayed_observation_padding,
+      per_world_model_fields,
+      observation_groups,
+      max_reset_attempts,
+      share_reset_forward,
+      naconmax,
+      njmax,
+  ):
+    """Puts the compiled model on `device` with `impl` and plans the steps.
+
+    Runs the `after_compile` hooks on the device model, then builds the
+    episode rules, the observation updater and the transitions.
+
+    Raises:
+      backend.WarpUnsupportedError: on 'warp', a model feature or per-world
+        field that MuJoCo Warp cannot run.
+    """
+    task = self._task
+    self._impl = impl
     backend.check_buffer_arguments(self._impl, naconmax, njmax)
     backend.check_share_reset_forward(self._impl, share_reset_forward)
     backend.check_per_world_fields(

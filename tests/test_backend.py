@@ -218,7 +218,96 @@ def test_warp_not_installed_says_how_to_install(monkeypatch):
     conftest.make_swing_env(impl='warp')
 
 
-def test_default_impl_is_jax():
+def test_default_impl_is_jax_on_a_cpu():
   env = conftest.make_swing_env()
   assert env.impl == 'jax'
   assert env.mjx_model.impl == mjx.Impl.JAX
+
+
+class _FakeClient:
+  platform_version = 'cuda 12.8'
+
+
+class _FakeGpu:
+  platform = 'gpu'
+  client = _FakeClient()
+
+
+def test_default_impls_put_warp_first_on_a_cuda_gpu(monkeypatch):
+  monkeypatch.setattr(backend, 'warp_installed', lambda: True)
+  gpu = _FakeGpu()
+  assert backend.resolve_impl(None, gpu) == ('warp', 'jax')
+  # The fused restart runs on 'jax' only.
+  assert backend.resolve_impl(None, gpu, share_reset_forward=True) == ('jax',)
+  # An explicit choice is the only one tried.
+  assert backend.resolve_impl('jax', gpu) == ('jax',)
+  assert backend.resolve_impl('warp', gpu) == ('warp',)
+  cpu = jax.devices('cpu')[0]
+  assert backend.resolve_impl(None, cpu) == ('jax',)
+  monkeypatch.setattr(backend, 'warp_installed', lambda: False)
+  assert backend.resolve_impl(None, gpu) == ('jax',)
+
+
+def _warp_first_everywhere(monkeypatch):
+  """impl=None tries 'warp' then 'jax' on this CPU, as on a CUDA GPU."""
+  monkeypatch.setattr(
+      backend, 'default_impls', lambda device, share: ('warp', 'jax')
+  )
+
+
+def test_default_impl_takes_warp_where_it_runs(monkeypatch):
+  _warp_first_everywhere(monkeypatch)
+  env = conftest.make_swing_env()
+  assert env.impl == 'warp'
+  assert env.mjx_model.impl == mjx.Impl.WARP
+
+
+def test_default_impl_falls_back_to_jax_where_warp_refuses(monkeypatch, caplog):
+  """Warp refuses a per-world height field; the default builds on 'jax'."""
+  _warp_first_everywhere(monkeypatch)
+
+  def build(**kwargs):
+    task = _DrawingSwingTask()
+    env = environment.Environment(task, random_state=3, **kwargs)
+    return env, task.draws
+
+  with caplog.at_level('WARNING'):
+    env, draws = build()
+  assert env.impl == 'jax'
+  assert env.mjx_model.impl == mjx.Impl.JAX
+  assert any(
+      'impl=None' in r.message and 'hfield_data' in r.message
+      for r in caplog.records
+  ), caplog.text
+  # Warp's refusal came after `after_compile` (it needs reset traced), which
+  # then ran again from the same random state: the environment is the one
+  # impl='jax' builds.
+  direct_env, direct_draws = build(impl='jax')
+  assert draws == direct_draws * 2
+  np.testing.assert_array_equal(
+      env.random_state.get_state()[1], direct_env.random_state.get_state()[1]
+  )
+  # An explicit 'warp' still refuses.
+  with pytest.raises(backend.WarpUnsupportedError, match='hfield_data'):
+    build(impl='warp')
+
+
+class _DrawingSwingTask(conftest.SwingTask):
+  """Draws from the host random state after compiling; writes a field that
+  MuJoCo Warp cannot vary per world in every episode."""
+
+  def __init__(self):
+    super().__init__()
+    self.draws = []
+
+  def after_compile(self, physics, random_state):
+    self.draws.append(random_state.uniform())
+
+  def initialize_episode(self, physics, key):
+    physics = super().initialize_episode(physics, key)
+    # The swing model has no height field: an empty per-world write.
+    heights = physics.model.hfield_data
+    shift = jax.random.uniform(key, dtype=heights.dtype)
+    return physics.replace(
+        model=physics.model.replace(hfield_data=heights + shift)
+    )
