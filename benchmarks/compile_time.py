@@ -33,6 +33,9 @@ JSON, per program: trace times under the traced function's name, lowering
 and compile times under the module's, e.g. `jit(_fun)` for Brax's pmapped
 training epoch).
 
+Threefry is lowered as JAX's GPU kernel (`prng_lowering.enable()`), as our
+scripts compile; `MJX_COMPOSER_THREEFRY_KERNEL=0` measures without it.
+
 JAX's persistent compilation cache is DISABLED here
 (`jax_enable_compilation_cache=False`, whatever `JAX_COMPILATION_CACHE_DIR`
 or `MJX_COMPOSER_CACHE_DIR` say), else compile times would be cache reads.
@@ -384,6 +387,10 @@ def run_one(task, program, worlds, steps):
   import common
   # pylint: enable=g-import-not-at-top
 
+  from mjx_composer import prng_lowering  # pylint: disable=g-import-not-at-top
+
+  # As our scripts compile (MJX_COMPOSER_THREEFRY_KERNEL=0: without).
+  threefry_kernel = prng_lowering.enable()
   device = jax.devices()[0]
   if worlds is None:
     worlds = 8 if device.platform == 'cpu' else 1024
@@ -408,6 +415,7 @@ def run_one(task, program, worlds, steps):
       device=device.device_kind,
       platform=device.platform,
       jax=jax.__version__,
+      threefry_gpu_kernel=threefry_kernel,
   )
   return row
 

@@ -50,6 +50,7 @@ import jax
 
 import common  # benchmarks/common.py
 from mjx_composer import compilation_cache
+from mjx_composer import prng_lowering
 from mjx_composer import sharding
 
 PARTS = ('raw', 'composed', 'ppo')
@@ -207,6 +208,7 @@ def main():
     parser.error('--ppo-epochs must be at least 2 (the first compiles).')
 
   cache_dir = compilation_cache.enable()
+  prng_lowering.enable()
   device = common.print_device()
   local = jax.local_devices()
   counts = sorted({1, len(local)})

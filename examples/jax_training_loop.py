@@ -29,6 +29,7 @@ import optax
 
 from mjx_composer import cli
 from mjx_composer import compilation_cache
+from mjx_composer import prng_lowering
 
 
 class Policy(nn.Module):
@@ -133,6 +134,7 @@ def main(argv=None):
   parser.add_argument('--seed', type=int, default=0)
   args = parser.parse_args(argv)
   compilation_cache.enable()
+  prng_lowering.enable()
 
   env = cli.make_environment(
       'reach', time_limit=args.time_limit, auto_reset='same_step'

@@ -158,7 +158,11 @@ def demo_parser():
 
 
 def demo(argv=None):
-  from mjx_composer import compilation_cache  # pylint: disable=g-import-not-at-top
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer import compilation_cache
+  from mjx_composer import prng_lowering
+
+  # pylint: enable=g-import-not-at-top
 
   parser = demo_parser()
   args = parser.parse_args(argv)
@@ -167,6 +171,7 @@ def demo(argv=None):
   cache_dir = compilation_cache.enable(
       enabled=False if args.no_compilation_cache else None
   )
+  prng_lowering.enable()
 
   print(
       f'JAX {jax.__version__} on {jax.devices()[0].platform}: '

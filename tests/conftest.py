@@ -23,12 +23,15 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer import compilation_cache
+from mjx_composer import prng_lowering
 
 # Keep compiled programs on disk between test runs (~/.cache/mjx_composer/jax,
 # or $MJX_COMPOSER_CACHE_DIR); MJX_COMPOSER_COMPILATION_CACHE=0 turns it off.
 # Tests that build the same environment then load its programs instead of
 # compiling them again, within one run too.
 compilation_cache.enable()
+# Threefry as one GPU kernel per call (no effect on a CPU), as our scripts.
+prng_lowering.enable()
 
 jax.config.update(
     'jax_disable_most_optimizations',
