@@ -8,9 +8,11 @@ program (which holds a reset) had 45,132 HLO instructions. With JAX's
 `jax_threefry_gpu_kernel_lowering`, each call is one custom call of a CUDA
 kernel instead: the same program has 34,995 instructions and compiled in
 26.7 s instead of 42.9 s on one H200 (`benchmarks/compile_time.py --tasks
-reach --programs step`, README). The hash is the same, so every random value
-is the same; JAX's documentation warns of "a potential runtime memory cost"
-(the kernel's operands are materialized instead of fused).
+reach --programs step`, README). The kernel computes the same hash, so random
+values should not change (`benchmarks/prng_lowering_check.py` compares whole
+states with the setting off and on; so far run on a CPU only, where the
+setting does nothing). JAX's documentation warns of "a potential runtime
+memory cost" (the kernel's operands are materialized instead of fused).
 
 `enable()` turns it on; the command line (`mjx-composer demo`), the
 examples, `benchmarks/train_ppo.py`, the notebooks and the test suite call it
