@@ -196,7 +196,7 @@ def parse_args(argv=None):
       default=None,
       help="Environment(impl=...): MJX's JAX physics or MuJoCo Warp's; "
       "default: Environment's (warp on a CUDA GPU where it is installed "
-      'and runs the task, else jax)',
+      'and runs the task, else jax), and jax on several --devices',
   )
   parser.add_argument(
       '--share-reset-forward',
@@ -535,6 +535,23 @@ def save_policy(path, params, config):
     pickle.dump({'params': jax.device_get(params), 'config': config}, f)
 
 
+def impl_for_devices(impl, devices, fail):
+  """`--impl` for training on `devices` local devices.
+
+  MuJoCo Warp's contact buffer is shared by the whole batch, and Brax's pmap
+  would split it (`sharding.check_impl`): on several devices the default is
+  'jax', and an explicit 'warp' is refused through `fail(message)`.
+  """
+  if devices == 1:
+    return impl
+  if impl == 'warp':
+    return fail(
+        f'--impl warp trains on one device; pass --devices 1, or --impl jax '
+        f'to train on {devices}.'
+    )
+  return 'jax'
+
+
 def main(argv=None):
   args = parse_args(argv)
   # pylint: disable=g-import-not-at-top
@@ -556,6 +573,7 @@ def main(argv=None):
         'devices.'
     )
   _check_divides(sys.exit, args, devices)
+  args.impl = impl_for_devices(args.impl, devices, sys.exit)
   print(
       f'JAX {jax.__version__} on {device.platform}: {device.device_kind} x '
       f'{devices} (of {local_devices}); compilation cache: '

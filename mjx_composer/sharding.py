@@ -444,6 +444,7 @@ def batched_step(
 
 
 def _program(env, kind, mesh, donate):
+  check_impl(env, mesh)
   programs = _PROGRAMS.setdefault(env, {})
   key = (kind, mesh, donate)
   if key not in programs:
@@ -456,6 +457,29 @@ def _program(env, kind, mesh, donate):
         batched, mesh, donate_argnums=(0,) if donate else ()
     )
   return programs[key]
+
+
+def check_impl(env, mesh: Mesh) -> None:
+  """Refuses to split a MuJoCo Warp batch over several devices.
+
+  MuJoCo Warp keeps the contacts of every world of a batch in one buffer
+  (`backend`), which is not per world: cut along the world axis it would
+  leave each device a slice of it sized for the whole batch. Not supported
+  yet.
+
+  Raises:
+    NotImplementedError: `env.impl` is 'warp' and the mesh has several
+      devices, with what to do.
+  """
+  if getattr(env, 'impl', 'jax') == 'warp' and mesh.size > 1:
+    raise NotImplementedError(
+        f'This environment runs on MuJoCo Warp (impl={env.impl!r}), whose '
+        'contact buffer is shared by the whole batch, and cannot be split '
+        f'over the {mesh.size} devices of this mesh. Build the environment '
+        "with impl='jax' for several devices (on a CUDA GPU, impl=None picks "
+        "'warp'), or run Warp on one device (sharding.world_mesh(devices=["
+        'jax.devices()[0]])).'
+    )
 
 
 # -- helpers -------------------------------------------------------------------

@@ -491,6 +491,19 @@ def test_single_world_host_environment_refuses_a_mesh():
     composer.HostEnvironment(env, mesh=sharding.world_mesh())
 
 
+def test_a_warp_batch_is_not_split_over_devices():
+  """Warp's batch-shared contact buffer cannot be cut along the worlds."""
+  env = conftest.make_swing_env(time_limit=0.05, impl='warp')
+  # Two entries of this process's one device: only the mesh's size matters.
+  two = jax.sharding.Mesh(np.array(jax.devices() * 2), (sharding.WORLD_AXIS,))
+  for build in (sharding.batched_reset, sharding.batched_step):
+    with pytest.raises(NotImplementedError, match="impl='jax'"):
+      build(env, two)
+  # One device: nothing is split.
+  one = sharding.world_mesh(jax.devices()[:1])
+  assert sharding.batched_reset(env, one) is sharding.batched_reset(env, one)
+
+
 # -- 1, 2 and 4 devices in one process ----------------------------------------
 
 

@@ -148,3 +148,18 @@ def test_deadline_uses_the_last_interval():
   rows.append({'wall_s': 130.0})  # next expected at 160
   assert not train_ppo.next_eval_too_late(rows, 160.0)
   assert train_ppo.next_eval_too_late(rows, 159.0)
+
+
+def test_training_on_several_devices_uses_jax():
+  import train_ppo  # pylint: disable=g-import-not-at-top
+
+  assert train_ppo.impl_for_devices(None, 1, _fail) is None
+  assert train_ppo.impl_for_devices('warp', 1, _fail) == 'warp'
+  assert train_ppo.impl_for_devices(None, 2, _fail) == 'jax'
+  assert train_ppo.impl_for_devices('jax', 4, _fail) == 'jax'
+  with pytest.raises(SystemExit, match='--devices 1'):
+    train_ppo.impl_for_devices('warp', 2, _fail)
+
+
+def _fail(message):
+  raise SystemExit(message)
