@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
+from mjx_composer import backend
 from mjx_composer import initializers
 from mjx_composer.entities import props
 from mjx_composer.variation import deterministic
@@ -496,3 +497,13 @@ def test_settling(retries):
   assert bool(retried.initialization_failed)
   np.testing.assert_allclose(retried.bind(ball_joint).qpos[1], 3.0, atol=1e-2)
   np.testing.assert_allclose(float(retried.data.time), 1337.0)
+
+
+def test_settling_is_refused_on_warp():
+  """Its loops carry the whole `mjx.Data`, Warp's batch buffer included.
+
+  `backend.WarpUnsupportedError`: `impl=None` then builds on 'jax'.
+  """
+  task = PlacementTask(sphere_kwargs={'settle_physics': True})
+  with pytest.raises(backend.WarpUnsupportedError, match='settle_physics'):
+    composer.Environment(task, impl='warp')

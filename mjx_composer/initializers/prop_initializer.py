@@ -572,7 +572,7 @@ class PropPlacer(initializer.Initializer):
   def _place_and_settle(self, physics, key, tables, states):
     """Rounds of placing then settling until one settles, per world."""
     if backend.is_warp(physics.data):
-      raise NotImplementedError(
+      raise backend.WarpUnsupportedError(
           "PropPlacer(settle_physics=True) does not run on impl='warp' yet: "
           'its per-world settling loops carry the whole mjx.Data, which '
           "would copy MuJoCo Warp's contact buffer (shared by the batch) "
