@@ -10,6 +10,9 @@ a Perfetto trace) one call of `--steps` control steps of:
   `no_obs` (no time limit, every observable disabled), `shared`
   (`share_reset_forward=True`), `unshared` (False).
 
+`--impl warp` builds every environment on MuJoCo Warp, so raw is MuJoCo
+Warp's step on the same model (`base.mjx_model`, put with 'warp').
+
 Every kernel's device time is attributed to the innermost scope of the JAX
 name stack it came from that names a piece of the program (an MJX function
 such as `collision` or `solve`, or one of ours such as `updater`), and the
@@ -42,7 +45,7 @@ import jax
 import common  # benchmarks/common.py
 
 
-def _make_envs(task, variants):
+def _make_envs(task, variants, impl='jax'):
   """`{name: Environment}` for the composed programs to profile."""
   kwargs = {}
   if task == 'walk':
@@ -51,6 +54,7 @@ def _make_envs(task, variants):
     kwargs = dict(walk.PLAYGROUND_EQUIVALENT, time_limit=walk.EPISODE_SECONDS)
   elif task == 'reach':
     kwargs = dict(randomize=False)
+  kwargs['impl'] = impl
   envs = {'composed': common.make_env(task, **kwargs)}
   inf = float('inf')
   for name in variants:
@@ -188,11 +192,18 @@ def main():
       '--variants', nargs='*', default=['no_ends', 'no_obs'], help='see above'
   )
   parser.add_argument('--trace-dir', default=None)
+  parser.add_argument(
+      '--impl',
+      default='jax',
+      choices=('jax', 'warp'),
+      help="the physics implementation of every program (raw too); 'warp' "
+      "refuses the 'shared' variant",
+  )
   args = parser.parse_args()
   device = common.print_device()
   trace_root = args.trace_dir or tempfile.mkdtemp(prefix='profile_step_')
 
-  envs = _make_envs(args.task, args.variants)
+  envs = _make_envs(args.task, args.variants, args.impl)
   base = envs['composed']
   worlds = args.worlds[0]
   keys = jax.random.split(jax.random.key(0), worlds)
