@@ -582,7 +582,8 @@ def main(argv=None):
 
   env, brax_env = make_brax_env(args)
   print(
-      f'Task {args.task!r}: episodes of {brax_env.episode_length} steps; '
+      f'Task {args.task!r} (physics on impl={env.impl!r}): episodes of '
+      f'{brax_env.episode_length} steps; '
       f'observations {brax_env.observation_size}, '
       f'{brax_env.action_size} actions.'
   )
@@ -689,6 +690,7 @@ def main(argv=None):
       'task': args.task,
       'device': f'{device.platform}: {device.device_kind}',
       'devices': devices,
+      'impl': env.impl,
       'jax': jax.__version__,
       'num_envs': args.num_envs,
       'num_timesteps': args.num_timesteps,

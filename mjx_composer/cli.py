@@ -183,7 +183,8 @@ def demo(argv=None):
   print(
       f'Task {args.task!r}: {env.mj_model.nbody} bodies, '
       f'{env.mj_model.nu} actuators, {env.n_sub_steps} sub-steps per '
-      f'control step, built in {time.perf_counter() - t0:.1f}s.'
+      f'control step, physics on impl={env.impl!r}, built in '
+      f'{time.perf_counter() - t0:.1f}s.'
   )
   for group, spec in env.observation_spec().items():
     print(f'  observation group {group!r}: {spec.shape}')
