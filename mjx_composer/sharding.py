@@ -471,7 +471,7 @@ def check_impl(env, mesh: Mesh) -> None:
     NotImplementedError: `env.impl` is 'warp' and the mesh has several
       devices, with what to do.
   """
-  if getattr(env, 'impl', 'jax') == 'warp' and mesh.size > 1:
+  if env.impl == 'warp' and mesh.size > 1:
     raise NotImplementedError(
         f'This environment runs on MuJoCo Warp (impl={env.impl!r}), whose '
         'contact buffer is shared by the whole batch, and cannot be split '
