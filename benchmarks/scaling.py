@@ -50,6 +50,7 @@ import jax
 
 import common  # benchmarks/common.py
 from mjx_composer import compilation_cache
+from mjx_composer import partitioner
 from mjx_composer import prng_lowering
 from mjx_composer import sharding
 
@@ -143,30 +144,31 @@ def time_ppo(brax_env, worlds, devices, args):
   epochs = args.ppo_epochs
   sps = []
   start = time.perf_counter()
-  ppo.train(
-      environment=brax_env,
-      num_timesteps=epochs * args.ppo_steps_per_epoch * per_training_step,
-      num_evals=epochs + 1,  # one progress call per epoch
-      run_evals=False,
-      max_devices_per_host=devices,
-      learning_rate=3e-3,
-      entropy_cost=0.0,
-      discounting=0.95,
-      seed=0,
-      network_factory=functools.partial(
-          ppo_networks.make_ppo_networks,
-          policy_obs_key='policy',
-          value_obs_key='policy',
-          policy_hidden_layer_sizes=(64, 64),
-          value_hidden_layer_sizes=(256, 256),
-          init_noise_std=0.5,
-      ),
-      progress_fn=lambda step, metrics: sps.append(
-          float(metrics['training/sps'])
-      ),
-      **config,
-      **brax_adapter.training_kwargs(brax_env),
-  )
+  with partitioner.scope(jax.local_devices()[:devices]):
+    ppo.train(
+        environment=brax_env,
+        num_timesteps=epochs * args.ppo_steps_per_epoch * per_training_step,
+        num_evals=epochs + 1,  # one progress call per epoch
+        run_evals=False,
+        max_devices_per_host=devices,
+        learning_rate=3e-3,
+        entropy_cost=0.0,
+        discounting=0.95,
+        seed=0,
+        network_factory=functools.partial(
+            ppo_networks.make_ppo_networks,
+            policy_obs_key='policy',
+            value_obs_key='policy',
+            policy_hidden_layer_sizes=(64, 64),
+            value_hidden_layer_sizes=(256, 256),
+            init_noise_std=0.5,
+        ),
+        progress_fn=lambda step, metrics: sps.append(
+            float(metrics['training/sps'])
+        ),
+        **config,
+        **brax_adapter.training_kwargs(brax_env),
+    )
   total = time.perf_counter() - start
   n = brax_env.environment.n_sub_steps
   return {

@@ -443,6 +443,8 @@ def train_one(env_name, seed, config, source, args):
   # pylint: disable=g-import-not-at-top
   import jax
   from brax.training.agents.ppo import train as ppo
+
+  from mjx_composer import partitioner
   # pylint: enable=g-import-not-at-top
 
   run_dir = os.path.join(args.out, 'runs')
@@ -517,12 +519,16 @@ def train_one(env_name, seed, config, source, args):
 
   start = time.perf_counter()
   try:
-    ppo.train(
-        environment=env,
-        progress_fn=progress,
-        policy_params_fn=save_params,
-        **kwargs,
-    )
+    # As train_ppo.py: GSPMD where Brax pmaps over several GPUs.
+    with partitioner.scope(
+        jax.local_devices()[: kwargs['max_devices_per_host']]
+    ):
+      ppo.train(
+          environment=env,
+          progress_fn=progress,
+          policy_params_fn=save_params,
+          **kwargs,
+      )
     run['status'] = 'finished'
   except train_ppo.StopTraining:
     run['status'] = 'stopped'

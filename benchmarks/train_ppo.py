@@ -557,6 +557,7 @@ def main(argv=None):
   # pylint: disable=g-import-not-at-top
   from brax.training.agents.ppo import train as ppo
   from mjx_composer import compilation_cache
+  from mjx_composer import partitioner
   from mjx_composer import prng_lowering
   # pylint: enable=g-import-not-at-top
   cache_dir = compilation_cache.enable(
@@ -642,12 +643,15 @@ def main(argv=None):
   start = time.perf_counter()
   stopped_early = False
   try:
-    make_policy, params, _ = ppo.train(
-        environment=brax_env,
-        progress_fn=progress,
-        policy_params_fn=keep_params,
-        **ppo_kwargs(args, brax_env, devices),
-    )
+    # Brax pmaps over `devices` local devices; on several GPUs that compiles
+    # with GSPMD (Shardy crashed compiling MJX's step under pmap there).
+    with partitioner.scope(jax.local_devices()[:devices]):
+      make_policy, params, _ = ppo.train(
+          environment=brax_env,
+          progress_fn=progress,
+          policy_params_fn=keep_params,
+          **ppo_kwargs(args, brax_env, devices),
+      )
   except StopTraining:
     stopped_early = True
     make_policy, params = latest['make_policy'], latest['params']

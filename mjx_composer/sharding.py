@@ -30,7 +30,9 @@ decides for its own worlds, and the compiled programs hold no collective.
 A world's values do not depend on these decisions (converged worlds and
 worlds that are not done pass through unchanged), so the trajectories are
 the same either way; `tests/test_sharding.py` checks them across 1, 2 and 4
-devices and checks the compiled programs for collectives.
+devices and checks the compiled programs for collectives. On several GPUs
+these programs are compiled with XLA's GSPMD partitioner instead of Shardy,
+which crashed compiling them (`mjx_composer.partitioner`).
 
 The price of `shard_map`: a function run with `per_device` must treat worlds
 independently (row i of every output depends only on row i of the inputs),
@@ -89,6 +91,8 @@ import jax
 from jax.experimental import multihost_utils
 import jax.numpy as jnp
 import numpy as np
+
+from mjx_composer import partitioner
 
 # The mesh axis the world axis is sharded over.
 WORLD_AXIS = 'worlds'
@@ -379,7 +383,9 @@ class WorldProgram:
   """A jitted per-device program over a batch of worlds (see `per_device`).
 
   Calling it checks that the batch splits evenly over the mesh's devices,
-  then runs the jitted function.
+  then runs the jitted function, traced and compiled under
+  `partitioner.scope` of the mesh's devices (GSPMD on several GPUs, where
+  Shardy crashed compiling MJX's step).
 
   Attributes:
     jitted: the `jax.jit` function, for `lower(...)` and ahead-of-time
@@ -393,12 +399,14 @@ class WorldProgram:
 
   def __call__(self, *args):
     check_num_worlds(count_worlds(args), self.mesh)
-    return self.jitted(*args)
+    with partitioner.scope(self.mesh.devices.flat):
+      return self.jitted(*args)
 
   def lower(self, *args):
     """`jax.jit(...).lower(*args)`, after the same check as a call."""
     check_num_worlds(count_worlds(args), self.mesh)
-    return self.jitted.lower(*args)
+    with partitioner.scope(self.mesh.devices.flat):
+      return self.jitted.lower(*args)
 
 
 # Jitted programs per environment, so that asking again for the same

@@ -7,7 +7,8 @@ this module (`python -m tests.test_sharding <mode> <out>`), build one small
 environment and compile each program once:
 
 * `meshes` (4 devices): the same 8 worlds on meshes of 1, 2 and 4 devices,
-  and the batched host environment on 4;
+  on 2 also compiled with GSPMD (`mjx_composer.partitioner`'s choice for
+  several GPUs), and the batched host environment on 4;
 * `multihost` (2 processes of 2 devices each, through `jax.distributed`);
 * `brax` (2 devices): Brax's `ppo.train`, which spreads over local devices
   with its own `pmap`.
@@ -42,6 +43,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
+from mjx_composer import partitioner
 from mjx_composer import sharding
 from mjx_composer import variation
 from mjx_composer.variation import distributions
@@ -189,6 +191,29 @@ def _worker_meshes(out):
     trajectories[count], reports[count], _ = _trajectory(
         env, mesh, _first_host_key()
     )
+
+  # The same 2-device programs compiled with GSPMD, as on several GPUs
+  # (`mjx_composer.partitioner`): recompiled (JAX keys programs on the
+  # partitioner), then the same calls.
+  mesh = sharding.world_mesh(devices[:2])
+  keys = sharding.world_keys(_first_host_key(), _WORLDS, mesh)
+  lowered_reset = {}
+  for name in ('shardy', 'gspmd'):
+    os.environ[partitioner.PARTITIONER_ENV] = name
+    lowered_reset[name] = (
+        sharding.batched_reset(env, mesh).lower(keys).as_text()
+    )
+  trajectories['2_gspmd'], reports['2_gspmd'], _ = _trajectory(
+      env, mesh, _first_host_key()
+  )
+  del os.environ[partitioner.PARTITIONER_ENV]
+  reports['lowered_as'] = {
+      name: {
+          'shardy': 'sdy.manual_computation' in text,
+          'gspmd': 'SPMDFullToShardShape' in text,
+      }
+      for name, text in lowered_reset.items()
+  }
 
   mesh = sharding.world_mesh()
   # A list of devices makes the same mesh, so the programs compiled above
@@ -517,6 +542,25 @@ def test_a_worlds_trajectory_does_not_depend_on_the_device_count(meshes):
     _assert_same(
         reference, meshes['trajectories'][count], False, f'{count} devices'
     )
+
+
+def test_gspmd_compiles_the_same_worlds(meshes):
+  # Each lowering is the partitioner's own: Shardy's manual computation or
+  # GSPMD's full-to-shard conversion.
+  assert meshes['reports']['lowered_as'] == {
+      'shardy': {'shardy': True, 'gspmd': False},
+      'gspmd': {'shardy': False, 'gspmd': True},
+  }
+  _assert_same(
+      meshes['trajectories'][2],
+      meshes['trajectories']['2_gspmd'],
+      True,
+      'GSPMD on 2 devices',
+  )
+  assert meshes['reports']['2_gspmd']['not_world_sharded'] == []
+  counts = meshes['reports']['2_gspmd']['collectives']
+  assert not any(counts['reset'].values()), counts
+  assert not any(counts['step'].values()), counts
 
 
 def test_states_stay_sharded_over_the_world_axis(meshes):
