@@ -165,12 +165,33 @@ def check_share_reset_forward(impl: str, share_reset_forward) -> None:
     )
 
 
-def check_buffer_arguments(impl: str, naconmax, njmax) -> None:
-  """`naconmax` and `njmax` size MuJoCo Warp's buffers: 'warp' only."""
-  if impl != 'warp' and (naconmax is not None or njmax is not None):
+def check_buffer_arguments(
+    impl: str, naconmax, njmax, requested: str | None = None
+) -> None:
+  """`naconmax` and `njmax` size MuJoCo Warp's buffers.
+
+  Args:
+    impl: the implementation the environment is built on.
+    naconmax: the `Environment` argument.
+    njmax: the `Environment` argument.
+    requested: the `Environment`'s `impl` argument. With None (the default
+      choice, Warp only where it runs), sizes given for Warp are ignored on
+      'jax', so that one call builds on either; an explicit 'jax' refuses
+      them.
+
+  Raises:
+    ValueError: sizes with an explicit impl='jax', or sizes that are not
+      positive integers.
+  """
+  if (
+      requested is not None
+      and impl != 'warp'
+      and (naconmax is not None or njmax is not None)
+  ):
     raise ValueError(
         "naconmax and njmax size MuJoCo Warp's contact and constraint "
-        f"buffers: pass them with impl='warp' only (impl is {impl!r})."
+        f"buffers: pass them with impl='warp' or impl=None only (impl is "
+        f'{impl!r}).'
     )
   for name, value in (('naconmax', naconmax), ('njmax', njmax)):
     if value is not None and (int(value) != value or value < 1):

@@ -122,12 +122,14 @@ class Environment:
       model field that MuJoCo Warp cannot run is refused here, with what to
       do (`backend`); building then traces `reset` once to find the
       per-world fields.
-    naconmax: impl='warp' only: the contacts MuJoCo Warp holds for all the
-      worlds of one batch (one buffer shared by the batch). Default:
+    naconmax: impl='warp' or None (ignored where None builds on 'jax'): the
+      contacts MuJoCo Warp holds for all the worlds of one batch (one buffer
+      shared by the batch). Default:
       `backend.DEFAULT_CONTACTS_PER_WORLD` (64) per world for
       `backend.DEFAULT_WORLDS` (8,192) worlds. Contacts beyond it are
       dropped and flagged in `backend.overflow(state.data)`.
-    njmax: impl='warp' only: constraint rows per world. Default: MuJoCo
+    njmax: impl='warp' or None (ignored where None builds on 'jax'):
+      constraint rows per world. Default: MuJoCo
       Warp's estimate from the model. Rows beyond it are dropped and
       flagged in `backend.overflow(state.data)`.
 
@@ -186,6 +188,7 @@ class Environment:
     # another process's on every host but the first.
     device = jax.local_devices()[0]
     candidates = backend.resolve_impl(impl, device, share_reset_forward)
+    self._requested_impl = impl
     random_state = self._random_state.get_state()
     for i, candidate in enumerate(candidates):
       try:
@@ -247,7 +250,9 @@ class Environment:
     """
     task = self._task
     self._impl = impl
-    backend.check_buffer_arguments(self._impl, naconmax, njmax)
+    backend.check_buffer_arguments(
+        self._impl, naconmax, njmax, requested=self._requested_impl
+    )
     backend.check_share_reset_forward(self._impl, share_reset_forward)
     backend.check_per_world_fields(
         self._impl,

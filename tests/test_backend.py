@@ -200,11 +200,18 @@ def test_warp_refuses_the_shared_reset_forward():
     conftest.make_swing_env(impl='warp', share_reset_forward=True)
 
 
-def test_warp_buffer_sizes_need_warp():
-  with pytest.raises(ValueError, match="impl='warp' only"):
-    conftest.make_swing_env(naconmax=64)
+def test_warp_buffer_sizes_need_warp_or_the_default():
+  with pytest.raises(ValueError, match="impl='warp' or impl=None only"):
+    conftest.make_swing_env(impl='jax', naconmax=64)
   with pytest.raises(ValueError, match='positive integer'):
     conftest.make_swing_env(impl='warp', njmax=0)
+  with pytest.raises(ValueError, match='positive integer'):
+    conftest.make_swing_env(njmax=0)
+  # The default builds on 'jax' here (a CPU): sizes meant for Warp on a GPU
+  # are ignored, so the same call runs on either.
+  env = conftest.make_swing_env(naconmax=64, njmax=32)
+  assert env.impl == 'jax'
+
 
 
 def test_unknown_impl_is_refused():
