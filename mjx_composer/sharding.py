@@ -403,10 +403,29 @@ class WorldProgram:
       return self.jitted(*args)
 
   def lower(self, *args):
-    """`jax.jit(...).lower(*args)`, after the same check as a call."""
+    """`jax.jit(...).lower(*args)`, after the same check as a call.
+
+    Its `compile()` compiles under the same partitioner as a call, so a
+    call after it reuses the compiled program.
+    """
     check_num_worlds(count_worlds(args), self.mesh)
     with partitioner.scope(self.mesh.devices.flat):
-      return self.jitted.lower(*args)
+      return _ScopedLowered(self.jitted.lower(*args), self.mesh)
+
+
+class _ScopedLowered:
+  """A `jax.stages.Lowered` whose `compile` runs in `partitioner.scope`."""
+
+  def __init__(self, lowered, mesh):
+    self._lowered = lowered
+    self._mesh = mesh
+
+  def compile(self, *args, **kwargs):
+    with partitioner.scope(self._mesh.devices.flat):
+      return self._lowered.compile(*args, **kwargs)
+
+  def __getattr__(self, name):
+    return getattr(self._lowered, name)
 
 
 # Jitted programs per environment, so that asking again for the same

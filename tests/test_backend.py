@@ -213,7 +213,6 @@ def test_warp_buffer_sizes_need_warp_or_the_default():
   assert env.impl == 'jax'
 
 
-
 def test_unknown_impl_is_refused():
   with pytest.raises(ValueError, match="impl must be 'jax', 'warp'"):
     conftest.make_swing_env(impl='cpp')
