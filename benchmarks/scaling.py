@@ -25,6 +25,10 @@ communication between devices), it times:
             evaluation; Brax's env steps per second of each epoch after the
             first (which compiles), median.
 
+On several GPUs the per-device programs and Brax's `pmap` compile with
+GSPMD (`mjx_composer.partitioner`: Shardy crashed compiling them on two
+H200s with JAX 0.11.2).
+
 It reports physics steps per second (raw, composed, gspmd: control steps x
 n sub-steps; ppo: Brax's env steps x n sub-steps), the median of
 `--repeats` calls after two warm-up calls (compilation excluded), and the

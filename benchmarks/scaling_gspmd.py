@@ -2,7 +2,9 @@
 
 `scaling.py`'s default path (`sharding.per_device`, a `shard_map`) crashed
 XLA's GPU compiler (segmentation fault in `backend_compile_and_load`) on the
-2-GPU machine with JAX 0.11.2; this measures the plain alternative: the
+2-GPU machine with JAX 0.11.2, in Shardy; `sharding` now compiles it with
+GSPMD on several GPUs (`mjx_composer.partitioner`). This measures the plain
+alternative that ran before that fix: the
 batch placed with a `NamedSharding` over the world axis and the same
 `jax.jit` programs as on one device (`common.raw_rollout`,
 `common.env_rollout` of the bundled reach task with same-step auto-reset),
