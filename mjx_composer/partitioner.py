@@ -18,7 +18,8 @@ no longer has GSPMD, the scope changes nothing.
 
 `MJX_COMPOSER_PARTITIONER` overrides the choice: `shardy` or `gspmd` for
 every mesh, `auto` (or unset) as above. GSPMD prints a deprecation warning
-when it runs; the workaround goes once Shardy compiles these programs.
+when it runs; the workaround goes once Shardy compiles these programs
+(`benchmarks/shardy_probe.py` checks on a machine with two GPUs).
 """
 
 from __future__ import annotations
