@@ -188,12 +188,12 @@ class Environment:
     # another process's on every host but the first.
     device = jax.local_devices()[0]
     candidates = backend.resolve_impl(impl, device, share_reset_forward)
-    self._requested_impl = impl
     random_state = self._random_state.get_state()
     for i, candidate in enumerate(candidates):
       try:
         self._build_physics(
             candidate,
+            impl,
             device,
             index,
             time_limit=time_limit,
@@ -225,6 +225,7 @@ class Environment:
   def _build_physics(
       self,
       impl,
+      requested_impl,
       device,
       index,
       *,
@@ -241,6 +242,9 @@ class Environment:
   ):
     """Puts the compiled model on `device` with `impl` and plans the steps.
 
+    `requested_impl` is the `impl` argument of `__init__` (None for the
+    default), which decides whether Warp's buffer sizes may be ignored.
+
     Runs the `after_compile` hooks on the device model, then builds the
     episode rules, the observation updater and the transitions.
 
@@ -251,7 +255,7 @@ class Environment:
     task = self._task
     self._impl = impl
     backend.check_buffer_arguments(
-        self._impl, naconmax, njmax, requested=self._requested_impl
+        self._impl, naconmax, njmax, requested=requested_impl
     )
     backend.check_share_reset_forward(self._impl, share_reset_forward)
     backend.check_per_world_fields(
