@@ -17,10 +17,11 @@ holds them). Both implementations run with `share_reset_forward=False`
 (the restart separate from the sub-steps), the only choice on 'warp'.
 
 On 'warp' the contact buffer holds `--contacts-per-world` contacts per
-world (`naconmax`) and `--njmax` constraint rows per world (default: MuJoCo
-Warp's estimate); after the runs the row records MuJoCo Warp's overflow
-flags (`backend.overflow`: a nonzero count means contacts or constraints
-were dropped and the sizes must grow) and the most contacts in use. A task
+world (`naconmax`) and `--njmax` constraint rows per world (default:
+`backend.default_njmax`); after the runs the row records MuJoCo Warp's
+overflow flags (`backend.overflow`: a nonzero count means contacts or
+constraints were dropped and the sizes must grow) and the most contacts in
+use. A task
 that 'warp' refuses (e.g. a per-world height field) records the refusal.
 
     python benchmarks/backends.py --worlds 8192 32768
@@ -149,7 +150,7 @@ def main():
       '--njmax',
       type=int,
       default=None,
-      help="'warp': constraint rows per world (default: MuJoCo Warp's)",
+      help="'warp': constraint rows per world (default: backend.default_njmax)",
   )
   common.add_repeats_arg(parser, 3)
   common.add_out_arg(parser, 'backends.json')

@@ -40,11 +40,11 @@ What runs where on 'warp':
 Contacts and constraints (`naconmax`, `njmax`): MuJoCo Warp keeps the
 contacts of all the worlds of a batch in one buffer of `naconmax` contacts
 (shared by the batch: those `Data` fields are not per world, see
-`shared_leaves`), and `njmax` constraint rows per world. Both are fixed
-when the environment is built. A world that needs more loses contacts or
-constraints; MuJoCo Warp flags it in its per-world overflow bitmask, which
-`overflow` reads: check it (the benchmarks and tests do) when choosing the
-sizes.
+`shared_leaves`), and `njmax` constraint rows per world (`default_njmax`).
+Both are fixed when the environment is built. A world that needs more
+loses contacts or constraints; MuJoCo Warp flags it in its per-world
+overflow bitmask, which `overflow` reads and `metrics['overflow']`
+reports: check it (the benchmarks and tests do) when choosing the sizes.
 
 The shared buffers must stay one copy per batch. MJX's `Data.where`
 merges per world and keeps them (`select`, which `episode` uses), but a
@@ -207,8 +207,7 @@ def put(mj_model, impl: str, device, naconmax=None, njmax=None):
     device: the JAX device.
     naconmax: 'warp': contacts held for all the worlds of a batch (default
       `DEFAULT_CONTACTS_PER_WORLD * DEFAULT_WORLDS`).
-    njmax: 'warp': constraint rows per world (default: MuJoCo Warp's
-      estimate from the model).
+    njmax: 'warp': constraint rows per world (default `default_njmax`).
 
   Raises:
     WarpUnsupportedError: the model uses something MuJoCo Warp does not
@@ -219,6 +218,8 @@ def put(mj_model, impl: str, device, naconmax=None, njmax=None):
     return model, mjx.make_data(model, device=device, impl='jax')
   if naconmax is None:
     naconmax = DEFAULT_CONTACTS_PER_WORLD * DEFAULT_WORLDS
+  if njmax is None:
+    njmax = default_njmax(mj_model)
   try:
     model = mjx.put_model(mj_model, device=device, impl='warp')
     data = mjx.make_data(
@@ -226,7 +227,7 @@ def put(mj_model, impl: str, device, naconmax=None, njmax=None):
         device=device,
         impl='warp',
         naconmax=int(naconmax),
-        njmax=None if njmax is None else int(njmax),
+        njmax=int(njmax),
     )
   except (NotImplementedError, ValueError) as e:
     raise WarpUnsupportedError(
@@ -246,6 +247,26 @@ def put(mj_model, impl: str, device, naconmax=None, njmax=None):
       )
   )
   return model, data
+
+
+def default_njmax(mj_model) -> int:
+  """Constraint rows per world that `put` gives MuJoCo Warp unless told.
+
+  The larger of MuJoCo Warp's own estimate and the rows MJX's JAX
+  implementation allocates for the model. Warp's estimate depends only on
+  the model's degrees of freedom, height fields, flexes and SDFs, and is 64
+  rows for each bundled model; the JAX implementation allocates a world's
+  worst case under its per-pair contact limits (every contact pair touching
+  at once, every limit active). On push, Warp's 64 rows let 194 of 8,192
+  worlds drop constraints (one H200, stop 21); the JAX implementation's
+  count is 122. Where the estimate is larger (reach: 64 against 32), it
+  stays, so nothing that ran within Warp's default gets less room.
+  """
+  from mujoco.mjx.third_party.mujoco_warp._src import io as warp_io  # pylint: disable=g-import-not-at-top
+
+  jax_data = jax.eval_shape(lambda: mjx.make_data(mj_model, impl='jax'))
+  jax_rows = jax_data._impl.efc_J.shape[0]  # pylint: disable=protected-access
+  return max(int(warp_io._default_njmax(mj_model)), int(jax_rows))  # pylint: disable=protected-access
 
 
 def _overflow_type():

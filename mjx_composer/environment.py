@@ -127,11 +127,13 @@ class Environment:
       shared by the batch). Default:
       `backend.DEFAULT_CONTACTS_PER_WORLD` (64) per world for
       `backend.DEFAULT_WORLDS` (8,192) worlds. Contacts beyond it are
-      dropped and flagged in `backend.overflow(state.data)`.
+      dropped and flagged in `backend.overflow(state.data)` and
+      `metrics['overflow']`.
     njmax: impl='warp' or None (ignored where None builds on 'jax'):
-      constraint rows per world. Default: MuJoCo
-      Warp's estimate from the model. Rows beyond it are dropped and
-      flagged in `backend.overflow(state.data)`.
+      constraint rows per world. Default: `backend.default_njmax`, the
+      larger of MuJoCo Warp's estimate and the rows MJX's JAX
+      implementation allocates. Rows beyond it are dropped and flagged in
+      `backend.overflow(state.data)` and `metrics['overflow']`.
 
   Raises:
     ValueError, NotImplementedError, ImportError: for arguments, models or

@@ -10,6 +10,11 @@ What ends an episode (`step_type == LAST`), for one world:
   with reward 0 and discount 0, `metrics['diverged'] = 1`. Only that world is
   affected; its next reset replaces all of its data.
 
+Reported, not ended: `metrics['overflow'] = 1` from the step at which
+MuJoCo Warp first dropped a contact or constraint row of the world (its
+fixed buffers, `backend.overflow`) to the end of that episode; always 0 on
+'jax', which has no fixed buffers.
+
 Auto-reset, per world (`select_reset` computes it):
 
 * `'next_step'` (composer): the step after a LAST ignores the action and
@@ -53,6 +58,11 @@ def diverged(data) -> jax.Array:
   )
 
 
+def overflowed(data) -> jax.Array:
+  """Whether MuJoCo Warp dropped contacts or constraints since the reset."""
+  return backend.overflow(data) != 0
+
+
 class EpisodeRules:
   """Decides how each step ends, and keeps the per-world metrics.
 
@@ -79,6 +89,7 @@ class EpisodeRules:
     """The `State` fields of an episode's FIRST timestep."""
     metrics = {
         'diverged': diverged(physics.data).astype(jnp.float32),
+        'overflow': overflowed(physics.data).astype(jnp.float32),
         'episode_return': jnp.zeros((), jnp.float32),
         'episode_length': jnp.zeros((), jnp.int32),
         'init_failures': init_failures.astype(jnp.float32),
@@ -117,6 +128,7 @@ class EpisodeRules:
     total_reward = previous.episode.total_reward + jnp.sum(reward)
     metrics = {
         'diverged': is_diverged.astype(jnp.float32),
+        'overflow': overflowed(physics.data).astype(jnp.float32),
         'episode_return': total_reward,
         'episode_length': length,
         'init_failures': previous.metrics['init_failures'],

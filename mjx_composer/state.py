@@ -76,6 +76,7 @@ class State:
     truncated: the episode ended at the time limit.
     metrics: this timestep's report, per world: `episode_return` and
       `episode_length` of the episode the transition belongs to, `diverged`,
+      `overflow` (MuJoCo Warp dropped contacts or constraints this episode),
       `init_failures`, `init_failed`, and the task's `get_metrics`.
     episode: the running `Episode` counters.
     key: the world's PRNG key for what comes next.

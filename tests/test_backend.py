@@ -22,6 +22,7 @@ import pytest
 from mjx_composer import backend
 from mjx_composer import environment
 from mjx_composer.tasks import joystick
+from mjx_composer.tasks import push
 from mjx_composer.tasks import reach
 from tests import conftest
 
@@ -109,7 +110,9 @@ def test_warp_reset_equals_jax_reset(warp_env, warp_rollout, jax_env):
       ref.observation,
   )
   np.testing.assert_array_equal(backend.overflow(warp.data), 0)
+  np.testing.assert_array_equal(warp.metrics['overflow'], 0)
   assert backend.naconmax(warp.data) == 16 * WORLDS
+  assert backend.njmax(warp.data) == backend.default_njmax(warp_env.mj_model)
 
 
 def _host_rollout(env, state, world, actions):
@@ -147,6 +150,7 @@ def test_warp_steps_agree_with_mujoco(warp_env, warp_rollout):
   moved = np.abs(end.data.qpos - start.data.qpos).max(axis=1)
   assert np.all(moved > 1e-3), moved
   np.testing.assert_array_equal(backend.overflow(end.data), 0)
+  np.testing.assert_array_equal(end.metrics['overflow'], 0)
   np.testing.assert_array_equal(end.metrics['diverged'], 0)
 
 
@@ -174,6 +178,51 @@ def test_warp_keeps_the_contact_buffer_shared_by_the_batch(warp_rollout):
   contact_dist = data._impl.contact__dist  # pylint: disable=protected-access
   assert jnp.shape(contact_dist) == (backend.naconmax(data),)
   assert jax.tree.leaves(backend.shared_leaves(data)).count(True) > 10
+
+
+def test_warp_overflow_is_reported_until_the_episode_ends(warp_env, warp_fns):
+  """`metrics['overflow']`: the world that lost rows, for its episode only."""
+  kind = backend._overflow_type()  # pylint: disable=protected-access
+  states = warp_fns['reset'](_keys())
+  # MuJoCo Warp ORs its flags into the world's bitmask at each step; set
+  # them as it would: world 2 dropped constraint rows, world 5 hit the
+  # solver's iteration limit (the model's setting, not a lost constraint).
+  flags = np.zeros(WORLDS, np.int32)
+  flags[2] = int(kind.NEFC)
+  flags[5] = int(kind.ITERATIONS)
+  impl = states.data._impl  # pylint: disable=protected-access
+  states = states.replace(
+      data=states.data.replace(
+          _impl=impl.replace(overflow=jnp.asarray(flags, impl.overflow.dtype))
+      )
+  )
+  expected = (np.arange(WORLDS) == 2).astype(np.float32)
+  for _ in range(int(warp_env.step_limit)):
+    states = warp_fns['step'](states, _actions(warp_env))
+    np.testing.assert_array_equal(states.metrics['overflow'], expected)
+  assert np.all(np.asarray(states.last())), 'the episodes should have ended'
+  # Same-step auto-reset: the next episode starts from a fresh reset.
+  states = warp_fns['step'](states, _actions(warp_env))
+  np.testing.assert_array_equal(states.metrics['overflow'], 0)
+
+
+def test_default_njmax_holds_the_jax_implementations_rows():
+  """Warp's estimate, raised to MJX's JAX allocation where that is larger."""
+  from mujoco.mjx.third_party.mujoco_warp._src import io as warp_io  # pylint: disable=g-import-not-at-top
+
+  def jax_rows(mj_model):
+    data = mjx.make_data(mj_model, impl='jax')
+    return data._impl.efc_J.shape[0]  # pylint: disable=protected-access
+
+  arm = reach.Reach().root_entity.compose()[0].compile()
+  boxes = push.Push().root_entity.compose()[0].compile()
+  # Push's boxes can touch the floor, the arm and each other at once: more
+  # rows than Warp's estimate (which 194 of 8,192 worlds overflowed).
+  assert jax_rows(boxes) > warp_io._default_njmax(boxes)  # pylint: disable=protected-access
+  assert backend.default_njmax(boxes) == jax_rows(boxes)
+  # The arm needs fewer than Warp's estimate, which stays.
+  assert jax_rows(arm) < warp_io._default_njmax(arm)  # pylint: disable=protected-access
+  assert backend.default_njmax(arm) == warp_io._default_njmax(arm)  # pylint: disable=protected-access
 
 
 # -- refusals -------------------------------------------------------------------
