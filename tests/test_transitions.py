@@ -51,6 +51,17 @@ def env(request):
   )
 
 
+@pytest.fixture(scope='module')
+def reset_states(env):
+  """Three worlds' first states, for the batched and single-world tests.
+
+  The single-world test starts from one of them instead of compiling an
+  unbatched reset: what it checks is the unbatched step.
+  """
+  keys = jax.random.split(jax.random.key(3), 3)
+  return jax.jit(jax.vmap(env.reset))(keys)
+
+
 def _step_then_restart(env):
   """What the fused step replaces, for one world: `Environment.step` with
   `share_reset_forward=False`."""
@@ -101,14 +112,13 @@ def test_the_fused_path_is_taken(env, monkeypatch):
   assert not calls
 
 
-def test_fused_step_equals_step_then_restart(env):
+def test_fused_step_equals_step_then_restart(env, reset_states):
   reference = jax.jit(jax.vmap(_step_then_restart(env)))
   fused = jax.jit(jax.vmap(env.step))
-  keys = jax.random.split(jax.random.key(3), 3)
   actions = jax.random.uniform(
       jax.random.key(4), (8, 3, 1), minval=-1, maxval=1
   )
-  a = b = jax.jit(jax.vmap(env.reset))(keys)
+  a = b = reset_states
   reset_alone = False
   for t in range(8):
     a, b = fused(a, actions[t]), reference(b, actions[t])
@@ -121,10 +131,10 @@ def test_fused_step_equals_step_then_restart(env):
   assert len({float(s) for s in sizes[:, -1, 0]}) > 1  # drawn per world
 
 
-def test_fused_single_world_equals_step_then_restart(env):
+def test_fused_single_world_equals_step_then_restart(env, reset_states):
   reference = jax.jit(_step_then_restart(env))
   fused = jax.jit(env.step)
-  a = b = jax.jit(env.reset)(jax.random.key(5))
+  a = b = jax.tree.map(lambda x: x[1], reset_states)
   resets = 0
   for t in range(7):
     action = jnp.full((1,), np.sin(t))
