@@ -7,7 +7,13 @@ its sub-steps (domain randomization off):
 * raw:         `scan` over `vmap(mjx.step)`, sub-steps in a `fori_loop`,
                every world starting from the compiled model's `qpos0`;
 * raw_reset:   the same program from the composed environment's reset
-               states (the physics states a composed world steps from);
+               states (the physics states a composed world steps from),
+               each call continuing from the previous call's states;
+* raw_episodes: the same program, each call starting afresh from new reset
+               states (new keys): the physics of whole episodes, with the
+               settling after every reset that `ends` holds once per call
+               (the reach episodes last 100 control steps, the default
+               `--steps`), without the reset's own cost;
 * ends:        `vmap(env.step)`, episodes of 2 s with same-step auto-reset,
                every observable on (the configuration `throughput.py` times);
 * no_ends:     the same with no time limit (no world ever resets);
@@ -87,6 +93,11 @@ def main():
       states = jax.jit(jax.vmap(env.reset))(keys)
       return common.time_fn(rollout, (states, actions), args.repeats)
 
+    batched_reset = jax.jit(jax.vmap(base.reset))
+
+    def fresh_reset_data(i):
+      return batched_reset(jax.random.split(jax.random.key(i + 1), worlds)).data
+
     programs = {
         'raw': lambda: common.time_fn(
             raw,
@@ -95,9 +106,12 @@ def main():
         ),
         'raw_reset': lambda: common.time_fn(
             raw,
-            (jax.jit(jax.vmap(base.reset))(keys).data, actions),
+            (batched_reset(keys).data, actions),
             args.repeats,
         ),
+        'raw_episodes': lambda: common.time_calls(
+            raw, lambda i: (fresh_reset_data(i), actions), args.repeats
+        )[1],
         **{
             name: functools.partial(
                 from_reset, env, common.env_rollout(env, args.steps)
