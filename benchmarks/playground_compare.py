@@ -16,7 +16,12 @@ loads) for `--steps` control steps of 5 physics steps, held actions:
               when `mujoco_playground` cannot be imported);
 * raw:        `vmap(mjx.step)` on ours_off's compiled model, the sub-steps in
               a `fori_loop` (`common.raw_rollout`), from `qpos0` plus noise,
-              the same actions as controls.
+              the same actions as controls;
+* only_<f>:   on request (`--programs`), ours_off with one of ours_on's
+              features switched back on, to find what each costs: noise,
+              delay, history, randomize, push, fall (`FEATURES`), or groups
+              (the critic group observed too); `only_<f>+<g>+...` switches
+              on several (e.g. only_fall+randomize).
 
 For each: control steps per second (median of `--repeats` calls), the first
 call's seconds (trace, lower and XLA compile of the rollout, and of the
@@ -33,6 +38,7 @@ Playground 0.2.0's imports need, besides this project's dependencies,
 `playground==0.2.0` and `lxml` (see the module's `PLAYGROUND_NEEDS`).
 """
 
+import argparse
 import importlib.metadata
 import time
 
@@ -102,13 +108,64 @@ def measure(reset, rollout, keys, actions, repeats, device):
   }
 
 
-def _env_variants():
-  """ours_on and ours_off environments (walk task)."""
-  from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+# The features `walk.PLAYGROUND_EQUIVALENT` switches off, by program name:
+# `only_<name>` is ours_off with that one switched back on (its default),
+# `only_<name>+<name>...` with those; 'groups' observes the critic group too.
+FEATURES = {
+    'noise': 'noise_level',
+    'delay': 'observation_delay',
+    'history': 'history',
+    'randomize': 'randomize',
+    'push': 'push_interval',
+    'fall': 'terminate_on_fall',
+}
 
-  on = common.make_env('walk', time_limit=walk.EPISODE_SECONDS)
-  off = common.make_walk_like_playground(walk.EPISODE_SECONDS)
-  return {'ours_on': on, 'ours_off': off}
+
+def _program_name(name):
+  """`--programs`' type: a known program, or only_ with known features."""
+  features = name[len('only_') :].split('+')
+  if name in ('ours_on', 'ours_off', 'playground', 'raw') or (
+      name.startswith('only_')
+      and all(f in FEATURES or f == 'groups' for f in features)
+  ):
+    return name
+  raise argparse.ArgumentTypeError(
+      f'unknown program {name!r}: ours_on, ours_off, playground, raw, or '
+      f"only_ followed by features joined by '+' from "
+      f'{", ".join((*FEATURES, "groups"))}'
+  )
+
+
+def _env_variants(names):
+  """The environments (walk task) of the programs `names` that are ours."""
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer import environment
+  from mjx_composer.tasks import walk
+
+  # pylint: enable=g-import-not-at-top
+  envs = {}
+  for name in names:
+    if name == 'ours_on':
+      envs[name] = common.make_env('walk', time_limit=walk.EPISODE_SECONDS)
+    elif name == 'ours_off':
+      envs[name] = common.make_walk_like_playground(walk.EPISODE_SECONDS)
+    elif name.startswith('only_'):
+      features = name[len('only_') :].split('+')
+      kwargs = dict(walk.PLAYGROUND_EQUIVALENT)
+      for feature in features:
+        if feature != 'groups':
+          del kwargs[FEATURES[feature]]
+      task = walk.Walk(**kwargs)
+      groups = task.observation_groups()
+      envs[name] = environment.Environment(
+          task,
+          time_limit=walk.EPISODE_SECONDS,
+          auto_reset='same_step',
+          observation_groups=(
+              groups if 'groups' in features else {'policy': groups['policy']}
+          ),
+      )
+  return envs
 
 
 def _playground_env():
@@ -155,13 +212,16 @@ def main():
       '--programs',
       nargs='+',
       default=None,
-      choices=('ours_on', 'ours_off', 'playground', 'raw'),
-      help='measure only these (default: all)',
+      type=_program_name,
+      help='measure only these (default: ours_on, ours_off, playground, '
+      'raw); only_<feature>[+<feature>...] is ours_off with those features '
+      'of ours_on: ' + ', '.join((*FEATURES, 'groups')),
   )
   args = parser.parse_args()
   device = common.print_device()
 
-  envs = _env_variants()
+  names = args.programs or ('ours_on', 'ours_off', 'playground', 'raw')
+  envs = _env_variants([*names, 'ours_off'])
   n = envs['ours_off'].n_sub_steps
   playground, playground_info = _playground_env()
   if playground is None:
@@ -191,8 +251,7 @@ def main():
         common.raw_rollout(raw_model, n, args.steps, jit=False),
         keys,
     )
-    if args.programs:
-      programs = {k: v for k, v in programs.items() if k in args.programs}
+    programs = {k: v for k, v in programs.items() if k in names}
     for name, (reset, rollout, reset_keys) in programs.items():
       row[name] = measure(
           reset, rollout, reset_keys, actions, args.repeats, device
@@ -206,7 +265,7 @@ def main():
           f'first call {row[name]["first_call_s"]:.1f} s',
           flush=True,
       )
-      for ours in ('ours_on', 'ours_off'):
+      for ours in envs:
         for other in ('raw', 'playground'):
           if ours in row and other in row:
             row[f'{ours}/{other}'] = (
