@@ -1,4 +1,4 @@
-"""How often episodes end under the benchmarks' held random actions.
+"""How often episodes end under held random actions, and what a reset costs.
 
 The throughput benchmarks step every world with one random action held for
 the whole rollout (`common.random_actions`). Where the task ends episodes
@@ -14,6 +14,9 @@ It prints the fraction of world-steps that ended an episode (all steps, and
 the second half, after the synchronized start has mixed), the median step of
 each world's first end, and the probability that at least one world of a
 batch of `--batch` worlds ends at a given step, were worlds independent.
+With `--time`, also the seconds of one batched reset (`vmap(env.reset)`, fresh
+keys each call) and of one batched control step (`vmap(env.step)`), medians
+of `--repeats` calls: what a step in which some world is done pays extra.
 """
 
 import importlib
@@ -42,6 +45,12 @@ def main():
       default=[1024, 8192, 32768],
       help='batch sizes to extrapolate P(some world ends) to',
   )
+  parser.add_argument(
+      '--time',
+      action='store_true',
+      help='also time one batched reset and one batched step',
+  )
+  common.add_repeats_arg(parser, 5)
   args = parser.parse_args()
   device = common.print_device()
   time_limit = args.time_limit
@@ -80,6 +89,21 @@ def main():
             str(b): 1.0 - (1.0 - second_half) ** b for b in args.batch
         },
     }
+    if args.time:
+      reset = jax.jit(jax.vmap(env.reset))
+      step = jax.jit(jax.vmap(env.step))
+      row['reset_s'] = common.time_calls(
+          reset,
+          lambda i: (jax.random.split(jax.random.key(i + 1), worlds),),
+          args.repeats,
+      )[1]
+      # Steps from the reset states, every call from the same ones: where no
+      # world ends in it (`step_worlds_done`, the first fall is steps away),
+      # the step without a reset.
+      row['step_s'] = common.time_calls(
+          step, lambda i: (states, actions), args.repeats
+      )[1]
+      row['step_worlds_done'] = int(step(states, actions).last().sum())
     results.append(row)
     print(row, flush=True)
   common.write_results(
