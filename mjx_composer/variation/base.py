@@ -343,14 +343,15 @@ def sample_structure(
   ivs = _leaf_values(structure, n, initial_value, per_leaf)
   cvs = _leaf_values(structure, n, current_value, per_leaf)
   states = state if state is not None else (None,) * n
+  # Leaf i's key is fold_in(key, i), all of them from one hash.
+  keyed = [i for i, leaf in enumerate(leaves) if callable(leaf)]
+  leaf_keys = dict(zip(keyed, rounds.fold_in_each(key, keyed)))
   values, new_states = [], []
   for i, (leaf, leaf_state, iv, cv) in enumerate(zip(leaves, states, ivs, cvs)):
     if isinstance(leaf, Variation):
-      value, leaf_state = leaf._sample(
-          leaf_state, rounds.fold_in(key, i), iv, cv
-      )
+      value, leaf_state = leaf._sample(leaf_state, leaf_keys[i], iv, cv)
     elif callable(leaf):
-      value = leaf(iv, cv, rounds.fold_in(key, i))
+      value = leaf(iv, cv, leaf_keys[i])
     else:
       value = leaf
     values.append(value)
@@ -587,15 +588,21 @@ class CompositeVariation(Variation):
     n = len(self._operands)
     states = state if state is not None else (None,) * n
     inputs = self._operand_inputs(initial_value, current_value)
+    # Operand i's key is fold_in(operand_key, i) (operand_key itself when
+    # there is one operand), all of them from one hash.
+    varied = [
+        i for i, op in enumerate(self._operands) if contains_variation(op)
+    ]
+    operand_keys = (
+        {i: operand_key for i in varied}
+        if n == 1
+        else dict(zip(varied, rounds.fold_in_each(operand_key, varied)))
+    )
     values, new_states = [], []
     for i, (operand, operand_state, (iv, cv)) in enumerate(
         zip(self._operands, states, inputs)
     ):
-      operand_key_i = None
-      if contains_variation(operand):
-        operand_key_i = (
-            operand_key if n == 1 else rounds.fold_in(operand_key, i)
-        )
+      operand_key_i = operand_keys.get(i)
       value, operand_state = sample_structure(
           operand, operand_state, operand_key_i, iv, cv, per_leaf=False
       )

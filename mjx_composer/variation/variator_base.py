@@ -75,6 +75,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.variation import base
+from mjx_composer.variation import rounds
 
 
 @dataclasses.dataclass(frozen=True)
@@ -381,7 +382,9 @@ class Variator:
       new_entry['count'] = jnp.asarray(count, jnp.int32)
 
     values, new_states = [], []
-    binding_keys = _fold_in_each(key, [binding.slot for binding in bindings])
+    binding_keys = rounds.fold_in_each(
+        key, [binding.slot for binding in bindings]
+    )
     with base.evaluation_round(key):
       for i, binding in enumerate(bindings):
         value, state = base.sample(
@@ -503,17 +506,3 @@ def check_static_shape(
         f'{owner}: the variation bound to {describe} gives values of shape '
         f'{out.shape}, but the attribute has shape {shape}.'
     )
-
-
-def _fold_in_each(key, slots):
-  """`[jax.random.fold_in(key, slot) for slot in slots]`, in one call.
-
-  The same keys, bit for bit, from one batched hash instead of one per
-  binding: each PRNG call is a loop of its own in the compiled program.
-  """
-  if len(slots) < 2:
-    return [jax.random.fold_in(key, slot) for slot in slots]
-  keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(
-      key, jnp.asarray(slots, jnp.uint32)
-  )
-  return list(keys)
