@@ -8,7 +8,12 @@ a Perfetto trace) one call of `--steps` control steps of:
 * composed:  `vmap(env.step)` of the task (`common.env_rollout`);
 * each variant named with `--variants`: `no_ends` (no time limit),
   `no_obs` (no time limit, every observable disabled), `shared`
-  (`share_reset_forward=True`), `unshared` (False).
+  (`share_reset_forward=True`), `unshared` (False), `on` (walk with every
+  feature on, as `playground_compare.py`'s ours_on);
+* with `--reset NAME` (`composed` or a variant), that environment's batched
+  reset, `vmap(env.reset)` from fresh keys (reported per call, as one
+  'control step'): what the same-step auto-reset adds to a step in which
+  some world's episode ends.
 
 `--impl warp` builds every environment on MuJoCo Warp, so raw is MuJoCo
 Warp's step on the same model (`base.mjx_model`, put with 'warp').
@@ -64,6 +69,12 @@ def _make_envs(task, variants, impl='jax'):
       envs[name] = common.make_env(
           task, **{**kwargs, 'time_limit': inf}, observables=False
       )
+    elif name == 'on':
+      if task != 'walk':
+        raise ValueError("The 'on' variant is the walk task's.")
+      envs[name] = common.make_env(
+          task, impl=impl, time_limit=kwargs['time_limit']
+      )
     elif name in ('shared', 'unshared'):
       envs[name] = common.make_env(
           task, **kwargs, share_reset_forward=name == 'shared'
@@ -101,6 +112,7 @@ _GENERIC = frozenset(
         'select',
         'fori_loop',
         'while_loop',
+        'reset_program',
     )
 )
 
@@ -134,7 +146,7 @@ def _op_names(hlo_text):
 
 
 def _kernel_times(trace_dir, op_names):
-  """Device microseconds per outer and inner scope, and the kernel count."""
+  """Device microseconds per outer and inner scope; kernels per inner scope."""
   paths = glob.glob(
       os.path.join(trace_dir, '**', 'perfetto_trace.json.gz'), recursive=True
   )
@@ -152,7 +164,7 @@ def _kernel_times(trace_dir, op_names):
   accelerator = {p for p, n in process.items() if '/device:' in n}
   rows = accelerator or set(process)
   outer, inner = collections.Counter(), collections.Counter()
-  kernels = 0
+  kernels = collections.Counter()
   for e in events:
     if e.get('ph') != 'X' or e.get('pid') not in rows:
       continue
@@ -162,8 +174,18 @@ def _kernel_times(trace_dir, op_names):
     first, last = _scope(op_names.get(op, op))
     outer[first] += float(e.get('dur', 0))
     inner[last] += float(e.get('dur', 0))
-    kernels += 1
-  return dict(outer), dict(inner), kernels
+    kernels[last] += 1
+  return dict(outer), dict(inner), dict(kernels)
+
+
+def _zeros(shape):
+  """Zeros of a `jax.ShapeDtypeStruct` (PRNG keys too)."""
+  if jax.dtypes.issubdtype(shape.dtype, jax.dtypes.prng_key):
+    data = jax.random.key_data(jax.random.key(0))
+    return jax.random.wrap_key_data(
+        jax.numpy.zeros(shape.shape + data.shape, data.dtype)
+    )
+  return jax.numpy.zeros(shape.shape, shape.dtype)
 
 
 def _profile(fn, args, trace_dir):
@@ -191,6 +213,17 @@ def main():
   parser.add_argument(
       '--variants', nargs='*', default=['no_ends', 'no_obs'], help='see above'
   )
+  parser.add_argument(
+      '--reset',
+      default=None,
+      help="also profile this environment's batched reset ('composed' or a "
+      'variant)',
+  )
+  parser.add_argument(
+      '--reset-only',
+      action='store_true',
+      help='profile only the reset named by --reset, no step program',
+  )
   parser.add_argument('--trace-dir', default=None)
   parser.add_argument(
       '--impl',
@@ -209,18 +242,36 @@ def main():
   keys = jax.random.split(jax.random.key(0), worlds)
   actions = common.random_actions(base, worlds)
   programs = {}
-  states = jax.jit(jax.vmap(base.reset))(keys)
-  programs['raw'] = (
-      common.raw_rollout(
-          base.mjx_model, base.n_sub_steps, args.steps, jit=False
-      ),
-      (states.data, actions),
-  )
-  for name, env in envs.items():
-    states = jax.jit(jax.vmap(env.reset))(keys)
-    programs[name] = (
-        common.env_rollout(env, args.steps, jit=False),
-        (states, actions),
+  if args.reset_only and args.reset is None:
+    parser.error('--reset-only needs --reset')
+  if not args.reset_only:
+    states = jax.jit(jax.vmap(base.reset))(keys)
+    programs['raw'] = (
+        common.raw_rollout(
+            base.mjx_model, base.n_sub_steps, args.steps, jit=False
+        ),
+        (states.data, actions),
+    )
+    for name, env in envs.items():
+      states = jax.jit(jax.vmap(env.reset))(keys)
+      programs[name] = (
+          common.env_rollout(env, args.steps, jit=False),
+          (states, actions),
+      )
+
+  if args.reset is not None:
+    reset = jax.vmap(envs[args.reset].reset)
+
+    def reset_program(keys, _):
+      # The next call's keys come from the states, so that nothing of the
+      # reset is left out of the program.
+      states = reset(keys)
+      return jax.vmap(lambda k: jax.random.split(k)[0])(states.key), states
+
+    # The second argument only gives the program its output's shapes.
+    programs['reset'] = (
+        reset_program,
+        (keys, jax.tree.map(_zeros, jax.eval_shape(reset, keys))),
     )
 
   results = {}
@@ -228,18 +279,20 @@ def main():
     outer, inner, kernels, wall = _profile(
         fn, fn_args, os.path.join(trace_root, name)
     )
-    per_step = lambda totals: {
-        k: v / args.steps for k, v in sorted(totals.items())
+    calls = 1 if name == 'reset' else args.steps
+    per_step = lambda totals, calls=calls: {
+        k: v / calls for k, v in sorted(totals.items())
     }
     results[name] = {
-        'kernels': kernels,
-        'total_us_per_control_step': sum(outer.values()) / args.steps,
-        'wall_us_per_control_step': wall * 1e6 / args.steps,
+        'kernels': sum(kernels.values()),
+        'kernels_per_control_step': per_step(kernels),
+        'total_us_per_control_step': sum(outer.values()) / calls,
+        'wall_us_per_control_step': wall * 1e6 / calls,
         'outer_us_per_control_step': per_step(outer),
         'inner_us_per_control_step': per_step(inner),
     }
     print(
-        f'{name}: {kernels} kernels, '
+        f'{name}: {results[name]["kernels"]} kernels, '
         f'{results[name]["total_us_per_control_step"]:,.0f} us of device time '
         f'and {results[name]["wall_us_per_control_step"]:,.0f} us of wall-clock '
         'time per control step',
@@ -256,23 +309,23 @@ def main():
     )
 
   names = list(results)
-  for level, rows in (('outer', 12), ('inner', 40)):
-    key = f'{level}_us_per_control_step'
+  for key, rows in (
+      ('kernels_per_control_step', 25),
+      ('outer_us_per_control_step', 12),
+      ('inner_us_per_control_step', 40),
+  ):
+    level = key.replace('_per_control_step', '').replace('_', ' ')
     scopes = sorted(
         {s for r in results.values() for s in r[key]},
         key=lambda s, key=key: -max(
             r[key].get(s, 0.0) for r in results.values()
         ),
     )
-    print(
-        f'\n| {level} scope (us per control step) | ' + ' | '.join(names) + ' |'
-    )
+    print(f'\n| {level} (per control step) | ' + ' | '.join(names) + ' |')
     print('|---|' + '---|' * len(names))
     print(
         '| total | '
-        + ' | '.join(
-            f'{results[n]["total_us_per_control_step"]:,.0f}' for n in names
-        )
+        + ' | '.join(f'{sum(results[n][key].values()):,.0f}' for n in names)
         + ' |'
     )
     for s in scopes[:rows]:

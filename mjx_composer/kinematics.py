@@ -106,6 +106,7 @@ class ReferenceKinematics:
         return True
     return False
 
+  @jax.named_scope('kinematics')
   def apply(self, model, data, written=()) -> mjx.Data:
     """`mjx.com_pos(model, mjx.kinematics(model, data))`, reusing the host's.
 

@@ -146,6 +146,7 @@ class Transitions:
         scheduled_hooks=previous.scheduled_hooks,
     )
 
+  @_named_scope
   def _first_state(self, physics, carry, failures, obs_key, next_key):
     """The FIRST `State` of an initialized, forwarded `physics`."""
     return _state(
@@ -179,6 +180,7 @@ class Transitions:
     fields = sorted(changed | set(self.declared_model_fields))
     return physics.carry(fields)
 
+  @_named_scope
   def _initialize(self, init_key, start):
     """The initialized carry and the number of failed attempts.
 

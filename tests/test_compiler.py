@@ -14,6 +14,7 @@ import inspect
 import pathlib
 
 import jax
+import jax.extend as jex
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
@@ -715,3 +716,48 @@ def test_statistics_set_in_the_spec_are_kept():
   np.testing.assert_allclose(
       fields['body_inertia'], reference.body_inertia, rtol=RTOL, atol=ATOL
   )
+
+
+def _loops(jaxpr) -> int:
+  """The loops (`while`, `scan`) of a jaxpr, nested ones included."""
+  count = 0
+  for eqn in jaxpr.eqns:
+    count += eqn.primitive.name in ('while', 'scan')
+    for sub in jex.core.jaxprs_in_params(eqn.params):
+      count += _loops(sub)
+  return count
+
+
+def test_principal_axes_of_several_bodies_come_from_one_loop():
+  """`bodies_inertial` runs one Jacobi loop for all bodies, none for one geom.
+
+  On a GPU every iteration of a loop is a kernel launch per loop: a loop per
+  body made the walk task's randomized reset twice as slow. Two props of two
+  geoms each need principal axes (one loop); a body of one geom copies the
+  geom's frame (no loop).
+  """
+
+  class Ball(conftest.SpecEntity):
+
+    def _build(self):
+      body = self._new_spec('ball').worldbody.add_body(name='body')
+      self.sphere = body.add_geom(
+          type=_G.mjGEOM_SPHERE, size=[0.05, 0, 0], **_FLOOR_ONLY
+      )
+
+  arena = composer.Arena()
+  props, balls = [Prop(), Prop()], [Ball(), Ball()]
+  for i, entity in enumerate(props + balls):
+    entity.mjcf_model.modelname += str(i)
+    arena.add_free_entity(entity)
+  env = composer.Environment(composer.NullTask(arena))
+  index = env.initial_physics().index
+
+  def loops(bindings):
+    compiler = planner.ModelCompiler(index, bindings)
+    values = [jnp.asarray(v) for v in compiler.initial_values]
+    return _loops(jax.make_jaxpr(compiler)(env.mjx_model, values).jaxpr)
+
+  assert loops([(props[0].cube, 'density', 'density')]) == 1
+  assert loops([(p.cube, 'density', 'density') for p in props]) == 1
+  assert loops([(b.sphere, 'density', 'density') for b in balls]) == 0

@@ -101,7 +101,7 @@ class Attribute:
     shape: the shape of its value.
     fields: the compiled `mjx.Model` fields it maps to (`opt.<name>` for the
       option), directly or, for inertial attributes, through the body's
-      inertial (`inertia.body_inertial`).
+      inertial (`inertia.bodies_inertial`).
     effects: what else the compiler recomputes when it varies.
     refusals: bind-time checks of the element (`structure`), in order.
     set_model: writes `fields` on the device; None when `inertia` derives
@@ -218,7 +218,7 @@ def _pose(kind, part, effects_, **kwargs) -> Attribute:
 
 
 def _inertial(kind, name, shape, effects_, refusals, fields=None, bound=FINITE):
-  """An attribute that `inertia.body_inertial` derives the fields from."""
+  """An attribute that `inertia.bodies_inertial` derives the fields from."""
   fields = fields or (f'body_{name}',)
   return _record(
       kind,

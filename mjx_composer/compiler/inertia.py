@@ -11,6 +11,7 @@ formula on the host.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import jax
@@ -48,8 +49,12 @@ def eig3(mat, iterations=24):
   quaternion from the identity, then eigenvalues sorted in decreasing order
   by quarter turns. The termination threshold is relative here (float32
   cannot reach the compiler's absolute 1e-12; an off-diagonal below 1e-7 of
-  the diagonal is float32 noise), and a fixed iteration budget with a
-  converged flag replaces the loop so it vmaps.
+  the diagonal is float32 noise), and an iteration budget with a converged
+  flag replaces the loop so it vmaps. The budget is fixed, not an early
+  exit: a loop with a known trip count runs on a GPU without reading its
+  condition back to the host at every iteration (with an early exit, the
+  walk task's batched reset took 17 ms instead of 12 ms in one timed call
+  on an H200, 8,192 worlds).
 
   Returns:
     `(eigenvalues (3,), quaternion (4,))`, the quaternion taking the
@@ -356,8 +361,60 @@ def _geom_inertial(fields, g: int, owner: str):
   return mass_, inertia, fields.get('geom_pos')[g], fields.get('geom_quat')[g]
 
 
-def body_inertial(fields, b: int, owner: str):
-  """(mass, inertia, ipos, iquat) of body `b` as mjCBody::Compile sets them."""
+def bodies_inertial(fields, bodies, owner: str):
+  """(mass, inertia, ipos, iquat) of `bodies` as mjCBody::Compile sets them.
+
+  Batched over the bodies: `(n,)`, `(n, 3)`, `(n, 3)` and `(n, 4)` arrays in
+  the order of `bodies`. The principal axes of every body that sums several
+  geoms come from one `eig3` over all of them, so the program holds one
+  Jacobi loop, not one per body (on a GPU each loop iteration is a kernel
+  launch per body).
+  """
+  parts = [_body_parts(fields, b, owner) for b in bodies]
+  summed = [i for i, p in enumerate(parts) if p.full is not None]
+  if summed:
+    eigval, eigquat = jax.vmap(eig3)(jnp.stack([parts[i].full for i in summed]))
+    for j, i in enumerate(summed):
+      parts[i] = parts[i].with_principal(eigval[j], eigquat[j])
+  out = [_finish_body(fields, b, p) for b, p in zip(bodies, parts)]
+  return tuple(jnp.stack([o[k] for o in out]) for k in range(4))
+
+
+@dataclasses.dataclass(frozen=True)
+class _BodyParts:
+  """A body's inertial before its principal axes (see `_body_parts`).
+
+  `full` is the inertia matrix about the centre of mass of its geoms where
+  several may count (None otherwise); `pick` chooses, per world, between
+  the spec's inertial (no geom has mass), one geom's (exactly one has) and
+  the summed one (several have).
+  """
+
+  mass: jax.Array
+  inertia: jax.Array
+  ipos: jax.Array
+  iquat: jax.Array
+  defined: jax.Array
+  local_pos: jax.Array
+  local_quat: jax.Array
+  full: jax.Array | None = None
+  count: jax.Array | None = None
+  total: jax.Array | None = None
+  com: jax.Array | None = None
+
+  def with_principal(self, eigval, eigquat):
+    pick = lambda several, old: jnp.where(self.count > 1, several, old)
+    return dataclasses.replace(
+        self,
+        mass=pick(self.total, self.mass),
+        inertia=pick(eigval, self.inertia),
+        ipos=pick(self.com, self.ipos),
+        iquat=pick(eigquat, self.iquat),
+    )
+
+
+def _body_parts(fields, b: int, owner: str) -> _BodyParts:
+  """Body `b`'s inertial from the spec and its geoms, but the eigen-axes."""
   m = fields.host.m
   body = fields.host.handles['body'][b]
   vals = fields.bound('body', b)
@@ -384,43 +441,60 @@ def body_inertial(fields, b: int, owner: str):
       mode == mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_AUTO
       and not explicit_ipos
   )
-  defined = jnp.asarray(explicit_ipos)
+  parts = _BodyParts(
+      mass=mass,
+      inertia=inertia,
+      ipos=ipos,
+      iquat=iquat,
+      defined=jnp.asarray(explicit_ipos),
+      local_pos=local_pos,
+      local_quat=local_quat,
+  )
   selected = fields.host.inertia_geoms(b, compiler) if infers else []
-  if selected:
-    parts = [_geom_inertial(fields, g, owner) for g in selected]
-    gm, gi, gp, gq = (jnp.stack([p[k] for p in parts]) for k in range(4))
-    use = gm > frames.EPS
-    count = jnp.sum(use)
-    # One geom: its frame and principal inertia are copied.
-    first = jnp.argmax(use)
-    one = (gm[first], gi[first], gp[first], gq[first])
-    # Several: total mass, centre of mass, principal axes of the sum.
-    w = jnp.where(use, gm, 0.0)
-    total = jnp.sum(w)
-    com = jnp.sum(w[:, None] * gp, axis=0) / jnp.maximum(total, frames.MINVAL)
-    rots = tr.quat_to_mat(gq)
-    local = jnp.einsum('nij,nj,nkj->nik', rots, gi, rots)
-    d = gp - com
-    off = w[:, None, None] * (
-        jnp.sum(d * d, -1)[:, None, None] * jnp.eye(3)
-        - d[:, :, None] * d[:, None, :]
-    )
-    full = jnp.sum(jnp.where(use[:, None, None], local + off, 0.0), 0)
-    eigval, eigquat = eig3(full)
-    many = (total, eigval, com, eigquat)
-    pick = lambda a, b_, c: jnp.where(
-        count == 1, a, jnp.where(count > 1, b_, c)
-    )
-    mass = pick(one[0], many[0], mass)
-    inertia = pick(one[1], many[1], inertia)
-    ipos = pick(one[2], many[2], ipos)
-    iquat = pick(one[3], many[3], iquat)
-    defined = defined | (count > 0)
+  if not selected:
+    return parts
+  geoms = [_geom_inertial(fields, g, owner) for g in selected]
+  gm, gi, gp, gq = (jnp.stack([p[k] for p in geoms]) for k in range(4))
+  use = gm > frames.EPS
+  count = jnp.sum(use)
+  # One geom: its frame and principal inertia are copied.
+  first = jnp.argmax(use)
+  one = count == 1
+  parts = dataclasses.replace(
+      parts,
+      mass=jnp.where(one, gm[first], mass),
+      inertia=jnp.where(one, gi[first], inertia),
+      ipos=jnp.where(one, gp[first], ipos),
+      iquat=jnp.where(one, gq[first], iquat),
+      defined=parts.defined | (count > 0),
+  )
+  if len(selected) == 1:
+    return parts  # never several
+  # Several: total mass, centre of mass, principal axes of the sum.
+  w = jnp.where(use, gm, 0.0)
+  total = jnp.sum(w)
+  com = jnp.sum(w[:, None] * gp, axis=0) / jnp.maximum(total, frames.MINVAL)
+  rots = tr.quat_to_mat(gq)
+  local = jnp.einsum('nij,nj,nkj->nik', rots, gi, rots)
+  d = gp - com
+  off = w[:, None, None] * (
+      jnp.sum(d * d, -1)[:, None, None] * jnp.eye(3)
+      - d[:, :, None] * d[:, None, :]
+  )
+  full = jnp.sum(jnp.where(use[:, None, None], local + off, 0.0), 0)
+  return dataclasses.replace(
+      parts, full=full, count=count, total=total, com=com
+  )
+
+
+def _finish_body(fields, b: int, parts: _BodyParts):
+  """The compiler's bounds and balancing, and the undefined-frame rule."""
+  compiler = fields.host.handles['body'][b].compiler
   # Undefined inertial frame: the compiler copies the (local) body frame.
-  ipos = jnp.where(defined, ipos, local_pos)
-  iquat = jnp.where(defined, iquat, local_quat)
-  mass = jnp.maximum(mass, compiler.boundmass)
-  inertia = jnp.maximum(inertia, compiler.boundinertia)
+  ipos = jnp.where(parts.defined, parts.ipos, parts.local_pos)
+  iquat = jnp.where(parts.defined, parts.iquat, parts.local_quat)
+  mass = jnp.maximum(parts.mass, compiler.boundmass)
+  inertia = jnp.maximum(parts.inertia, compiler.boundinertia)
   if compiler.balanceinertia:
     bad = (
         (inertia[0] + inertia[1] < inertia[2])

@@ -167,6 +167,7 @@ class ModelCompiler:
       self._auto_stat = set_const.auto_stat(self._host.m)
     return self._auto_stat
 
+  @jax.named_scope('model_compiler')
   def __call__(self, model: mjx.Model, values: Sequence[jax.Array]) -> dict:
     """The model fields to replace, for one world.
 
@@ -187,16 +188,18 @@ class ModelCompiler:
       per_kind.setdefault(bound.obj_id, {})[record.name] = value
       if record.set_model is not None:
         record.set_model(fields, bound.obj_id, value)
-    for b in plan.inertia_bodies:
-      inertial = inertia.body_inertial(fields, b, self._owner)
-      for name, value in zip(
-          ('body_mass', 'body_inertia', 'body_ipos', 'body_iquat'), inertial
-      ):
-        fields.put(name, b, value)
-    if plan.inertia:
-      fields.fields['body_subtreemass'] = inertia.subtreemass(
-          self._host.m, fields.get('body_mass')
-      )
+    with jax.named_scope('inertia'):
+      bodies = plan.inertia_bodies
+      if bodies:
+        inertial = inertia.bodies_inertial(fields, bodies, self._owner)
+        for name, value in zip(
+            ('body_mass', 'body_inertia', 'body_ipos', 'body_iquat'), inertial
+        ):
+          fields.put(name, np.asarray(bodies), value)
+      if plan.inertia:
+        fields.fields['body_subtreemass'] = inertia.subtreemass(
+            self._host.m, fields.get('body_mass')
+        )
     if plan.set_const:
       set_const.update(self._host, plan, fields, self._statistics)
     if fields.opt:

@@ -38,6 +38,7 @@ def _mjx_jax_data(d):
   return d._impl  # pylint: disable=protected-access
 
 
+@jax.named_scope('set_const')
 def update(host, plan, fields, auto_stat):
   """Adds the `mj_setConst` quantities that the bound attributes can change.
 

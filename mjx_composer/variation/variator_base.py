@@ -316,6 +316,7 @@ class Variator:
 
   # -- applying -------------------------------------------------------------
 
+  @jax.named_scope('apply_variations')
   def apply_variations(self, physics, key, *, in_step: bool = False):
     """Samples the bound attributes for this world, per the schedule.
 
