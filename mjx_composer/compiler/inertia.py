@@ -66,27 +66,27 @@ def eig3(mat, iterations=24):
 
   def body(_, carry):
     quat, done = carry
-    r = tr.quat_to_mat(quat)
-    d = r.T @ mat @ r
-    a01, a02, a12 = jnp.abs(d[0, 1]), jnp.abs(d[0, 2]), jnp.abs(d[1, 2])
+    d = _rotated(mat, tr.quat_to_mat(quat))
+    d01, d02, d12 = d[0, 1], d[0, 2], d[1, 2]
+    a01, a02, a12 = jnp.abs(d01), jnp.abs(d02), jnp.abs(d12)
     case0 = (a01 > a02) & (a01 > a12)
     case1 = jnp.logical_not(case0) & (a02 > a12)
-    rk = jnp.where(case0 | case1, 0, 1)
-    ck = jnp.where(case0, 1, 2)
+    # Selects, not indexing with traced indices: the loop body stays one
+    # elementwise computation that XLA fuses. (rk, ck) is (0, 1), (0, 2)
+    # or (1, 2); the rotation axis is the third one.
+    off = jnp.where(case0, d01, jnp.where(case1, d02, d12))
+    d_rr = jnp.where(case0 | case1, d[0, 0], d[1, 1])
+    d_cc = jnp.where(case0, d[1, 1], d[2, 2])
     rotk = jnp.where(case0, 2, jnp.where(case1, 1, 0))
-    off = d[rk, ck]
     stop = jnp.abs(off) < tol
     safe_off = jnp.where(stop, 1.0, off)
-    tau = (d[ck, ck] - d[rk, rk]) / (2 * safe_off)
+    tau = (d_cc - d_rr) / (2 * safe_off)
     root = jnp.sqrt(1 + tau * tau)
     t = jnp.where(tau >= 0, 1.0 / (tau + root), -1.0 / (-tau + root))
     c = 1.0 / jnp.sqrt(1 + t * t)
-    # MuJoCo's half-angle sine, sign(tau) * -sqrt(0.5 - 0.5 c), written as
-    # -sin(theta) / sqrt(2 (1 + c)): float32 rounds c to 1 below ~3e-4 rad,
-    # which would stop the iteration that early.
     comp = -(t * c) / jnp.sqrt(2 * (1 + c))
     comp = jnp.where(rotk == 1, -comp, comp)
-    vec = jnp.zeros(3, dtype).at[rotk].set(comp)
+    vec = jnp.where(jnp.arange(3) == rotk, comp, jnp.zeros((), dtype))
     rot = jnp.concatenate([jnp.sqrt(1.0 - comp * comp)[None], vec])
     rot = tr.normalize(rot)
     new = tr.quat_mul(quat, rot)
@@ -95,9 +95,11 @@ def eig3(mat, iterations=24):
     return jnp.where(done, quat, new), done
 
   quat0 = jnp.array([1.0, 0.0, 0.0, 0.0], dtype)
-  quat, _ = jax.lax.fori_loop(0, iterations, body, (quat0, jnp.zeros((), bool)))
-  r = tr.quat_to_mat(quat)
-  eigval = jnp.diagonal(r.T @ mat @ r)
+  # Unrolled by 4: a quarter of the iterations, each a few fused kernels.
+  quat, _ = jax.lax.fori_loop(
+      0, iterations, body, (quat0, jnp.zeros((), bool)), unroll=4
+  )
+  eigval = jnp.diagonal(_rotated(mat, tr.quat_to_mat(quat)))
   # Sort decreasing (bubble sort 0, 1, 0), rotating the frame by quarter
   # turns; like MuJoCo, only swap values that differ (here: relatively).
   half = math.sqrt(0.5)
@@ -115,6 +117,12 @@ def eig3(mat, iterations=24):
 
 
 # -- geoms ---
+
+
+def _rotated(mat, r):
+  """`r.T @ mat @ r` of 3x3 matrices, elementwise (fusible, full float32)."""
+  mr = jnp.sum(mat[:, :, None] * r[None, :, :], axis=1)
+  return jnp.sum(r[:, :, None] * mr[:, None, :], axis=0)
 
 
 def _geom_volume(gtype, shell, size):
