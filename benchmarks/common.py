@@ -57,6 +57,7 @@ def make_env(
     auto_reset='same_step',
     max_reset_attempts=None,
     share_reset_forward=None,
+    auto_reset_batch=None,
     impl='jax',
     naconmax=None,
     njmax=None,
@@ -72,6 +73,7 @@ def make_env(
     auto_reset: the `Environment`'s auto-reset mode.
     max_reset_attempts: passed to the `Environment` when given.
     share_reset_forward: passed to the `Environment` when given.
+    auto_reset_batch: passed to the `Environment` when given.
     impl, naconmax, njmax: the physics implementation ('jax', 'warp', or
       None for the `Environment`'s default) and MuJoCo Warp's buffer sizes,
       passed to the `Environment` when given. The benchmarks measure MJX's
@@ -97,6 +99,8 @@ def make_env(
     kwargs['max_reset_attempts'] = max_reset_attempts
   if share_reset_forward is not None:
     kwargs['share_reset_forward'] = share_reset_forward
+  if auto_reset_batch is not None:
+    kwargs['auto_reset_batch'] = auto_reset_batch
   for name, value in (('impl', impl), ('naconmax', naconmax), ('njmax', njmax)):
     if value is not None:
       kwargs[name] = value

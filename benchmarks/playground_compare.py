@@ -21,7 +21,10 @@ loads) for `--steps` control steps of 5 physics steps, held actions:
               features switched back on, to find what each costs: noise,
               delay, history, randomize, push, fall (`FEATURES`), or groups
               (the critic group observed too); `only_<f>+<g>+...` switches
-              on several (e.g. only_fall+randomize).
+              on several (e.g. only_fall+randomize);
+* ours_on_chunk<K>: on request, ours_on with `auto_reset_batch=K`: the
+              worlds whose episodes end are reset K at a time, not with
+              the whole batch.
 
 For each: control steps per second (median of `--repeats` calls), the first
 call's seconds (trace, lower and XLA compile of the rollout, and of the
@@ -124,14 +127,21 @@ FEATURES = {
 def _program_name(name):
   """`--programs`' type: a known program, or only_ with known features."""
   features = name[len('only_') :].split('+')
-  if name in ('ours_on', 'ours_off', 'playground', 'raw') or (
-      name.startswith('only_')
-      and all(f in FEATURES or f == 'groups' for f in features)
+  if (
+      name in ('ours_on', 'ours_off', 'playground', 'raw')
+      or (
+          name.startswith('only_')
+          and all(f in FEATURES or f == 'groups' for f in features)
+      )
+      or (
+          name.startswith('ours_on_chunk')
+          and name[len('ours_on_chunk') :].isdigit()
+      )
   ):
     return name
   raise argparse.ArgumentTypeError(
-      f'unknown program {name!r}: ours_on, ours_off, playground, raw, or '
-      f"only_ followed by features joined by '+' from "
+      f'unknown program {name!r}: ours_on, ours_off, playground, raw, '
+      "ours_on_chunk<K>, or only_ followed by features joined by '+' from "
       f'{", ".join((*FEATURES, "groups"))}'
   )
 
@@ -147,6 +157,12 @@ def _env_variants(names):
   for name in names:
     if name == 'ours_on':
       envs[name] = common.make_env('walk', time_limit=walk.EPISODE_SECONDS)
+    elif name.startswith('ours_on_chunk'):
+      envs[name] = common.make_env(
+          'walk',
+          time_limit=walk.EPISODE_SECONDS,
+          auto_reset_batch=int(name[len('ours_on_chunk') :]),
+      )
     elif name == 'ours_off':
       envs[name] = common.make_walk_like_playground(walk.EPISODE_SECONDS)
     elif name.startswith('only_'):

@@ -111,7 +111,18 @@ class Environment:
       sub-steps as a `lax.scan` of `mjx.step` and the restart separately.
       Results are bit-identical either way. Default (None): True on a CPU
       with impl='jax', where runs are short and compiling dominates; False
-      elsewhere. impl='warp' refuses True (`backend`).
+      elsewhere (and with `auto_reset_batch`). impl='warp' refuses True
+      (`backend`).
+    auto_reset_batch: under `jax.vmap`, how many worlds' auto-resets are
+      computed together. None (default): at a step in which any world's
+      episode ends, the reset of the whole batch is computed and selected
+      per world. An integer K: the worlds that end are gathered into
+      batches of K, reset and scattered back (`episode.select_reset`), so
+      a step in which a few of many worlds end pays for K resets, not for
+      all: for tasks whose episodes end often (falls) on large batches.
+      The results are the same to float rounding. Needs impl='jax' (None
+      then resolves to 'jax') and refuses `share_reset_forward=True`,
+      which runs the reset inside the sub-step loop.
     impl: which MJX implementation runs the physics: 'jax' (MJX's XLA
       implementation), 'warp' (MuJoCo Warp kernels through JAX's FFI, on a
       CUDA GPU or the CPU; `pip install 'mjx-composer[warp]'`), or None:
@@ -153,10 +164,13 @@ class Environment:
       observation_groups=None,
       max_reset_attempts=1,
       share_reset_forward=None,
+      auto_reset_batch=None,
       impl=None,
       naconmax=None,
       njmax=None,
   ):
+    _check_auto_reset_batch(auto_reset_batch, share_reset_forward, impl)
+    self._auto_reset_batch = auto_reset_batch
     _check_arguments(
         delayed_observation_padding,
         auto_reset,
@@ -189,7 +203,12 @@ class Environment:
     # This process's first device: MJX's default, `jax.devices()[0]`, is
     # another process's on every host but the first.
     device = jax.local_devices()[0]
-    candidates = backend.resolve_impl(impl, device, share_reset_forward)
+    # The fused restart and the chunked reset run on 'jax' only.
+    candidates = backend.resolve_impl(
+        impl,
+        device,
+        share_reset_forward=share_reset_forward or auto_reset_batch is not None,
+    )
     random_state = self._random_state.get_state()
     for i, candidate in enumerate(candidates):
       try:
@@ -268,8 +287,8 @@ class Environment:
         },
     )
     if share_reset_forward is None:
-      share_reset_forward = backend.default_share_reset_forward(
-          self._impl, device
+      share_reset_forward = self._auto_reset_batch is None and (
+          backend.default_share_reset_forward(self._impl, device)
       )
     self._share_reset_forward = bool(share_reset_forward)
     mjx_model, data0 = backend.put(
@@ -443,13 +462,21 @@ class Environment:
       reset_key, step_key = jax.random.split(state.key)
       stepped = transitions.step(state.replace(key=step_key), action)
       return episode_lib.select_reset(
-          state.last(), transitions.reset, (reset_key, state), stepped
+          state.last(),
+          transitions.reset,
+          (reset_key, state),
+          stepped,
+          chunk=self._auto_reset_batch,
       )
     if fuse:
       return transitions.step_and_restart(state, action)
     stepped = transitions.step(state, action)
     return episode_lib.select_reset(
-        stepped.last(), transitions.restart, (stepped,), stepped
+        stepped.last(),
+        transitions.restart,
+        (stepped,),
+        stepped,
+        chunk=self._auto_reset_batch,
     )
 
   def _check_action(self, action):
@@ -489,6 +516,28 @@ def _check_arguments(
   if unknown:
     raise ValueError(
         f'Unknown mjx.Model fields {sorted(unknown)} in per_world_model_fields.'
+    )
+
+
+def _check_auto_reset_batch(batch, share_reset_forward, impl):
+  if batch is None:
+    return
+  if isinstance(batch, bool) or int(batch) != batch or batch < 1:
+    raise ValueError(
+        f'auto_reset_batch must be a positive integer or None, got {batch!r}.'
+    )
+  if share_reset_forward:
+    raise ValueError(
+        'auto_reset_batch gathers the worlds that end into a separate, '
+        'smaller reset; share_reset_forward=True runs the reset of the whole '
+        'batch inside the sub-step loop instead. Set one of them.'
+    )
+  if impl == 'warp':
+    raise ValueError(
+        "auto_reset_batch needs impl='jax': MuJoCo Warp's contact buffer is "
+        'shared by the whole batch, so a subset of worlds cannot be gathered '
+        "and reset on its own. Use impl='jax' (or leave auto_reset_batch "
+        'unset).'
     )
 
 

@@ -206,14 +206,20 @@ def _out_batched(out):
   return jax.tree.map(lambda shared: not shared, backend.shared_leaves(out))
 
 
-def select_reset(done, reset_fn, operands, stepped):
+def select_reset(done, reset_fn, operands, stepped, chunk=None):
   """`reset_fn(*operands)` where `done`, else `stepped`.
 
   For one world this is a select. Under `jax.vmap` a select would compute the
-  reset of every world at every step; the batching rule instead computes the
-  batch's resets only when some world is done (`lax.cond` on `any(done)`),
-  then selects per world. Results are the same either way. The reset is
-  traced once and reused by both paths.
+  reset of every world at every step; the batching rule instead computes
+  resets only when some world is done. With `chunk=None` (or a chunk no
+  smaller than the batch) it computes the whole batch's resets (`lax.cond`
+  on `any(done)`), then selects per world. With a smaller `chunk`, it
+  gathers the done worlds into batches of `chunk` worlds, resets those and
+  scatters them back (`_reset_in_chunks`): a step in which a few of many
+  worlds end pays for a reset of `chunk` worlds, not of all. Results are
+  the same either way, to float rounding (XLA may order a sum differently
+  for another batch size). The reset is traced once and reused by every
+  path.
   """
   reset = trace_once(reset_fn, *operands)
 
@@ -227,14 +233,112 @@ def select_reset(done, reset_fn, operands, stepped):
     done, operands, stepped = _batch_all(
         axis_size, (done, operands, stepped), in_batched
     )
-    out = jax.lax.cond(
-        jnp.any(done),
-        lambda: jax.vmap(select)(done, operands, stepped),
-        lambda: stepped,
-    )
+    if chunk is not None and chunk < axis_size:
+      out = _reset_in_chunks(done, reset, operands, stepped, chunk)
+    else:
+      out = jax.lax.cond(
+          jnp.any(done),
+          lambda: jax.vmap(select)(done, operands, stepped),
+          lambda: stepped,
+      )
     return out, _out_batched(out)
 
   return select_or_skip(done, operands, stepped)
+
+
+def _reset_in_chunks(done, reset, operands, stepped, chunk):
+  """`select(done, vmap(reset)(*operands), stepped)`, `chunk` worlds at a time.
+
+  The done worlds come first in a stable order of the batch; each loop
+  iteration gathers the next `chunk` of them (rows of one array per dtype,
+  `_Rows`, so that a gather and a scatter are a few kernels, not one per
+  leaf), resets them and scatters the results back. Slots past the last
+  done world are computed and discarded. The loop runs
+  `ceil(done worlds / chunk)` times, none when no world is done.
+  """
+  n = done.shape[0]
+  order = jnp.argsort(jnp.logical_not(done), stable=True)  # done first
+  count = jnp.sum(done.astype(jnp.int32))
+  out_rows = _Rows(stepped)
+  operand_rows = _Rows(operands)
+
+  def body(loop):
+    start, packed = loop
+    # The last chunk slides back to stay inside the batch; the worlds it
+    # covers again were reset already and are masked out.
+    first = jnp.minimum(start, n - chunk)
+    index = jax.lax.dynamic_slice(order, (first,), (chunk,))
+    position = first + jnp.arange(chunk)
+    fresh = jax.vmap(reset)(*operand_rows.take(index))
+    # `select` (traced first, by `custom_vmap`) has checked that the reset
+    # returns what the step does, leaf for leaf: the same layout.
+    fresh_rows = _Rows(fresh)
+    keep = (position >= start) & (position < count)
+    packed = {
+        dtype: rows.at[index].set(
+            jnp.where(keep[:, None], fresh_rows.packed[dtype], rows[index])
+        )
+        for dtype, rows in packed.items()
+    }
+    return start + chunk, packed
+
+  _, packed = jax.lax.while_loop(
+      lambda loop: loop[0] < count,
+      body,
+      (jnp.zeros((), jnp.int32), out_rows.packed),
+  )
+  return out_rows.unpack(packed)
+
+
+class _Rows:
+  """A batched tree as one `(batch, width)` array per dtype, and back.
+
+  PRNG key leaves travel as their key data.
+  """
+
+  def __init__(self, tree):
+    leaves, self._treedef = jax.tree.flatten(tree)
+    self._impls = [
+        jax.random.key_impl(x)
+        if jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
+        else None
+        for x in leaves
+    ]
+    raw = [
+        jax.random.key_data(x) if impl is not None else x
+        for x, impl in zip(leaves, self._impls)
+    ]
+    self._shapes = [x.shape[1:] for x in raw]
+    self._groups = {}
+    for i, x in enumerate(raw):
+      self._groups.setdefault(jnp.dtype(x.dtype), []).append(i)
+    self.packed = {
+        dtype: jnp.concatenate(
+            [raw[i].reshape(raw[i].shape[0], -1) for i in members], axis=1
+        )
+        for dtype, members in self._groups.items()
+    }
+
+  def take(self, index):
+    """The tree of the rows `index`."""
+    return self.unpack({d: rows[index] for d, rows in self.packed.items()})
+
+  def unpack(self, packed):
+    """The tree of `packed` (arrays laid out as `self.packed`)."""
+    leaves = [None] * len(self._shapes)
+    for dtype, members in self._groups.items():
+      rows = packed[dtype]
+      offset = 0
+      for i in members:
+        shape = self._shapes[i]
+        size = math.prod(shape)
+        x = rows[:, offset : offset + size].reshape((rows.shape[0],) + shape)
+        offset += size
+        impl = self._impls[i]
+        leaves[i] = (
+            x if impl is None else jax.random.wrap_key_data(x, impl=impl)
+        )
+    return jax.tree.unflatten(self._treedef, leaves)
 
 
 def loop_with_reset(n, body, wants_reset, carry, operands):

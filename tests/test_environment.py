@@ -657,3 +657,55 @@ def test_step_hooks_cannot_add_persistent_entries():
   env = composer.Environment(Adds())
   with pytest.raises(ValueError, match='initialize_episode'):
     env.step(env.reset(jax.random.key(0)), jnp.zeros(1))
+
+
+@pytest.mark.parametrize('auto_reset', ['next_step', 'same_step'])
+def test_auto_reset_batch_gives_the_same_trajectories(auto_reset):
+  """Resetting the worlds that end 3 at a time, against the whole batch.
+
+  Episodes of 4 control steps whose worlds start at different points of
+  them, so that some but not all worlds end at each step (up to 3 of 8,
+  and all 8 together at the start of the second block).
+  """
+  envs = {
+      batch: conftest.make_swing_env(
+          time_limit=0.04,
+          auto_reset=auto_reset,
+          share_reset_forward=False if batch is None else None,
+          auto_reset_batch=batch,
+      )
+      for batch in (None, 3)
+  }
+  n = 8
+  keys = jax.random.split(jax.random.key(5), n)
+  actions = jnp.linspace(-1.0, 1.0, n)[:, None]
+  finals = {}
+  for batch, env in envs.items():
+    states = jax.jit(jax.vmap(env.reset))(keys)
+    offsets = jnp.arange(n) % 4
+    states = states.replace(
+        episode=states.episode.replace(length=offsets),
+        key=jax.vmap(jax.random.fold_in)(states.key, offsets),
+    )
+    step = jax.jit(jax.vmap(env.step))
+    trajectory = []
+    for _ in range(9):
+      states = step(states, actions)
+      trajectory.append(states)
+    finals[batch] = trajectory
+  ends = [int(np.sum(s.last())) for s in finals[None]]
+  assert 0 < min(e for e in ends if e) < n and max(ends) >= 2, ends
+  for whole, chunked in zip(finals[None], finals[3]):
+    for a, b in zip(jax.tree.leaves(whole), jax.tree.leaves(chunked)):
+      if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+        a, b = jax.random.key_data(a), jax.random.key_data(b)
+      np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-6)
+
+
+def test_auto_reset_batch_refusals():
+  with pytest.raises(ValueError, match='positive integer'):
+    conftest.make_swing_env(auto_reset_batch=0)
+  with pytest.raises(ValueError, match='Set one of them'):
+    conftest.make_swing_env(auto_reset_batch=4, share_reset_forward=True)
+  with pytest.raises(ValueError, match="needs impl='jax'"):
+    conftest.make_swing_env(auto_reset_batch=4, impl='warp')

@@ -77,6 +77,68 @@ def test_select_reset_traces_the_reset_once_under_vmap():
   assert len(counter) == 1
 
 
+def _mixed_reset(key):
+  """A reset whose output has every kind of leaf a `State` has."""
+  a, b = jax.random.split(key)
+  return {
+      'x': jax.random.uniform(a, (3, 2)),
+      'n': jax.random.randint(b, (), 0, 100),
+      'flag': jax.random.bernoulli(b),
+      'key': jax.random.fold_in(key, 1),
+      'empty': jnp.zeros((0, 4)),
+  }
+
+
+@pytest.mark.parametrize('chunk', [1, 3, 5, 7, 8, None])
+def test_select_reset_in_chunks_equals_the_per_world_select(chunk):
+  """Done worlds gathered `chunk` at a time: the same as selecting each.
+
+  Seven worlds: chunks of 3 slide the last one back over worlds already
+  reset (masked); 7 and more take the whole-batch path.
+  """
+  n = 7
+  keys = jax.random.split(jax.random.key(0), n)
+  stepped = jax.vmap(_mixed_reset)(jax.random.split(jax.random.key(1), n))
+
+  def step(done, key, stepped):
+    return episode.select_reset(done, _mixed_reset, (key,), stepped, chunk)
+
+  batched_step = jax.jit(jax.vmap(step))
+  patterns = [
+      [False] * n,
+      [True] * n,
+      [False, True, False, False, True, True, False],
+      [True, False, False, False, False, False, True],
+      [False] * (n - 1) + [True],
+  ]
+  for done in patterns:
+    done = jnp.asarray(done)
+    batched = batched_step(done, keys, stepped)
+    for i in range(n):
+      single = step(done[i], keys[i], jax.tree.map(lambda x: x[i], stepped))
+      got = jax.tree.map(lambda x: x[i], batched)
+      for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(single)):
+        if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+          a, b = jax.random.key_data(a), jax.random.key_data(b)
+        np.testing.assert_array_equal(a, b)
+
+
+def test_select_reset_in_chunks_traces_the_reset_once():
+  counter = []
+
+  def reset(key):
+    counter.append(1)
+    return _mixed_reset(key)
+
+  def step(done, key, stepped):
+    return episode.select_reset(done, reset, (key,), stepped, chunk=2)
+
+  keys = jax.random.split(jax.random.key(0), 6)
+  stepped = jax.vmap(_mixed_reset)(keys)
+  jax.jit(jax.vmap(step)).lower(jnp.zeros(6, bool), keys, stepped)
+  assert len(counter) == 1
+
+
 def test_diverged_flags_any_non_finite_state():
   class Data:
     qpos = jnp.zeros(3)
