@@ -161,16 +161,14 @@ def trace_once(fn, *args, return_shapes=False):
   Calling the result emits the traced program again (or batches it, under
   `vmap`) without running `fn`'s Python: what lets a reset that is needed in
   two places (both branches of a batching rule, a first attempt and its
-  retries) be traced once. With `return_shapes`, also returns the output's
-  shapes (a pytree of `jax.ShapeDtypeStruct`).
+  retries) be traced once. The result is `jax.jit(fn)`, traced here: a call
+  with the same shapes binds the cached trace as one nested call (XLA
+  inlines it), instead of re-evaluating its equations one by one, which
+  cost as much as tracing `fn` again. With `return_shapes`, also returns the
+  output's shapes (a pytree of `jax.ShapeDtypeStruct`).
   """
-  closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*args)
-  evaluate = jex.core.jaxpr_as_fun(closed)
-  out_tree = jax.tree.structure(out_shape)
-
-  def traced(*call_args):
-    return jax.tree.unflatten(out_tree, evaluate(*jax.tree.leaves(call_args)))
-
+  traced = jax.jit(fn)
+  out_shape = jax.eval_shape(traced, *args)
   if return_shapes:
     return traced, out_shape
   return traced
