@@ -47,6 +47,8 @@ import time
 
 import jax
 
+from mjx_composer import transitions
+
 import common  # benchmarks/common.py
 
 
@@ -178,16 +180,6 @@ def _kernel_times(trace_dir, op_names):
   return dict(outer), dict(inner), dict(kernels)
 
 
-def _zeros(shape):
-  """Zeros of a `jax.ShapeDtypeStruct` (PRNG keys too)."""
-  if jax.dtypes.issubdtype(shape.dtype, jax.dtypes.prng_key):
-    data = jax.random.key_data(jax.random.key(0))
-    return jax.random.wrap_key_data(
-        jax.numpy.zeros(shape.shape + data.shape, data.dtype)
-    )
-  return jax.numpy.zeros(shape.shape, shape.dtype)
-
-
 def _profile(fn, args, trace_dir):
   """Compiles `fn`, times its third call, then profiles its fourth.
 
@@ -271,7 +263,14 @@ def main():
     # The second argument only gives the program its output's shapes.
     programs['reset'] = (
         reset_program,
-        (keys, jax.tree.map(_zeros, jax.eval_shape(reset, keys))),
+        (
+            keys,
+            jax.tree.map(
+                # Zeros of each shape, PRNG keys too.
+                transitions._zeros_like_shape,  # pylint: disable=protected-access
+                jax.eval_shape(reset, keys),
+            ),
+        ),
     )
 
   results = {}

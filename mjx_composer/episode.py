@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 
 import jax
-import jax.extend as jex
 import jax.numpy as jnp
 
 from mjx_composer import backend

@@ -84,6 +84,9 @@ def eig3(mat, iterations=24):
     root = jnp.sqrt(1 + tau * tau)
     t = jnp.where(tau >= 0, 1.0 / (tau + root), -1.0 / (-tau + root))
     c = 1.0 / jnp.sqrt(1 + t * t)
+    # MuJoCo's half-angle sine, sign(tau) * -sqrt(0.5 - 0.5 c), written as
+    # -sin(theta) / sqrt(2 (1 + c)): float32 rounds c to 1 below ~3e-4 rad,
+    # which would stop the iteration that early.
     comp = -(t * c) / jnp.sqrt(2 * (1 + c))
     comp = jnp.where(rotk == 1, -comp, comp)
     vec = jnp.where(jnp.arange(3) == rotk, comp, jnp.zeros((), dtype))
@@ -392,10 +395,10 @@ def bodies_inertial(fields, bodies, owner: str):
 class _BodyParts:
   """A body's inertial before its principal axes (see `_body_parts`).
 
-  `full` is the inertia matrix about the centre of mass of its geoms where
-  several may count (None otherwise); `pick` chooses, per world, between
-  the spec's inertial (no geom has mass), one geom's (exactly one has) and
-  the summed one (several have).
+  `mass`..`iquat` are, per world, the spec's inertial (no geom has mass)
+  or one geom's (exactly one has). `full` is the inertia matrix about the
+  centre of mass of its geoms where several may count (None otherwise);
+  `with_principal` then takes the summed inertial where several have mass.
   """
 
   mass: jax.Array
