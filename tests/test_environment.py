@@ -456,8 +456,8 @@ def test_specs(swing_env):
   assert swing_env.observation_spec()['tip'].shape == (1, 3)
 
 
-def test_wrong_action_shape_is_a_clear_error(swing_env):
-  state = swing_env.reset(jax.random.key(0))
+def test_wrong_action_shape_is_a_clear_error(swing_env, swing_fns):
+  state = swing_fns['reset'](jax.random.key(0))
   with pytest.raises(ValueError, match=r'Expected an action of shape \(1,\)'):
     swing_env.step(state, jnp.zeros(3))
 
@@ -470,9 +470,9 @@ def test_non_integer_timestep_ratio():
     task.control_timestep = 0.0123
 
 
-def test_unknown_element_is_a_clear_error(swing_env):
+def test_unknown_element_is_a_clear_error(swing_env, swing_fns):
   stranger = conftest.Pendulum(name='stranger')
-  physics = swing_env.physics(swing_env.reset(jax.random.key(0)))
+  physics = swing_env.physics(swing_fns['reset'](jax.random.key(0)))
   with pytest.raises(ValueError, match='not part of the compiled model'):
     physics.bind(stranger.tip).xpos
   with pytest.raises(KeyError, match="No site named 'nope'"):
@@ -488,9 +488,10 @@ def test_hook_must_return_physics():
       physics.bind(self.pendulum.joint).set(qpos=0.0)  # result dropped
 
   env = composer.Environment(Forgetful())
-  state = env.reset(jax.random.key(0))
+  # Raised while the step is traced: no need to compile or run it.
+  state = jax.eval_shape(env.reset, jax.random.key(0))
   with pytest.raises(TypeError, match='must return the \\(new\\) Physics'):
-    env.step(state, jnp.zeros(1))
+    jax.eval_shape(env.step, state, jnp.zeros(1))
 
 
 def test_undeclared_model_write_in_step_is_a_clear_error():
@@ -500,12 +501,15 @@ def test_undeclared_model_write_in_step_is_a_clear_error():
       return physics.bind(self.ball.geom).set(rgba=[1.0, 0.0, 0.0, 1.0])
 
   env = composer.Environment(Recolor())
+  state = jax.eval_shape(env.reset, jax.random.key(0))
   with pytest.raises(ValueError, match='per_world_model_fields'):
-    env.step(env.reset(jax.random.key(0)), jnp.zeros(1))
+    jax.eval_shape(env.step, state, jnp.zeros(1))  # raised while tracing
   declared = composer.Environment(
       Recolor(), per_world_model_fields=('geom_rgba',)
   )
-  state = declared.step(declared.reset(jax.random.key(0)), jnp.zeros(1))
+  state = jax.jit(lambda key: declared.step(declared.reset(key), jnp.zeros(1)))(
+      jax.random.key(0)
+  )
   ball = declared.physics(state).bind(declared.task.ball.geom)
   np.testing.assert_array_equal(ball.rgba, [1.0, 0.0, 0.0, 1.0])
 
@@ -655,8 +659,9 @@ def test_step_hooks_cannot_add_persistent_entries():
       return physics.set_persistent('late', jnp.zeros(()))
 
   env = composer.Environment(Adds())
+  state = jax.eval_shape(env.reset, jax.random.key(0))
   with pytest.raises(ValueError, match='initialize_episode'):
-    env.step(env.reset(jax.random.key(0)), jnp.zeros(1))
+    jax.eval_shape(env.step, state, jnp.zeros(1))  # raised while tracing
 
 
 def test_auto_reset_batch_gives_the_same_trajectories():
