@@ -63,8 +63,17 @@ Ratios composed / raw are reported for trace, compile and total (trace +
 lowering + compile) time and for the sizes. Results go to `--out` as JSON and
 to stdout as tables, the ratios last.
 
+Tasks are the bundled ones (`common.TASKS`), or a variant of the walk task
+named as `benchmarks/playground_compare.py` names its programs, e.g.
+`walk:ours_off` (Playground's HumanoidWalk equivalent) or `walk:only_push`
+(that one feature on top of it); a variant's ratios divide by the raw
+programs of its base task (the same compiled model), measured once when the base task is among
+`--tasks`.
+
     python benchmarks/compile_time.py --tasks reach push --worlds 8
     PYTHONPATH=. python benchmarks/compile_time.py --ppo   # on a GPU machine
+    python benchmarks/compile_time.py --tasks walk walk:ours_off \
+        walk:only_randomize --programs step raw_step
 """
 
 import argparse
@@ -377,6 +386,36 @@ def measure_ppo(env, worlds, raw):
 # -- one measurement (a worker process) --------------------------------------
 
 
+def task_name(name):
+  """`--tasks`' type: a bundled task, or `walk:<variant>` (module docstring)."""
+  import common  # pylint: disable=g-import-not-at-top
+  import playground_compare  # pylint: disable=g-import-not-at-top
+
+  base, _, variant = name.partition(':')
+  if name in common.TASKS:
+    return name
+  if base == 'walk' and variant and variant not in ('playground', 'raw'):
+    try:
+      return 'walk:' + playground_compare.program_name(variant)
+    except argparse.ArgumentTypeError as e:
+      raise argparse.ArgumentTypeError(f'{name!r}: {e}') from None
+  raise argparse.ArgumentTypeError(
+      f'unknown task {name!r}: one of {", ".join(common.TASKS)}, or '
+      'walk:<variant> (ours_on, ours_off, only_<feature>[+<feature>...])'
+  )
+
+
+def make_task_env(task):
+  """The `Environment` of a `--tasks` entry, built as the benchmarks build it."""
+  import common  # pylint: disable=g-import-not-at-top
+  import playground_compare  # pylint: disable=g-import-not-at-top
+
+  base, _, variant = task.partition(':')
+  if not variant:
+    return common.make_env(base)
+  return playground_compare.env_variants([variant])[variant]
+
+
 def run_one(task, program, worlds, steps):
   """Builds `task`'s environment and measures `program`; returns a dict."""
   _disable_persistent_cache()
@@ -397,7 +436,7 @@ def run_one(task, program, worlds, steps):
   # One-time backend and compiler start-up, kept out of the measurement.
   jax.jit(lambda x: x + 1).lower(1.0).compile()
   t0 = time.perf_counter()
-  env = common.make_env(task)
+  env = make_task_env(task)
   build_s = time.perf_counter() - t0
   assert not compilation_cache.is_persistent_cache_enabled()
   if program in _PPO_PROGRAMS:
@@ -460,7 +499,9 @@ def ratios(rows):
   pairs = (('reset', 'raw_reset'), ('step', 'raw_step'), ('ppo', 'raw_ppo'))
   for task in dict.fromkeys(r['task'] for r in rows):
     for composed, raw in pairs:
-      c, r = by_key.get((task, composed)), by_key.get((task, raw))
+      c = by_key.get((task, composed))
+      # A walk variant has its base task's model: its raw programs.
+      r = by_key.get((task, raw)) or by_key.get((task.partition(':')[0], raw))
       if not c or not r:
         continue
       row = {'task': task, 'program': composed}
@@ -512,7 +553,11 @@ def print_tables(rows, ratio_rows):
 def main(argv=None):
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument(
-      '--tasks', nargs='+', default=['reach', 'push'], choices=('reach', 'push')
+      '--tasks',
+      nargs='+',
+      type=task_name,
+      default=['reach', 'push'],
+      help='bundled tasks (reach, push, walk, joystick) or walk:<variant>',
   )
   parser.add_argument(
       '--worlds',
@@ -564,6 +609,9 @@ def main(argv=None):
   rows, failed = [], []
   for task in args.tasks:
     for program in programs:
+      base, variant, _ = task.partition(':')
+      if program.startswith('raw_') and variant and base in args.tasks:
+        continue  # a variant's raw programs are its base task's
       print(f'{task}: {program} ...', flush=True)
       if args.in_process:
         row = run_one(task, program, args.worlds, args.steps)

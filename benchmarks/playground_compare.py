@@ -124,7 +124,7 @@ FEATURES = {
 }
 
 
-def _program_name(name):
+def program_name(name):
   """`--programs`' type: a known program, or only_ with known features."""
   features = name[len('only_') :].split('+')
   if (
@@ -146,7 +146,7 @@ def _program_name(name):
   )
 
 
-def _env_variants(names):
+def env_variants(names):
   """The environments (walk task) of the programs `names` that are ours."""
   # pylint: disable=g-import-not-at-top
   from mjx_composer import environment
@@ -228,7 +228,7 @@ def main():
       '--programs',
       nargs='+',
       default=None,
-      type=_program_name,
+      type=program_name,
       help='measure only these (default: ours_on, ours_off, playground, '
       'raw); only_<feature>[+<feature>...] is ours_off with those features '
       'of ours_on: ' + ', '.join((*FEATURES, 'groups')),
@@ -237,7 +237,7 @@ def main():
   device = common.print_device()
 
   names = args.programs or ('ours_on', 'ours_off', 'playground', 'raw')
-  envs = _env_variants([*names, 'ours_off'])
+  envs = env_variants([*names, 'ours_off'])
   n = envs['ours_off'].n_sub_steps
   playground, playground_info = _playground_env()
   if playground is None:
