@@ -405,6 +405,21 @@ def task_name(name):
   )
 
 
+def measured_programs(tasks, programs):
+  """The (task, program) pairs to measure, in order.
+
+  A walk variant's raw programs are its base task's (the same model): they
+  are measured once, under the base task, when it is among `tasks`.
+  """
+  pairs = []
+  for task in tasks:
+    base, _, variant = task.partition(':')
+    for program in programs:
+      if not (program.startswith('raw_') and variant and base in tasks):
+        pairs.append((task, program))
+  return pairs
+
+
 def make_task_env(task):
   """The `Environment` of a `--tasks` entry, built as the benchmarks build it."""
   import common  # pylint: disable=g-import-not-at-top
@@ -607,27 +622,23 @@ def main(argv=None):
   if args.in_process:
     _disable_persistent_cache()
   rows, failed = [], []
-  for task in args.tasks:
-    for program in programs:
-      base, variant, _ = task.partition(':')
-      if program.startswith('raw_') and variant and base in args.tasks:
-        continue  # a variant's raw programs are its base task's
-      print(f'{task}: {program} ...', flush=True)
-      if args.in_process:
-        row = run_one(task, program, args.worlds, args.steps)
-      else:
-        row = _run_isolated(task, program, args.worlds, args.steps)
-      if row is None:
-        print(f'{task}: {program} FAILED (see above)', flush=True)
-        failed.append(f'{task}/{program}')
-        continue
-      rows.append(row)
-      print(
-          f'{task}: {program:<9} trace {_fmt(row.get("trace_s"), ".2f")} s, '
-          f'lower {row["lower_s"]:.2f} s, compile {row["compile_s"]:.2f} s'
-          + (f', wall {row["wall_s"]:.1f} s' if 'wall_s' in row else ''),
-          flush=True,
-      )
+  for task, program in measured_programs(args.tasks, programs):
+    print(f'{task}: {program} ...', flush=True)
+    if args.in_process:
+      row = run_one(task, program, args.worlds, args.steps)
+    else:
+      row = _run_isolated(task, program, args.worlds, args.steps)
+    if row is None:
+      print(f'{task}: {program} FAILED (see above)', flush=True)
+      failed.append(f'{task}/{program}')
+      continue
+    rows.append(row)
+    print(
+        f'{task}: {program:<9} trace {_fmt(row.get("trace_s"), ".2f")} s, '
+        f'lower {row["lower_s"]:.2f} s, compile {row["compile_s"]:.2f} s'
+        + (f', wall {row["wall_s"]:.1f} s' if 'wall_s' in row else ''),
+        flush=True,
+    )
 
   if not rows:
     print('Nothing measured.')

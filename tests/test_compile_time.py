@@ -1,0 +1,67 @@
+"""benchmarks/compile_time.py without compiling: tasks, programs, ratios."""
+
+import argparse
+import os
+import sys
+
+import pytest
+
+sys.path.insert(
+    0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'benchmarks')
+)
+import compile_time  # pylint: disable=g-import-not-at-top,wrong-import-position
+
+
+def test_tasks_are_bundled_tasks_or_walk_variants():
+  for name in ('reach', 'push', 'walk', 'joystick', 'walk:ours_off'):
+    assert compile_time.task_name(name) == name
+  assert (
+      compile_time.task_name('walk:only_push+noise') == 'walk:only_push+noise'
+  )
+  for name, message in (
+      ('run', 'unknown task'),
+      ('reach:ours_off', 'unknown task'),
+      ('walk:playground', 'unknown task'),  # not ours: nothing to compile
+      ('walk:only_wind', "unknown program 'only_wind'"),
+  ):
+    with pytest.raises(argparse.ArgumentTypeError, match=message):
+      compile_time.task_name(name)
+
+
+def test_a_variants_raw_programs_are_measured_once_under_its_base_task():
+  programs = ['raw_step', 'step']
+  assert compile_time.measured_programs(
+      ['walk', 'walk:ours_off', 'reach'], programs
+  ) == [
+      ('walk', 'raw_step'),
+      ('walk', 'step'),
+      ('walk:ours_off', 'step'),
+      ('reach', 'raw_step'),
+      ('reach', 'step'),
+  ]
+  # Without its base task, a variant measures its own raw programs.
+  assert compile_time.measured_programs(['walk:ours_off'], programs) == [
+      ('walk:ours_off', 'raw_step'),
+      ('walk:ours_off', 'step'),
+  ]
+
+
+def test_a_variant_is_divided_by_its_base_tasks_raw_program():
+  def row(task, program, total_s, hlo):
+    return {
+        'task': task,
+        'program': program,
+        'total_s': total_s,
+        'hlo_instructions': hlo,
+    }
+
+  rows = [
+      row('walk', 'raw_step', 10.0, 1000),
+      row('walk', 'step', 20.0, 2000),
+      row('walk:ours_off', 'step', 11.0, 1100),
+  ]
+  ratios = {r['task']: r for r in compile_time.ratios(rows)}
+  assert ratios['walk']['total_s'] == pytest.approx(2.0)
+  assert ratios['walk:ours_off']['total_s'] == pytest.approx(1.1)
+  assert ratios['walk:ours_off']['hlo_instructions'] == pytest.approx(1.1)
+  assert ratios['walk:ours_off']['program'] == 'step'
