@@ -66,9 +66,9 @@ to stdout as tables, the ratios last.
 Tasks are the bundled ones (`common.TASKS`), or a variant of the walk task
 named as `benchmarks/playground_compare.py` names its programs, e.g.
 `walk:ours_off` (Playground's HumanoidWalk equivalent) or `walk:only_push`
-(that one feature on top of it); a variant's ratios divide by the raw
-programs of its base task (the same compiled model), measured once when the base task is among
-`--tasks`.
+(that one feature on top of it). A variant's ratios divide by the raw
+programs of its base task (the same compiled model), measured once, under the
+base task, when it is among `--tasks`.
 
     python benchmarks/compile_time.py --tasks reach push --worlds 8
     PYTHONPATH=. python benchmarks/compile_time.py --ppo   # on a GPU machine
