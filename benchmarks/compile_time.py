@@ -421,7 +421,7 @@ def measured_programs(tasks, programs):
 
 
 def make_task_env(task):
-  """The `Environment` of a `--tasks` entry, built as the benchmarks build it."""
+  """The `Environment` of a `--tasks` entry, as the benchmarks build it."""
   import common  # pylint: disable=g-import-not-at-top
   import playground_compare  # pylint: disable=g-import-not-at-top
 
