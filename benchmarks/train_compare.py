@@ -77,6 +77,14 @@ at or above it) and its total time. The reference return is the mean over
 seeds of `--reference`'s (default playground) final returns, or
 `--threshold`.
 
+On the GPU machine of `../shared/gpu/README.md` (JAX, flax, optax, numpy
+and scipy installed, no registry), these wheels made both environments train
+at stop 26: `bash ../shared/gpu/wheels.sh brax==0.14.2 playground==0.2.0
+lxml jaxopt==0.8.5 ml_collections==1.1.0 tqdm==4.70.1 dm-env==1.6
+pillow==13.0.0` (about 54 MB; `dm-env` is imported by `mjx_composer`
+itself). A cold run of the reduced schedule in the README (7.9 M env steps)
+took 310-550 s on an H100, about one 10-minute device call.
+
 A CPU smoke run (a few minutes for two environments):
 
     python benchmarks/train_compare.py --out /tmp/cmp --seeds 0 \\
