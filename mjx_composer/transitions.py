@@ -22,7 +22,6 @@ from mjx_composer import backend
 from mjx_composer import episode as episode_lib
 from mjx_composer import kinematics as kinematics_lib
 from mjx_composer import physics as physics_lib
-from mjx_composer import prng_batching
 from mjx_composer import state as state_lib
 
 
@@ -148,7 +147,6 @@ class Transitions:
     )
 
   @_named_scope
-  @prng_batching.batched
   def _first_state(self, physics, carry, failures, obs_key, next_key):
     """The FIRST `State` of an initialized, forwarded `physics`."""
     return _state(
@@ -172,9 +170,7 @@ class Transitions:
       physics = physics.replace(
           data=self._initial_kinematics.apply(physics.model, self.initial.data)
       )
-      physics = prng_batching.batched(self.hooks.initialize_episode)(
-          physics, key
-      )
+      physics = self.hooks.initialize_episode(physics, key)
     base = self.initial.model
     changed = {
         f.name
@@ -393,7 +389,6 @@ class Transitions:
   # The pieces of a step, shared by `step` and `_step_in_one_loop`.
 
   @_named_scope
-  @prng_batching.batched
   def _before_step(self, state, action, keys):
     start = self.physics(state)
     physics = self.hooks.scheduled(start, keys.before)
@@ -402,7 +397,6 @@ class Transitions:
     return physics
 
   @_named_scope
-  @prng_batching.batched
   def _before_substep(self, physics, action, keys, i, fields):
     sub_key = jax.random.fold_in(keys.substep, i)
     start = physics
@@ -413,7 +407,6 @@ class Transitions:
     return physics
 
   @_named_scope
-  @prng_batching.batched
   def _after_substep(self, physics, obs_state, keys, i, fields):
     """After-substep hooks and observation updates: (carry, obs_state)."""
     sub_key = jax.random.fold_in(keys.substep, i)
@@ -439,7 +432,6 @@ class Transitions:
     return physics.carry(fields), obs_state
 
   @_named_scope
-  @prng_batching.batched
   def _end_step(self, state, physics, obs_state, keys):
     fields = tuple(state.model_fields)
     start = physics

@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 
 from mjx_composer import environment
-from mjx_composer import prng_batching
 from mjx_composer.tasks import reach
 
 
@@ -55,35 +54,6 @@ def test_every_world_draws_its_own_colours_masses_sizes_friction_and_gears(
   upper_mass = np.asarray(fields['body_mass'][:, links[0]])
   assert np.all(
       np.abs(upper_mass / model.body_mass[links[0]] - 1) <= 0.3 + 1e-5
-  )
-
-
-def test_batched_hashes_give_the_same_worlds(reach_env):
-  """`prng_batching` in the reset and step changes no value, bit for bit."""
-  keys = jax.random.split(jax.random.key(0), 8)
-  actions = jax.random.uniform(
-      jax.random.key(1), (8,) + reach_env.action_spec().shape, minval=-1
-  )
-
-  def reset_and_step():
-    states = jax.jit(jax.vmap(reach_env.reset))(keys)
-    return states, jax.jit(jax.vmap(reach_env.step))(states, actions)
-
-  batched = reset_and_step()
-  with prng_batching.enabled(False):
-    separate = reset_and_step()
-  jax.tree.map(np.testing.assert_array_equal, _words(batched), _words(separate))
-
-
-def _words(tree):
-  """`tree` with its PRNG keys as their uint32 words (comparable arrays)."""
-  return jax.tree.map(
-      lambda x: (
-          jax.random.key_data(x)
-          if jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key)
-          else x
-      ),
-      tree,
   )
 
 
