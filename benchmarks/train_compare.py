@@ -511,7 +511,9 @@ def train_one(env_name, seed, config, source, args):
     train_ppo.save_policy(policy_path, params, policy_config)
 
   def progress(step, metrics):
-    row = train_ppo.eval_row(step, metrics, time.perf_counter() - start)
+    row = train_ppo.eval_row(
+        step, metrics, time.perf_counter() - start, clock.seconds
+    )
     rows.append(row)
     train_ppo.append_csv(csv_path, row, header=len(rows) == 1)
     _write_json(json_path, run)
@@ -526,6 +528,7 @@ def train_one(env_name, seed, config, source, args):
       raise train_ppo.StopTraining
 
   start = time.perf_counter()
+  clock = train_ppo.CompileClock()
   try:
     # As train_ppo.py: GSPMD where Brax pmaps over several GPUs.
     with partitioner.scope(

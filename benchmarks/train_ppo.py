@@ -37,7 +37,8 @@ progress bar, evaluates `--num-evals` times, and writes to `--out`:
 
 `--max-wall-s S` ends training after the first evaluation from which the
 next one would finish later than S seconds after the start of `ppo.train`
-(the interval between the last two evaluations is the estimate), then saves
+(the interval between the last two evaluations, less the time it spent
+compiling, is the estimate), then saves
 the last evaluated policy and writes everything as usual (`summary.json`
 records `stopped_early`), so a run fits a time limit.
 
@@ -468,18 +469,54 @@ def ppo_kwargs(args, brax_env, devices):
   )
 
 
-def eval_row(step, metrics, wall_s):
+class CompileClock:
+  """Seconds this process has spent lowering and compiling since creation.
+
+  Sums JAX's lowering and XLA compile events (`jax.monitoring`); tracing is
+  left out because nested traces report inside their callers' (it would
+  count twice), so the figure is a lower bound. One listener per process
+  feeds every clock.
+  """
+
+  _EVENTS = (
+      '/jax/core/compile/jaxpr_to_mlir_module_duration',
+      '/jax/core/compile/backend_compile_duration',
+  )
+  _total = [0.0]
+  _listening = [False]
+
+  def __init__(self):
+    if not CompileClock._listening[0]:
+      jax.monitoring.register_event_duration_secs_listener(CompileClock._record)
+      CompileClock._listening[0] = True
+    self._start = CompileClock._total[0]
+
+  @staticmethod
+  def _record(event, duration, **kwargs):
+    del kwargs
+    if event in CompileClock._EVENTS:
+      CompileClock._total[0] += duration
+
+  @property
+  def seconds(self) -> float:
+    return CompileClock._total[0] - self._start
+
+
+def eval_row(step, metrics, wall_s, compile_s=0.0):
   """One evaluation's record from Brax's `progress_fn(step, metrics)`.
 
   Keys: step (env steps so far), wall_s (the caller's clock: seconds since
-  the start of `ppo.train`), train_walltime_s (Brax's training time, without
-  compiling and evaluating), train_sps, eval_walltime_s (Brax's total time
-  spent evaluating so far, this evaluation included), eval_return and
-  eval_return_std (over the evaluation episodes), eval_episode_length.
+  the start of `ppo.train`), compile_s (seconds of that spent lowering and
+  compiling, a `CompileClock`'s), train_walltime_s (Brax's training time,
+  without evaluating; its first update includes compiling), train_sps,
+  eval_walltime_s (Brax's total time spent evaluating so far, this
+  evaluation included), eval_return and eval_return_std (over the evaluation
+  episodes), eval_episode_length.
   """
   return {
       'step': int(step),
       'wall_s': float(wall_s),
+      'compile_s': float(compile_s),
       'train_walltime_s': float(metrics.get('training/walltime', 0.0)),
       'train_sps': float(metrics.get('training/sps', 0.0)),
       'eval_walltime_s': float(metrics.get('eval/walltime', 0.0)),
@@ -506,14 +543,21 @@ def next_eval_too_late(rows, max_wall_s):
   """Whether the evaluation after `rows[-1]` would end after `max_wall_s`.
 
   The next evaluation is expected as long after the last as the last was
-  after the one before it (after the start, for the first). False when
+  after the one before it (after the start, for the first), less the time
+  that interval spent compiling (`compile_s`): the first training update
+  compiles the training program, and the updates after it do not. (A
+  program that compiles again later, like Brax's evaluator on Playground's
+  environments, makes the estimate short by that compile.) False when
   `max_wall_s` is None.
   """
   if max_wall_s is None or not rows:
     return False
-  last = rows[-1]['wall_s']
-  interval = last - (rows[-2]['wall_s'] if len(rows) > 1 else 0.0)
-  return last + interval > max_wall_s
+  last = rows[-1]
+  before = rows[-2] if len(rows) > 1 else {'wall_s': 0.0, 'compile_s': 0.0}
+  interval = (last['wall_s'] - before['wall_s']) - (
+      last.get('compile_s', 0.0) - before.get('compile_s', 0.0)
+  )
+  return last['wall_s'] + max(interval, 0.0) > max_wall_s
 
 
 def policy_config(args, brax_env):
@@ -624,7 +668,7 @@ def main(argv=None):
 
   def progress(step, metrics):
     nonlocal hit
-    row = eval_row(step, metrics, time.perf_counter() - start)
+    row = eval_row(step, metrics, time.perf_counter() - start, clock.seconds)
     rows.append(row)
     append_csv(log_path, row, header=len(rows) == 1)
     if hit is None and row['eval_return'] >= args.threshold:
@@ -641,6 +685,7 @@ def main(argv=None):
       raise StopTraining
 
   start = time.perf_counter()
+  clock = CompileClock()
   stopped_early = False
   try:
     # Brax pmaps over `devices` local devices; on several GPUs that compiles

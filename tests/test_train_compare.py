@@ -150,6 +150,33 @@ def test_deadline_uses_the_last_interval():
   assert train_ppo.next_eval_too_late(rows, 159.0)
 
 
+def test_deadline_leaves_out_the_time_spent_compiling():
+  import train_ppo  # pylint: disable=g-import-not-at-top
+
+  # 100 s to the first evaluation, 80 of them compiling the evaluator.
+  rows = [{'wall_s': 100.0, 'compile_s': 80.0}]
+  assert not train_ppo.next_eval_too_late(rows, 120.0)  # next at 120
+  assert train_ppo.next_eval_too_late(rows, 119.0)
+  # The first training updates took 130 s, 110 of them compiling: the
+  # next updates are expected to take 20 s.
+  rows.append({'wall_s': 230.0, 'compile_s': 190.0})
+  assert not train_ppo.next_eval_too_late(rows, 250.0)
+  assert train_ppo.next_eval_too_late(rows, 249.0)
+
+
+def test_the_compile_clock_counts_compiles_since_it_started():
+  import jax  # pylint: disable=g-import-not-at-top
+  import train_ppo  # pylint: disable=g-import-not-at-top
+
+  clock = train_ppo.CompileClock()
+  assert clock.seconds == 0.0
+  # A program no other test compiles (a fresh closure), so XLA compiles it.
+  jax.jit(lambda x: x * 3.0 + 0.125).lower(1.0).compile()
+  assert clock.seconds > 0.0
+  later = train_ppo.CompileClock()
+  assert later.seconds == 0.0 < clock.seconds
+
+
 def test_training_on_several_devices_uses_jax():
   import train_ppo  # pylint: disable=g-import-not-at-top
 
