@@ -4,7 +4,8 @@ A pytest plugin and its report. Loaded into a test run, it sums, for each
 test (setup, call and teardown), the durations JAX reports through
 `jax.monitoring` (tracing to a jaxpr, lowering to StableHLO, XLA's backend
 compile) and counts the backend compiles and the programs loaded from the
-persistent compilation cache, next to the test's wall-clock time. Each process (every xdist worker) writes its own JSON file into
+persistent compilation cache, next to the test's wall-clock time. Each
+process (every xdist worker) writes its own JSON file into
 `$MJX_COMPOSER_SUITE_PROFILE` (default `suite_profile/`); the report sums
 them per test file and lists the slowest tests:
 

@@ -482,24 +482,24 @@ class CompileClock:
       '/jax/core/compile/jaxpr_to_mlir_module_duration',
       '/jax/core/compile/backend_compile_duration',
   )
-  _total = [0.0]
-  _listening = [False]
+  _total = 0.0  # seconds since the listener was registered
+  _listening = False
 
   def __init__(self):
-    if not CompileClock._listening[0]:
+    if not CompileClock._listening:
       jax.monitoring.register_event_duration_secs_listener(CompileClock._record)
-      CompileClock._listening[0] = True
-    self._start = CompileClock._total[0]
+      CompileClock._listening = True
+    self._start = CompileClock._total
 
   @staticmethod
   def _record(event, duration, **kwargs):
     del kwargs
     if event in CompileClock._EVENTS:
-      CompileClock._total[0] += duration
+      CompileClock._total += duration
 
   @property
   def seconds(self) -> float:
-    return CompileClock._total[0] - self._start
+    return CompileClock._total - self._start
 
 
 def eval_row(step, metrics, wall_s, compile_s=0.0):
