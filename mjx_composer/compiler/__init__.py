@@ -14,12 +14,13 @@ it:
   and `MjsFrame`s (a compiled pose is `frame * local pose`), degrees to
   radians for joint ranges, `fromto`-fixed geom sizes, normalized
   quaternions;
-* `inertia`: geom mass and inertia from size, density or mass
-  (`mjCGeom::SetInertia`), and the body inertial frame inferred from its
-  geoms (total mass, centre of mass, principal axes by MuJoCo's own Jacobi
-  iteration, `mjuu_eig3`), or an explicit inertial, with `boundmass`,
-  `boundinertia` and `balanceinertia`; `body_subtreemass`, `geom_rbound`,
-  `geom_aabb`;
+* `geoms`: geom mass and inertia from size, density or mass
+  (`mjCGeom::SetInertia`), `geom_rbound` and `geom_aabb`;
+* `inertia`: the body inertial frame inferred from its geoms (total mass,
+  centre of mass, principal axes by MuJoCo's own Jacobi iteration,
+  `mjuu_eig3`), or an explicit inertial, with `boundmass`, `boundinertia`
+  and `balanceinertia`, batched over all re-derived bodies;
+  `body_subtreemass`;
 * `set_const`: `mj_setConst` at qpos0, with MJX's kinematics;
 * `structure`: what cannot be made equal is refused when binding (or, when
   it depends on the composed model, when reset is traced), with a message:

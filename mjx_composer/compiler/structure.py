@@ -21,6 +21,7 @@ import numpy as np
 
 from mjx_composer import element_index
 from mjx_composer.compiler import effects
+from mjx_composer.compiler import geoms
 from mjx_composer.compiler import inertia
 from mjx_composer.compiler import options
 
@@ -62,7 +63,7 @@ def is_muscle(actuator) -> bool:
 
 
 def meshlike_geom(geom):
-  if geom.type in inertia.MESHLIKE:
+  if geom.type in geoms.MESHLIKE:
     return (
         'mesh, SDF and height-field geoms take their size, '
         'inertia and frame from the asset, which would need '
@@ -334,7 +335,7 @@ def _check_inertia_geoms(host, plan, bindings, owner):
       continue
     for g in host.inertia_geoms(b):
       geom = host.handles['geom'][g]
-      if geom.type in inertia.MESHLIKE:
+      if geom.type in geoms.MESHLIKE:
         raise ValueError(
             f'{owner}: body {body.name!r} infers its inertia from a '
             f'mesh geom ({geom.name!r}) too; re-deriving it needs the '

@@ -15,7 +15,7 @@ import mujoco
 
 from mjx_composer import element_index
 from mjx_composer.compiler import frames
-from mjx_composer.compiler import inertia
+from mjx_composer.compiler import geoms
 
 ModelWrite = Callable[[Any, int, Any], None]
 
@@ -71,15 +71,13 @@ def put_pose(kind: str, part: str) -> ModelWrite:
 def geom_size(fields, g, size):
   """The compiled size (`fromto` fixes the length), bounding sphere, AABB."""
   m = fields.host.m
-  size = inertia.compiled_size(m, g, fields.host.handles['geom'][g], size)
+  size = geoms.compiled_size(m, g, fields.host.handles['geom'][g], size)
   gtype = int(m.geom_type[g])
   fields.put('geom_size', g, size)
-  fields.put('geom_rbound', g, inertia.geom_rbound(gtype, size))
+  fields.put('geom_rbound', g, geoms.rbound(gtype, size))
   # MuJoCo's (6,) row; a 'warp' model lays it out as (2, 3).
   aabb_shape = fields.get('geom_aabb').shape[1:]
-  fields.put(
-      'geom_aabb', g, jnp.reshape(inertia.geom_aabb(gtype, size), aabb_shape)
-  )
+  fields.put('geom_aabb', g, jnp.reshape(geoms.aabb(gtype, size), aabb_shape))
 
 
 def joint_range(fields, j, value):
