@@ -420,18 +420,24 @@ def measured_programs(tasks, programs):
   return pairs
 
 
-def make_task_env(task):
-  """The `Environment` of a `--tasks` entry, as the benchmarks build it."""
+def make_task_env(task, share_reset_forward=None):
+  """The `Environment` of a `--tasks` entry, as the benchmarks build it.
+
+  `share_reset_forward` goes to the `Environment` (None: its default).
+  """
   import common  # pylint: disable=g-import-not-at-top
   import playground_compare  # pylint: disable=g-import-not-at-top
 
+  kwargs = {}
+  if share_reset_forward is not None:
+    kwargs['share_reset_forward'] = share_reset_forward
   base, _, variant = task.partition(':')
   if not variant:
-    return common.make_env(base)
-  return playground_compare.env_variants([variant])[variant]
+    return common.make_env(base, **kwargs)
+  return playground_compare.env_variants([variant], **kwargs)[variant]
 
 
-def run_one(task, program, worlds, steps):
+def run_one(task, program, worlds, steps, share_reset_forward=None):
   """Builds `task`'s environment and measures `program`; returns a dict."""
   _disable_persistent_cache()
   # pylint: disable=g-import-not-at-top
@@ -451,7 +457,7 @@ def run_one(task, program, worlds, steps):
   # One-time backend and compiler start-up, kept out of the measurement.
   jax.jit(lambda x: x + 1).lower(1.0).compile()
   t0 = time.perf_counter()
-  env = make_task_env(task)
+  env = make_task_env(task, share_reset_forward)
   build_s = time.perf_counter() - t0
   assert not compilation_cache.is_persistent_cache_enabled()
   if program in _PPO_PROGRAMS:
@@ -470,11 +476,12 @@ def run_one(task, program, worlds, steps):
       platform=device.platform,
       jax=jax.__version__,
       threefry_gpu_kernel=threefry_kernel,
+      share_reset_forward=env.share_reset_forward,
   )
   return row
 
 
-def _run_isolated(task, program, worlds, steps):
+def _run_isolated(task, program, worlds, steps, share_reset_forward=None):
   """`run_one` in a fresh Python process."""
   with tempfile.TemporaryDirectory() as tmp:
     path = os.path.join(tmp, 'row.json')
@@ -492,6 +499,8 @@ def _run_isolated(task, program, worlds, steps):
     ]
     if worlds is not None:
       cmd += ['--worlds', str(worlds)]
+    if share_reset_forward is not None:
+      cmd += ['--share-reset-forward', 'on' if share_reset_forward else 'off']
     if subprocess.run(cmd, check=False).returncode:
       return None
     with open(path) as f:
@@ -607,14 +616,26 @@ def main(argv=None):
       '--out',
       default=os.path.join(os.environ.get('OUT', '.'), 'compile_time.json'),
   )
+  parser.add_argument(
+      '--share-reset-forward',
+      choices=('on', 'off'),
+      default=None,
+      help="the composed programs' Environment(share_reset_forward=...) "
+      '(default: the Environment default for the device)',
+  )
   parser.add_argument('--worker', metavar='ROW_JSON', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
+  share = (
+      None
+      if args.share_reset_forward is None
+      else args.share_reset_forward == 'on'
+  )
   programs = args.programs or (
       list(_PROGRAMS) + (list(_PPO_PROGRAMS) if args.ppo else [])
   )
 
   if args.worker:  # a worker process: one task, one program
-    row = run_one(args.tasks[0], programs[0], args.worlds, args.steps)
+    row = run_one(args.tasks[0], programs[0], args.worlds, args.steps, share)
     with open(args.worker, 'w') as f:
       json.dump(row, f)
     return 0
@@ -625,9 +646,9 @@ def main(argv=None):
   for task, program in measured_programs(args.tasks, programs):
     print(f'{task}: {program} ...', flush=True)
     if args.in_process:
-      row = run_one(task, program, args.worlds, args.steps)
+      row = run_one(task, program, args.worlds, args.steps, share)
     else:
-      row = _run_isolated(task, program, args.worlds, args.steps)
+      row = _run_isolated(task, program, args.worlds, args.steps, share)
     if row is None:
       print(f'{task}: {program} FAILED (see above)', flush=True)
       failed.append(f'{task}/{program}')

@@ -20,7 +20,10 @@ its sub-steps (domain randomization off):
 * no_obs:      `no_ends` with every observable disabled;
 * ends_unshared, no_ends_unshared: `ends` and `no_ends` with
                `share_reset_forward=False` (`mjx.step` in a `lax.scan`, the
-               restart's forward pass separate);
+               restart's forward pass separate; the default on a GPU);
+* ends_shared, no_ends_shared: the same with `share_reset_forward=True`
+               (the restart is an extra iteration of the sub-step loop; the
+               default on a CPU);
 * raw_fast:    `raw` on the same model with the solver's iterations capped
                (iterations 4, line-search 8), to show what the default solver
                settings (100 / 50, tolerance 1e-8) cost this contact model.
@@ -74,6 +77,15 @@ def main():
           randomize=False,
           time_limit=float('inf'),
           share_reset_forward=False,
+      ),
+      'ends_shared': common.make_env(
+          'reach', randomize=False, share_reset_forward=True
+      ),
+      'no_ends_shared': common.make_env(
+          'reach',
+          randomize=False,
+          time_limit=float('inf'),
+          share_reset_forward=True,
       ),
   }
   base = envs['ends']

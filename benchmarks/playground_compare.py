@@ -146,8 +146,11 @@ def program_name(name):
   )
 
 
-def env_variants(names):
-  """The environments (walk task) of the programs `names` that are ours."""
+def env_variants(names, **env_kwargs):
+  """The environments (walk task) of the programs `names` that are ours.
+
+  `env_kwargs` go to every `Environment` (e.g. `share_reset_forward`).
+  """
   # pylint: disable=g-import-not-at-top
   from mjx_composer import environment
   from mjx_composer.tasks import walk
@@ -156,15 +159,20 @@ def env_variants(names):
   envs = {}
   for name in names:
     if name == 'ours_on':
-      envs[name] = common.make_env('walk', time_limit=walk.EPISODE_SECONDS)
+      envs[name] = common.make_env(
+          'walk', time_limit=walk.EPISODE_SECONDS, **env_kwargs
+      )
     elif name.startswith('ours_on_chunk'):
       envs[name] = common.make_env(
           'walk',
           time_limit=walk.EPISODE_SECONDS,
           auto_reset_batch=int(name[len('ours_on_chunk') :]),
+          **env_kwargs,
       )
     elif name == 'ours_off':
-      envs[name] = common.make_walk_like_playground(walk.EPISODE_SECONDS)
+      envs[name] = common.make_walk_like_playground(
+          walk.EPISODE_SECONDS, **env_kwargs
+      )
     elif name.startswith('only_'):
       features = name[len('only_') :].split('+')
       kwargs = dict(walk.PLAYGROUND_EQUIVALENT)
@@ -180,6 +188,7 @@ def env_variants(names):
           observation_groups=(
               groups if 'groups' in features else {'policy': groups['policy']}
           ),
+          **env_kwargs,
       )
   return envs
 

@@ -387,6 +387,15 @@ class Environment:
     return self._auto_reset
 
   @property
+  def share_reset_forward(self) -> bool:
+    """Whether restarts run as an extra iteration of the sub-step loop.
+
+    As resolved from the constructor's argument (None: the device's
+    default, `backend.default_share_reset_forward`).
+    """
+    return self._share_reset_forward
+
+  @property
   def random_state(self):
     return self._random_state
 

@@ -65,3 +65,14 @@ def test_a_variant_is_divided_by_its_base_tasks_raw_program():
   assert ratios['walk:ours_off']['total_s'] == pytest.approx(1.1)
   assert ratios['walk:ours_off']['hlo_instructions'] == pytest.approx(1.1)
   assert ratios['walk:ours_off']['program'] == 'step'
+
+
+@pytest.mark.parametrize('task', ['reach', 'walk:ours_off'])
+def test_share_reset_forward_reaches_the_environment(task):
+  """`--share-reset-forward` builds the measured env with that setting."""
+  default = compile_time.make_task_env(task).share_reset_forward
+  for share in (True, False):
+    env = compile_time.make_task_env(task, share_reset_forward=share)
+    assert env.share_reset_forward is share
+  # On a CPU (where the tests run) the default shares the forward pass.
+  assert default is True
