@@ -74,6 +74,10 @@ base task, when it is among `--tasks`.
     PYTHONPATH=. python benchmarks/compile_time.py --ppo   # on a GPU machine
     python benchmarks/compile_time.py --tasks walk walk:ours_off \
         walk:only_randomize --programs step raw_step
+
+`--share-reset-forward on|off` builds the composed environments with that
+`Environment(share_reset_forward=...)` (default: the device's default, on
+for a CPU, off for a GPU), e.g. to compare the two step programs on a GPU.
 """
 
 import argparse
