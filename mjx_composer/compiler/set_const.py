@@ -303,7 +303,7 @@ def _stat(m, plan, mx, d, diag_m, fields, auto_stat):
     )
 
 
-def geometry_stat(m, mx, d):
+def geometry_stat(m, mx, d, xp=jnp):
   """(center, extent, meansize) of the statistics, as mj_setConst.
 
   Args:
@@ -311,24 +311,26 @@ def geometry_stat(m, mx, d):
     mx: the model (`geom_rbound`, `geom_size`, `stat.extent`).
     d: kinematics at qpos0 (`xpos`, `xipos`, `xanchor`, `site_xpos`,
       `geom_xpos`).
+    xp: `jax.numpy` on the device, `numpy` for host values (`auto_stat`:
+      eager JAX operations would each be compiled).
   """
-  dtype = jnp.result_type(d.xpos)
+  dtype = xp.result_type(d.xpos)
   rbound = mx.geom_rbound
   size = mx.geom_size
   gtype = np.asarray(m.geom_type)
   plane = gtype == _Geom.mjGEOM_PLANE
-  plane_r = jnp.where(
+  plane_r = xp.where(
       (size[:, 0] != 0) | (size[:, 1] != 0),
-      jnp.maximum(size[:, 0], size[:, 1]) * 0.1,
+      xp.maximum(size[:, 0], size[:, 1]) * 0.1,
       0.01,
   )
   hfield_r = np.zeros(m.ngeom)
   for g in np.nonzero(gtype == _Geom.mjGEOM_HFIELD)[0]:
     hfield_r[g] = np.max(m.hfield_size[m.geom_dataid[g]]) * 0.1
-  radius = jnp.where(
+  radius = xp.where(
       rbound > 0,
       rbound,
-      jnp.where(plane, plane_r, jnp.asarray(hfield_r, dtype)),
+      xp.where(plane, plane_r, xp.asarray(hfield_r, dtype)),
   )
   points = [d.xpos[1:], d.xipos[1:], d.xanchor, d.site_xpos]
   lows = [p for p in points if p.shape[0]]
@@ -336,32 +338,41 @@ def geometry_stat(m, mx, d):
   if m.ngeom:
     lows.append(d.geom_xpos - radius[:, None])
     highs.append(d.geom_xpos + radius[:, None])
-  xmin = jnp.min(jnp.concatenate(lows), axis=0)
-  xmax = jnp.max(jnp.concatenate(highs), axis=0)
+  xmin = xp.min(xp.concatenate(lows), axis=0)
+  xmax = xp.max(xp.concatenate(highs), axis=0)
   center = 0.5 * (xmin + xmax)
-  extent = jnp.where(
+  extent = xp.where(
       xmax[0] > xmin[0],
-      jnp.maximum(1e-5, jnp.max(xmax - xmin)),
+      xp.maximum(1e-5, xp.max(xmax - xmin)),
       mx.stat.extent,
   )
   # Body sizes: farthest joint anchor (own and children's), then geoms.
-  body = jnp.zeros(m.nbody, dtype)
+  body = xp.zeros(m.nbody, dtype)
   jb = np.asarray(m.jnt_bodyid)
   if m.njnt:
-    dist = jnp.linalg.norm(d.xipos[jb] - d.xanchor, axis=1)
-    body = body.at[jb].max(dist)
+    dist = xp.linalg.norm(d.xipos[jb] - d.xanchor, axis=1)
+    body = _scatter_max(xp, body, jb, dist)
     parent = np.asarray(m.body_parentid)[jb]
-    dist = jnp.linalg.norm(d.xipos[parent] - d.xanchor, axis=1)
-    body = body.at[parent].max(dist)
-  body = body.at[0].set(0.0)
+    dist = xp.linalg.norm(d.xipos[parent] - d.xanchor, axis=1)
+    body = _scatter_max(xp, body, parent, dist)
+  body = xp.where(np.arange(m.nbody) == 0, 0.0, body)
   if m.ngeom:
     gb = np.asarray(m.geom_bodyid)
-    reach = rbound + jnp.linalg.norm(d.xipos[gb] - d.geom_xpos, axis=1)
-    reach = jnp.where((rbound > 0) & (gb > 0), reach, 0.0)
-    body = body.at[gb].max(reach)
-  meansize = jnp.mean(jnp.maximum(body[1:], 1e-5)) if m.nbody > 1 else 0.0
-  extent = jnp.maximum(extent, 2 * meansize)
+    reach = rbound + xp.linalg.norm(d.xipos[gb] - d.geom_xpos, axis=1)
+    reach = xp.where((rbound > 0) & (gb > 0), reach, 0.0)
+    body = _scatter_max(xp, body, gb, reach)
+  meansize = xp.mean(xp.maximum(body[1:], 1e-5)) if m.nbody > 1 else 0.0
+  extent = xp.maximum(extent, 2 * meansize)
   return center, extent, meansize
+
+
+def _scatter_max(xp, values, index, updates):
+  """`values.at[index].max(updates)`, also for numpy arrays."""
+  if xp is np:
+    out = np.array(values)
+    np.maximum.at(out, index, updates)
+    return out
+  return values.at[index].max(updates)
 
 
 class _HostView:
@@ -395,13 +406,8 @@ def auto_stat(m) -> dict[str, bool]:
       site_xpos=data.site_xpos,
       geom_xpos=data.geom_xpos,
   )
-  with jax.ensure_compile_time_eval():
-    center, extent, meansize = geometry_stat(m, model, kin)
-    center, extent, meansize = (
-        np.asarray(center),
-        float(extent),
-        float(meansize),
-    )
+  center, extent, meansize = geometry_stat(m, model, kin, xp=np)
+  extent, meansize = float(extent), float(meansize)
   auto = {
       'meaninertia': np.mean(np.diagonal(full)) if m.nv else m.stat.meaninertia,
       'meanmass': np.mean(m.body_mass[1:]) if m.nbody > 1 else m.stat.meanmass,
@@ -409,7 +415,7 @@ def auto_stat(m) -> dict[str, bool]:
       'extent': extent,
       'center': center,
   }
-  # `geometry_stat` computes in float32: compare at that precision.
+  # The device computes in float32: compare at that precision.
   return {
       name: bool(
           np.allclose(auto[name], getattr(m.stat, name), rtol=1e-5, atol=1e-7)
