@@ -264,6 +264,24 @@ def add_out_arg(parser, filename):
   parser.add_argument('--out', default=default_out(filename))
 
 
+def add_share_reset_forward_arg(parser):
+  """`--share-reset-forward on|off`, read back by `share_reset_forward`."""
+  parser.add_argument(
+      '--share-reset-forward',
+      choices=('on', 'off'),
+      default=None,
+      help="our environments' Environment(share_reset_forward=...) "
+      "(default: the Environment's default for the device)",
+  )
+
+
+def share_reset_forward(args):
+  """`--share-reset-forward` as the `Environment` takes it (None: default)."""
+  if args.share_reset_forward is None:
+    return None
+  return args.share_reset_forward == 'on'
+
+
 def make_parser(doc, *, worlds=None, repeats=None, out=None):
   """An `ArgumentParser` described by `doc`'s first line, with shared flags.
 

@@ -432,13 +432,12 @@ def make_task_env(task, share_reset_forward=None):
   import common  # pylint: disable=g-import-not-at-top
   import playground_compare  # pylint: disable=g-import-not-at-top
 
-  kwargs = {}
-  if share_reset_forward is not None:
-    kwargs['share_reset_forward'] = share_reset_forward
   base, _, variant = task.partition(':')
   if not variant:
-    return common.make_env(base, **kwargs)
-  return playground_compare.env_variants([variant], **kwargs)[variant]
+    return common.make_env(base, share_reset_forward=share_reset_forward)
+  return playground_compare.env_variants(
+      [variant], share_reset_forward=share_reset_forward
+  )[variant]
 
 
 def run_one(task, program, worlds, steps, share_reset_forward=None):
@@ -620,20 +619,12 @@ def main(argv=None):
       '--out',
       default=os.path.join(os.environ.get('OUT', '.'), 'compile_time.json'),
   )
-  parser.add_argument(
-      '--share-reset-forward',
-      choices=('on', 'off'),
-      default=None,
-      help="the composed programs' Environment(share_reset_forward=...) "
-      '(default: the Environment default for the device)',
-  )
+  import common  # pylint: disable=g-import-not-at-top
+
+  common.add_share_reset_forward_arg(parser)
   parser.add_argument('--worker', metavar='ROW_JSON', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
-  share = (
-      None
-      if args.share_reset_forward is None
-      else args.share_reset_forward == 'on'
-  )
+  share = common.share_reset_forward(args)
   programs = args.programs or (
       list(_PROGRAMS) + (list(_PPO_PROGRAMS) if args.ppo else [])
   )
@@ -669,8 +660,6 @@ def main(argv=None):
     print('Nothing measured.')
     return 1
   ratio_rows = ratios(rows)
-  import common  # pylint: disable=g-import-not-at-top
-
   common.write_json(
       args.out,
       {

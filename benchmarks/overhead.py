@@ -59,34 +59,24 @@ def main():
   args = parser.parse_args()
 
   device = common.print_device()
+  endless = dict(time_limit=float('inf'))
+  variants = {  # name: make_env arguments
+      'ends': {},
+      'no_ends': endless,
+      'no_obs': dict(endless, observables=False),
+  }
+  # `ends` and `no_ends` with the restart outside the sub-step loop (a
+  # second copy of the forward pass, `mjx.step` in a `lax.scan`), and in it.
+  for suffix, share in (('unshared', False), ('shared', True)):
+    for name in ('ends', 'no_ends'):
+      variants[f'{name}_{suffix}'] = dict(
+          variants[name], share_reset_forward=share
+      )
   envs = {
-      'ends': common.make_env('reach', randomize=False),
-      'no_ends': common.make_env(
-          'reach', randomize=False, time_limit=float('inf')
-      ),
-      'no_obs': common.make_env(
-          'reach', randomize=False, time_limit=float('inf'), observables=False
-      ),
-      # The same two, with the restart outside the sub-step loop (a second
-      # copy of the forward pass, `mjx.step` in a `lax.scan`).
-      'ends_unshared': common.make_env(
-          'reach', randomize=False, share_reset_forward=False
-      ),
-      'no_ends_unshared': common.make_env(
-          'reach',
-          randomize=False,
-          time_limit=float('inf'),
-          share_reset_forward=False,
-      ),
-      'ends_shared': common.make_env(
-          'reach', randomize=False, share_reset_forward=True
-      ),
-      'no_ends_shared': common.make_env(
-          'reach',
-          randomize=False,
-          time_limit=float('inf'),
-          share_reset_forward=True,
-      ),
+      name: common.make_env('reach', randomize=False, **kwargs)
+      for name, kwargs in variants.items()
+      # Only the measured ones ('ends' sets the shapes and the actions).
+      if name == 'ends' or not args.programs or name in args.programs
   }
   base = envs['ends']
   n = base.n_sub_steps

@@ -242,21 +242,15 @@ def main():
       'raw); only_<feature>[+<feature>...] is ours_off with those features '
       'of ours_on: ' + ', '.join((*FEATURES, 'groups')),
   )
-  parser.add_argument(
-      '--share-reset-forward',
-      choices=('on', 'off'),
-      default=None,
-      help="our programs' Environment(share_reset_forward=...) (default: "
-      "the Environment's default for the device; ours_on_chunk<K> needs off)",
-  )
+  common.add_share_reset_forward_arg(parser)  # ours_on_chunk<K> needs off
   args = parser.parse_args()
   device = common.print_device()
 
   names = args.programs or ('ours_on', 'ours_off', 'playground', 'raw')
-  env_kwargs = {}
-  if args.share_reset_forward is not None:
-    env_kwargs['share_reset_forward'] = args.share_reset_forward == 'on'
-  envs = env_variants([*names, 'ours_off'], **env_kwargs)
+  envs = env_variants(
+      [*names, 'ours_off'],
+      share_reset_forward=common.share_reset_forward(args),
+  )
   n = envs['ours_off'].n_sub_steps
   playground, playground_info = _playground_env()
   if playground is None:
