@@ -100,11 +100,7 @@ def principal_inertia(gtype, shell, size, mass):
   if gtype == _Geom.mjGEOM_ELLIPSOID:
     s00, s11, s22 = s0**2, s1**2, s2**2
     if not shell:
-      return stack(
-          mass * (s11 + s22) / 5,
-          mass * (s00 + s22) / 5,
-          mass * (s00 + s11) / 5,
-      )
+      return _solid_inertia(mass, s00, s11, s22, 5)
     eps = 1e-6
     va = 4 * math.pi * s0 * s1 * s2 / 3
     ae, be, ce = s0 + eps, s1 + eps, s2 + eps
@@ -124,11 +120,7 @@ def principal_inertia(gtype, shell, size, mass):
   if gtype == _Geom.mjGEOM_BOX:
     s00, s11, s22 = s0**2, s1**2, s2**2
     if not shell:
-      return stack(
-          mass * (s11 + s22) / 3,
-          mass * (s00 + s22) / 3,
-          mass * (s00 + s11) / 3,
-      )
+      return _solid_inertia(mass, s00, s11, s22, 3)
     lx, ly, lz = 2 * s0, 2 * s1, 2 * s2
     a0, a1, a2 = lx * ly, ly * lz, lz * lx
     total = 2 * (a0 + a1 + a2)
@@ -156,6 +148,18 @@ def principal_inertia(gtype, shell, size, mass):
     )
     return stack(ix, iy, iz)
   return jnp.zeros_like(size)
+
+
+def _solid_inertia(mass, s00, s11, s22, divisor):
+  """Solid ellipsoid (`divisor` 5) or box (3) of squared half-sizes `sii`."""
+  return jnp.stack(
+      [
+          mass * (s11 + s22) / divisor,
+          mass * (s00 + s22) / divisor,
+          mass * (s00 + s11) / divisor,
+      ],
+      axis=-1,
+  )
 
 
 def mass_and_inertia(gtype, shell, size, given, mass, density):
