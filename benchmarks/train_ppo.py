@@ -27,6 +27,11 @@ progress bar, evaluates `--num-evals` times, and writes to `--out`:
   threshold (needs matplotlib; skipped with a warning without it);
 * `policy.pkl`: `{'params': (normalizer, policy, value), 'config': ...}` with
   numpy leaves; `load_policy(path)` below rebuilds the inference function;
+* `rollout_metrics.json`: the task's metrics (`State.metrics`, e.g. the
+  joystick's velocity tracking error) and the reward, averaged over
+  `--metrics-worlds` worlds and `--render-steps` steps, for the trained
+  deterministic policy and, from the same reset, for zero actions
+  (`write_rollout_metrics`);
 * `rollout.png` (an image strip: one row per world, columns in time),
   `rollout_frames/step_NNN.png` (the strip's columns, each a grid of the
   worlds) and `rollout.gif` of the trained deterministic policy (needs a
@@ -63,6 +68,7 @@ import time
 import warnings
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import tqdm
 
@@ -226,6 +232,13 @@ def parse_args(argv=None):
       help='control steps rendered (walk, joystick: 200)',
   )
   parser.add_argument(
+      '--metrics-worlds',
+      type=int,
+      default=64,
+      help='worlds in rollout_metrics.json (the policy against zero '
+      'actions, over --render-steps steps; 0: none)',
+  )
+  parser.add_argument(
       '--max-wall-s',
       type=float,
       default=None,
@@ -346,6 +359,78 @@ _FREE_CAMERA = dict(
     distance=2.2, elevation=-25.0, azimuth=135.0, lookat=[0.0, 0.0, 0.25]
 )
 _ROLLOUT_COLUMNS = 6
+
+
+def rollout_metrics(brax_env, policy, worlds, steps, seed):
+  """The task's metrics over a rollout of `policy`, per step and world.
+
+  Runs `steps` control steps of `worlds` worlds from a reset seeded with
+  `seed` (`policy(obs, key) -> (action, extras)`, or None for zero actions:
+  a baseline that holds the actuators' zero command, e.g. the Go1's home
+  pose) and averages each float entry of `State.metrics` (the task's
+  `get_metrics` and the environment's) and the reward over every world and
+  step. A world whose episode ends continues in its next one (same-step
+  auto-reset).
+
+  Returns:
+    `{name: mean}`, with `reward` among them.
+  """
+  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+  def act(state, key):
+    if policy is None:
+      return jnp.zeros(state.reward.shape + (brax_env.action_size,))
+    return policy(state.obs, key)[0]
+
+  def one_step(state, key):
+    state = brax_env.step(state, act(state, key))
+    metrics = brax_adapter.composer_state(state).metrics
+    means = {
+        name: jnp.mean(value)
+        for name, value in metrics.items()
+        if jnp.issubdtype(value.dtype, jnp.floating)
+    }
+    means['reward'] = jnp.mean(state.reward)
+    return state, means
+
+  @jax.jit
+  def rollout(key):
+    reset_key, step_key = jax.random.split(key)
+    state = brax_env.reset(jax.random.split(reset_key, worlds))
+    _, means = jax.lax.scan(one_step, state, jax.random.split(step_key, steps))
+    return jax.tree.map(jnp.mean, means)
+
+  return {
+      name: float(value)
+      for name, value in rollout(jax.random.PRNGKey(seed)).items()
+  }
+
+
+def write_rollout_metrics(brax_env, policy, args, out):
+  """Writes `rollout_metrics.json`: the policy's and zero actions' metrics.
+
+  Both over `args.metrics_worlds` worlds and `args.render_steps` control
+  steps from the same reset (`rollout_metrics`), so that a tracking error or
+  a distance can be read against a robot that does nothing. Returns the
+  payload and prints it as a table.
+  """
+  worlds, steps = args.metrics_worlds, args.render_steps
+  payload = {
+      'worlds': worlds,
+      'steps': steps,
+      'seed': args.seed + 1,
+      'policy': rollout_metrics(brax_env, policy, worlds, steps, args.seed + 1),
+      'zero_actions': rollout_metrics(
+          brax_env, None, worlds, steps, args.seed + 1
+      ),
+  }
+  with open(os.path.join(out, 'rollout_metrics.json'), 'w') as f:
+    json.dump(payload, f, indent=1)
+  print(f'Rollout metrics ({worlds} worlds x {steps} steps, mean per step):')
+  print(f'{"metric":<24}{"policy":>12}{"zero actions":>14}')
+  for name, value in payload['policy'].items():
+    print(f'{name:<24}{value:>12.4g}{payload["zero_actions"][name]:>14.4g}')
+  return payload
 
 
 def rollout_images(env, brax_env, policy, args, out):
@@ -635,7 +720,10 @@ def main(argv=None):
 
   if args.render_from:
     policy = load_policy(args.render_from)
-    rollout_images(env, brax_env, policy, args, args.out)
+    if args.metrics_worlds > 0:
+      write_rollout_metrics(brax_env, policy, args, args.out)
+    if args.render_worlds > 0:
+      rollout_images(env, brax_env, policy, args, args.out)
     print(
         f'Rendered {args.render_worlds} worlds of {args.render_from} into '
         f'{args.out}.'
@@ -725,6 +813,10 @@ def main(argv=None):
       policy_config(args, brax_env),
   )
 
+  if args.metrics_worlds > 0:
+    write_rollout_metrics(
+        brax_env, make_policy(params, deterministic=True), args, args.out
+    )
   rendered = False
   if args.render_worlds > 0:
     try:

@@ -1,0 +1,98 @@
+"""benchmarks/train_ppo.py's rollout metrics, on a small composed task."""
+
+import argparse
+import json
+import os
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_composer.adapters import brax as brax_adapter
+from tests import conftest
+
+sys.path.insert(
+    0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'benchmarks')
+)
+import train_ppo  # pylint: disable=g-import-not-at-top,wrong-import-position
+
+_WORLDS = 3
+_STEPS = 7  # episodes of 5 control steps: the rollout crosses an auto-reset
+_SEED = 4
+
+
+@pytest.fixture(scope='module')
+def brax_env():
+  env = conftest.make_swing_env(time_limit=0.05, auto_reset='same_step')
+  return brax_adapter.BraxEnv(env, obs_key='tip')
+
+
+@pytest.fixture(scope='module')
+def fns(brax_env):
+  return {'reset': jax.jit(brax_env.reset), 'step': jax.jit(brax_env.step)}
+
+
+def _constant_policy(value):
+  def policy(obs, unused_key):
+    return jnp.full(obs.shape[:-1] + (1,), value), {}
+
+  return policy
+
+
+def _step_by_step(fns, action):
+  """The per-step means of a Python loop over jitted steps (the reference)."""
+  reset_key, _ = jax.random.split(jax.random.PRNGKey(_SEED))
+  state = fns['reset'](jax.random.split(reset_key, _WORLDS))
+  per_step = []
+  for _ in range(_STEPS):
+    state = fns['step'](state, jnp.full((_WORLDS, 1), action))
+    metrics = brax_adapter.composer_state(state).metrics
+    row = {
+        name: np.mean(value)
+        for name, value in metrics.items()
+        if np.issubdtype(value.dtype, np.floating)
+    }
+    row['reward'] = np.mean(state.reward)
+    per_step.append(row)
+  return {name: np.mean([r[name] for r in per_step]) for name in per_step[0]}
+
+
+def test_rollout_metrics_average_every_world_and_step(brax_env, fns):
+  got = train_ppo.rollout_metrics(
+      brax_env, _constant_policy(0.5), _WORLDS, _STEPS, _SEED
+  )
+  want = _step_by_step(fns, 0.5)
+  assert set(got) == set(want)
+  assert {'reward', 'episode_return', 'diverged'} <= set(got)
+  for name in want:
+    np.testing.assert_allclose(got[name], want[name], rtol=1e-5, atol=1e-7)
+
+
+def test_zero_actions_baseline(brax_env, fns):
+  zero = train_ppo.rollout_metrics(brax_env, None, _WORLDS, _STEPS, _SEED)
+  want = _step_by_step(fns, 0.0)
+  for name in want:
+    np.testing.assert_allclose(zero[name], want[name], rtol=1e-5, atol=1e-7)
+
+
+def test_write_rollout_metrics_compares_policy_and_zero_actions(
+    brax_env, tmp_path
+):
+  args = argparse.Namespace(
+      metrics_worlds=_WORLDS, render_steps=_STEPS, seed=_SEED - 1
+  )
+  payload = train_ppo.write_rollout_metrics(
+      brax_env, _constant_policy(0.5), args, str(tmp_path)
+  )
+  with open(tmp_path / 'rollout_metrics.json') as f:
+    written = json.load(f)
+  assert written == payload
+  assert (written['worlds'], written['steps'], written['seed']) == (
+      _WORLDS,
+      _STEPS,
+      _SEED,
+  )
+  # The policy's actions reach the worlds: the reward differs.
+  assert written['policy']['reward'] != written['zero_actions']['reward']
