@@ -61,6 +61,7 @@ def make_env(
     impl='jax',
     naconmax=None,
     njmax=None,
+    reset_forward=None,
     **task_kwargs,
 ):
   """A bundled task's `Environment`, as the benchmarks build it.
@@ -74,6 +75,7 @@ def make_env(
     max_reset_attempts: passed to the `Environment` when given.
     share_reset_forward: passed to the `Environment` when given.
     auto_reset_batch: passed to the `Environment` when given.
+    reset_forward: passed to the `Environment` when given.
     impl, naconmax, njmax: the physics implementation ('jax', 'warp', or
       None for the `Environment`'s default) and MuJoCo Warp's buffer sizes,
       passed to the `Environment` when given. The benchmarks measure MJX's
@@ -101,6 +103,8 @@ def make_env(
     kwargs['share_reset_forward'] = share_reset_forward
   if auto_reset_batch is not None:
     kwargs['auto_reset_batch'] = auto_reset_batch
+  if reset_forward is not None:
+    kwargs['reset_forward'] = reset_forward
   for name, value in (('impl', impl), ('naconmax', naconmax), ('njmax', njmax)):
     if value is not None:
       kwargs[name] = value

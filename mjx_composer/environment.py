@@ -146,6 +146,18 @@ class Environment:
       implementation allocates. Rows beyond it are dropped and flagged in
       `backend.overflow(state.data)` and `metrics['overflow']`.
 
+    reset_forward: 'observed' (default): a reset runs only the stage of
+      the forward pass whose results something reads before the next
+      physics step (the observables sampled at reset, the start metrics,
+      the next step's hooks before its physics; `mjx.step` recomputes the
+      rest): 'none', 'position' (kinematics, centres of mass, position
+      sensors, ...), 'velocity' (also velocities and velocity sensors) or
+      'full' (`mjx_composer.reset_forward`; `reset_forward_stage` says
+      which). The other derived fields of the reset's `State.data` (e.g.
+      `contact`, `qacc`, `efc_*`) keep their values from before the
+      forward pass. Observations, rewards and trajectories are the same as
+      with 'full', which computes everything as composer's reset does.
+
   Raises:
     ValueError, NotImplementedError, ImportError: for arguments, models or
       per-world fields the chosen implementation cannot run (`backend`).
@@ -168,7 +180,13 @@ class Environment:
       impl=None,
       naconmax=None,
       njmax=None,
+      reset_forward='observed',
   ):
+    if reset_forward not in ('observed', 'full'):
+      raise ValueError(
+          f"reset_forward must be 'observed' or 'full', got {reset_forward!r}."
+      )
+    self._reset_forward = reset_forward
     _check_auto_reset_batch(auto_reset_batch, share_reset_forward, impl)
     self._auto_reset_batch = auto_reset_batch
     _check_arguments(
@@ -333,6 +351,8 @@ class Environment:
         n_sub_steps=n_sub_steps,
         max_reset_attempts=int(max_reset_attempts),
         declared_model_fields=tuple(per_world_model_fields),
+        reset_forward_mode=self._reset_forward,
+        action_shape=tuple(task.action_spec(physics).shape),
     )
     if self._impl == 'warp':
       # Hooks make fields per-world when reset is traced: trace it now.
@@ -394,6 +414,14 @@ class Environment:
     default, `backend.default_share_reset_forward`).
     """
     return self._share_reset_forward
+
+  @property
+  def reset_forward_stage(self) -> str:
+    """The stage of the forward pass a reset runs: 'none', 'position',
+    'velocity' or 'full' (`Environment(reset_forward=...)`,
+    `mjx_composer.reset_forward`). Found by tracing the readers of a reset's
+    state on first use."""
+    return self._transitions.reset_forward.stage
 
   @property
   def random_state(self):

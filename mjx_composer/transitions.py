@@ -22,6 +22,7 @@ from mjx_composer import backend
 from mjx_composer import episode as episode_lib
 from mjx_composer import kinematics as kinematics_lib
 from mjx_composer import physics as physics_lib
+from mjx_composer import reset_forward as reset_forward_lib
 from mjx_composer import state as state_lib
 
 
@@ -41,15 +42,6 @@ def initial_physics(task, model, data, index) -> physics_lib.Physics:
       initialization_failed=jnp.zeros((), bool),
       entity_states=entity_states,
   )
-
-
-def forward_without_actuation(physics):
-  """`mj_forward` with actuation disabled, as composer's reset context does."""
-  opt = physics.model.opt
-  model = physics.model.replace(
-      opt=opt.replace(disableflags=opt.disableflags | mjx.DisableBit.ACTUATION)
-  )
-  return physics.replace(data=mjx.forward(model, physics.data))
 
 
 def _named_scope(method):
@@ -76,6 +68,10 @@ class Transitions:
     n_sub_steps: physics steps per control step.
     max_reset_attempts: initialization attempts per reset.
     declared_model_fields: model fields that step hooks may write.
+    reset_forward_mode: 'observed' (a reset runs the stage of the forward
+      pass that its readers need, `reset_forward`) or 'full'.
+    action_shape: one world's action shape (the readers' analysis traces
+      the step hooks).
   """
 
   initial: physics_lib.Physics
@@ -85,6 +81,8 @@ class Transitions:
   n_sub_steps: int
   max_reset_attempts: int
   declared_model_fields: tuple
+  reset_forward_mode: str = 'full'
+  action_shape: tuple = ()
 
   @functools.cached_property
   def _initial_kinematics(self) -> kinematics_lib.ReferenceKinematics:
@@ -94,6 +92,68 @@ class Transitions:
         qpos=np.asarray(data.qpos),
         mocap_pos=np.asarray(data.mocap_pos),
         mocap_quat=np.asarray(data.mocap_quat),
+    )
+
+  @functools.cached_property
+  def reset_forward(self) -> reset_forward_lib.ResetForward:
+    """The stage of the forward pass that a reset runs.
+
+    With `reset_forward_mode='observed'`, the cheapest stage that computes
+    what the FIRST state's readers read (`_fields_read_after_reset`);
+    'full' on MuJoCo Warp, whose forward pass is one kernel sequence.
+    """
+    model, data = self.initial.model, self.initial.data
+    stage, sensors = 'full', True
+    if self.reset_forward_mode == 'observed' and not backend.is_warp(model):
+      stage, sensors = reset_forward_lib.choose_stage(
+          self._fields_read_after_reset(),
+          model,
+          data,
+          self.initial.index.mj_model,
+      )
+    return reset_forward_lib.ResetForward.of(stage, model, data, sensors)
+
+  def _fields_read_after_reset(self) -> frozenset:
+    """The `mjx.Data` fields read from a reset's state before any physics.
+
+    Its readers: the observables sampled at reset, the episode's start
+    metrics but `diverged` (whose `qacc` checks the forward pass itself),
+    and the next step's hooks before its physics (scheduled, `before_step`
+    and the first `before_substep`), except for the fields that physics
+    overwrites.
+    """
+    key = jax.random.key(0)
+    carry, failures = jax.eval_shape(
+        lambda k: self._initialize(k, self._start(None)), key
+    )
+    derived = reset_forward_lib.written(
+        'full', self.initial.model, self.initial.data
+    )
+    action = jax.ShapeDtypeStruct(self.action_shape, jnp.float32)
+
+    def readers(data, carry, failures, key, action):
+      physics = self._restore(carry.replace(data=data))
+      obs_key, next_key, step_key = jax.random.split(key, 3)
+      first = self._first_state(physics, carry, failures, obs_key, next_key)
+      metrics = dict(first.metrics)
+      diverged = metrics.pop('diverged')
+      keys = _StepKeys.split(step_key)
+      fields = tuple(first.model_fields)
+      before = self._before_step(first, action, keys)
+      before = self._before_substep(before, action, keys, 0, fields)
+      after = before.carry(fields)
+      names = reset_forward_lib.leaf_names(after.data)
+      leaves = jax.tree.leaves(after.data)
+      overwritten = [x for n, x in zip(names, leaves) if n in derived]
+      kept = [x for n, x in zip(names, leaves) if n not in derived]
+      read = (
+          first.replace(data=None, metrics=metrics),
+          after.replace(data=None),
+      )
+      return (read, kept), (first.data, diverged, overwritten)
+
+    return reset_forward_lib.fields_read(
+        readers, carry.data, carry, failures, key, action
     )
 
   def physics(self, state: state_lib.State) -> physics_lib.Physics:
@@ -128,7 +188,10 @@ class Transitions:
     with jax.named_scope('reset'):
       init_key, obs_key, next_key = jax.random.split(key, 3)
       carry, failures = self._initialize(init_key, self._start(previous))
-      physics = forward_without_actuation(self._restore(carry))
+      physics = self._restore(carry)
+      physics = physics.replace(
+          data=self.reset_forward(physics.model, physics.data)
+      )
       return self._first_state(physics, carry, failures, obs_key, next_key)
 
   def restart(self, stepped: state_lib.State) -> state_lib.State:
@@ -361,6 +424,8 @@ class Transitions:
             act_dot=jnp.zeros_like(physics.data.act_dot),
             actuator_force=ready.data.actuator_force,
         )
+        # What the reset's stage of the forward pass leaves (`reset`).
+        data = self.reset_forward.restrict(data, ready.data)
         _, obs_key, next_key = jax.random.split(reset_key, 3)
         restarted = self._first_state(
             physics.replace(data=data), ready, failures, obs_key, next_key

@@ -1,0 +1,262 @@
+"""The part of a reset's forward pass that something reads.
+
+Composer's reset runs `mj_forward` (actuation disabled) after the
+`initialize_episode` hooks, so that the first observation and whatever reads
+the new state see consistent derived quantities. In a batched program that
+forward pass is a second copy of the physics beside the step's: collision
+detection, the constraint solver, the mass matrix. Yet `mjx.step` recomputes
+every derived quantity from the integration state (`qpos`, `qvel`, `act`,
+`ctrl`, `qacc_warmstart`, ...), so the reset's results matter only to what
+reads the FIRST state before the next step's physics: the observables
+sampled at reset, the episode's start metrics, and the next step's hooks
+that run before its physics.
+
+This module finds, at trace time, which `mjx.Data` fields those readers use
+(`fields_read`: dead-code elimination of their jaxpr) and picks the
+cheapest stage of the forward pass that computes them (`choose_stage`):
+
+* `'none'`: nothing derived is read (e.g. only joint positions);
+* `'position'`: kinematics, centres of mass, cameras and lights, tendon
+  lengths, actuator transmissions and position sensors;
+* `'velocity'`: the position stage, then body velocities, tendon and
+  actuator velocities and velocity sensors;
+* `'full'`: `mjx.forward`, everything.
+
+Sensors are computed by a reduced stage only where `sensordata` is read,
+and then all of them: only where every sensor of the model is one the stage
+computes exactly (`POSITION_SENSORS`, `VELOCITY_SENSORS`), else `'full'`.
+
+Every stage ends as `mjx.forward` with actuation disabled does
+(`mjx.fwd_actuation`: `act_dot` and `qfrc_actuator` zero). Fields the stage
+does not compute keep their values from before the forward pass.
+Environment(reset_forward='full') always runs `'full'`, as composer does.
+"""
+
+import dataclasses
+
+import jax
+from jax._src.interpreters import partial_eval as pe
+import mujoco
+from mujoco import mjx
+
+STAGES = ('none', 'position', 'velocity', 'full')
+
+# Sensor types whose values the reduced stages compute exactly as
+# `mjx.forward` does (tests/test_reset_forward.py checks each against it).
+# A model with any other sensor takes the full forward pass whenever
+# `sensordata` is read.
+_S = mujoco.mjtSensor
+POSITION_SENSORS = frozenset(
+    {
+        _S.mjSENS_JOINTPOS,
+        _S.mjSENS_TENDONPOS,
+        _S.mjSENS_ACTUATORPOS,
+        _S.mjSENS_BALLQUAT,
+        _S.mjSENS_FRAMEPOS,
+        _S.mjSENS_FRAMEQUAT,
+        _S.mjSENS_FRAMEXAXIS,
+        _S.mjSENS_FRAMEYAXIS,
+        _S.mjSENS_FRAMEZAXIS,
+        _S.mjSENS_SUBTREECOM,
+        _S.mjSENS_CLOCK,
+    }
+)
+VELOCITY_SENSORS = frozenset(
+    {
+        _S.mjSENS_VELOCIMETER,
+        _S.mjSENS_GYRO,
+        _S.mjSENS_JOINTVEL,
+        _S.mjSENS_TENDONVEL,
+        _S.mjSENS_ACTUATORVEL,
+        _S.mjSENS_BALLANGVEL,
+        _S.mjSENS_FRAMELINVEL,
+        _S.mjSENS_FRAMEANGVEL,
+    }
+)
+
+
+def _without_actuation(model):
+  opt = model.opt
+  return model.replace(
+      opt=opt.replace(disableflags=opt.disableflags | mjx.DisableBit.ACTUATION)
+  )
+
+
+def _position(m, d, sensors):
+  d = mjx.kinematics(m, d)
+  d = mjx.com_pos(m, d)
+  d = mjx.camlight(m, d)
+  d = mjx.tendon(m, d)
+  d = mjx.transmission(m, d)
+  return mjx.sensor_pos(m, d) if sensors else d
+
+
+def _velocity(m, d, sensors):
+  d = _position(m, d, sensors)
+  # What `mjx.fwd_velocity` computes before its force terms.
+  d = d.tree_replace(
+      {
+          '_impl.actuator_velocity': d._impl.actuator_moment @ d.qvel,  # pylint: disable=protected-access
+          '_impl.ten_velocity': d._impl.ten_J @ d.qvel,  # pylint: disable=protected-access
+      }
+  )
+  d = mjx.com_vel(m, d)
+  return mjx.sensor_vel(m, d) if sensors else d
+
+
+_STAGE_FNS = {
+    'none': lambda m, d, sensors: d,
+    'position': _position,
+    'velocity': _velocity,
+}
+
+
+def forward(stage, model, data, sensors=True):
+  """`data` after `stage` of the forward pass, with actuation disabled.
+
+  With `sensors=False`, a reduced stage leaves `sensordata` as it was.
+  """
+  model = _without_actuation(model)
+  if stage == 'full':
+    return mjx.forward(model, data)
+  return mjx.fwd_actuation(model, _STAGE_FNS[stage](model, data, sensors))
+
+
+def leaf_names(data) -> list[str]:
+  """The names of `data`'s leaves, e.g. `'qpos'`, `'_impl.efc_J'`."""
+  paths, _ = jax.tree_util.tree_flatten_with_path(data)
+  return [
+      '.'.join(
+          str(getattr(k, 'name', getattr(k, 'key', getattr(k, 'idx', k))))
+          for k in path
+      )
+      for path, _ in paths
+  ]
+
+
+def written(stage, model, data, sensors=True) -> frozenset[str]:
+  """The leaves of `data` that `forward(stage, ...)` writes (by tracing)."""
+  out = {}
+
+  def run(data):
+    result = forward(stage, model, data, sensors)
+    before = jax.tree.leaves(data)
+    after = jax.tree.leaves(result)
+    out['names'] = frozenset(
+        name
+        for name, old, new in zip(leaf_names(data), before, after)
+        if new is not old
+    )
+    return result
+
+  jax.eval_shape(run, data)
+  return out['names']
+
+
+def fields_read(fn, data, *args) -> frozenset[str]:
+  """The leaves of `data` that `fn(data, *args)`'s outputs depend on.
+
+  `fn` returns `(outputs, ignored)`: a pytree whose every leaf counts, and
+  one whose leaves do not (e.g. values the next physics step overwrites).
+  The dependence is that of the traced program after dead-code elimination,
+  so a leaf a branch or loop passes through counts as read.
+  """
+  closed = jax.make_jaxpr(fn)(data, *args)
+  outputs, ignored = jax.eval_shape(fn, data, *args)
+  used_outputs = [True] * len(jax.tree.leaves(outputs)) + [False] * len(
+      jax.tree.leaves(ignored)
+  )
+  _, used_inputs = pe.dce_jaxpr(closed.jaxpr, used_outputs, instantiate=False)
+  names = leaf_names(data)
+  return frozenset(n for n, used in zip(names, used_inputs) if used)
+
+
+def sensor_stage(mj_model) -> str:
+  """The least stage that computes every sensor of `mj_model` exactly."""
+  types = {mujoco.mjtSensor(int(t)) for t in mj_model.sensor_type}
+  if not types:
+    return 'none'
+  if not types - POSITION_SENSORS:
+    return 'position'
+  if not types - POSITION_SENSORS - VELOCITY_SENSORS:
+    return 'velocity'
+  return 'full'
+
+
+def choose_stage(needed, model, data, mj_model) -> tuple[str, bool]:
+  """The cheapest stage that computes every field of `needed` as `'full'`.
+
+  Where `sensordata` is needed, a reduced stage computes all of it, and is
+  chosen only where every sensor of the model belongs to it
+  (`sensor_stage`); elsewhere the reduced stages skip the sensors.
+
+  Args:
+    needed: the names (`leaf_names`) of the fields the readers use.
+    model: the `mjx.Model`.
+    data: an `mjx.Data` of the model (shapes suffice).
+    mj_model: the host `MjModel` (its sensor types).
+
+  Returns:
+    `(stage, sensors)`: the stage, and whether it computes the sensors.
+  """
+  needed = frozenset(needed) & written('full', model, data)
+  sensors = 'sensordata' in needed
+  floor = sensor_stage(mj_model) if sensors else 'none'
+  for stage in STAGES[STAGES.index(floor) : -1]:
+    if needed <= written(stage, model, data, sensors):
+      return stage, sensors
+  return 'full', True
+
+
+def keep_only(keep, derived, computed, before):
+  """`computed`, but `before`'s leaves where in `derived` and not in `keep`."""
+  names = leaf_names(computed)
+  leaves = [
+      old if name in derived and name not in keep else new
+      for name, new, old in zip(
+          names, jax.tree.leaves(computed), jax.tree.leaves(before)
+      )
+  ]
+  return jax.tree.unflatten(jax.tree.structure(computed), leaves)
+
+
+@dataclasses.dataclass(frozen=True)
+class ResetForward:
+  """The stage of the forward pass a reset runs.
+
+  Attributes:
+    stage: one of `STAGES`.
+    sensors: whether a reduced stage computes `sensordata`.
+    writes: the fields the stage writes (`written`).
+    derived: every field `mjx.forward` writes.
+  """
+
+  stage: str
+  sensors: bool
+  writes: frozenset
+  derived: frozenset
+
+  @classmethod
+  def of(cls, stage, model, data, sensors=True):
+    return cls(
+        stage=stage,
+        sensors=sensors,
+        writes=written(stage, model, data, sensors),
+        derived=written('full', model, data),
+    )
+
+  def __call__(self, model, data):
+    """`data` after the stage (see the module docstring)."""
+    return forward(self.stage, model, data, self.sensors)
+
+  def restrict(self, computed, before):
+    """A full forward pass's `computed` data, as this stage leaves it.
+
+    The fields the stage writes are `computed`'s (the stage computes them
+    as the full pass does); the other derived fields are `before`'s. So a
+    same-step restart fused into the sub-step loop, whose forward pass is
+    the full one, leaves what `reset` leaves.
+    """
+    if self.stage == 'full':
+      return computed
+    return keep_only(self.writes, self.derived, computed, before)
