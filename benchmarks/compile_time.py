@@ -424,23 +424,31 @@ def measured_programs(tasks, programs):
   return pairs
 
 
-def make_task_env(task, share_reset_forward=None):
+def make_task_env(task, share_reset_forward=None, reset_forward=None):
   """The `Environment` of a `--tasks` entry, as the benchmarks build it.
 
-  `share_reset_forward` goes to the `Environment` (None: its default).
+  `share_reset_forward` and `reset_forward` go to the `Environment` (None:
+  its default).
   """
   import common  # pylint: disable=g-import-not-at-top
   import playground_compare  # pylint: disable=g-import-not-at-top
 
   base, _, variant = task.partition(':')
   if not variant:
-    return common.make_env(base, share_reset_forward=share_reset_forward)
+    return common.make_env(
+        base,
+        share_reset_forward=share_reset_forward,
+        reset_forward=reset_forward,
+    )
+  extra = {} if reset_forward is None else {'reset_forward': reset_forward}
   return playground_compare.env_variants(
-      [variant], share_reset_forward=share_reset_forward
+      [variant], share_reset_forward=share_reset_forward, **extra
   )[variant]
 
 
-def run_one(task, program, worlds, steps, share_reset_forward=None):
+def run_one(
+    task, program, worlds, steps, share_reset_forward=None, reset_forward=None
+):
   """Builds `task`'s environment and measures `program`; returns a dict."""
   _disable_persistent_cache()
   # pylint: disable=g-import-not-at-top
@@ -460,7 +468,7 @@ def run_one(task, program, worlds, steps, share_reset_forward=None):
   # One-time backend and compiler start-up, kept out of the measurement.
   jax.jit(lambda x: x + 1).lower(1.0).compile()
   t0 = time.perf_counter()
-  env = make_task_env(task, share_reset_forward)
+  env = make_task_env(task, share_reset_forward, reset_forward)
   build_s = time.perf_counter() - t0
   assert not compilation_cache.is_persistent_cache_enabled()
   if program in _PPO_PROGRAMS:
@@ -480,11 +488,14 @@ def run_one(task, program, worlds, steps, share_reset_forward=None):
       jax=jax.__version__,
       threefry_gpu_kernel=threefry_kernel,
       share_reset_forward=env.share_reset_forward,
+      reset_forward_stage=env.reset_forward_stage,
   )
   return row
 
 
-def _run_isolated(task, program, worlds, steps, share_reset_forward=None):
+def _run_isolated(
+    task, program, worlds, steps, share_reset_forward=None, reset_forward=None
+):
   """`run_one` in a fresh Python process."""
   with tempfile.TemporaryDirectory() as tmp:
     path = os.path.join(tmp, 'row.json')
@@ -504,6 +515,8 @@ def _run_isolated(task, program, worlds, steps, share_reset_forward=None):
       cmd += ['--worlds', str(worlds)]
     if share_reset_forward is not None:
       cmd += ['--share-reset-forward', 'on' if share_reset_forward else 'off']
+    if reset_forward is not None:
+      cmd += ['--reset-forward', reset_forward]
     if subprocess.run(cmd, check=False).returncode:
       return None
     with open(path) as f:
@@ -622,15 +635,25 @@ def main(argv=None):
   import common  # pylint: disable=g-import-not-at-top
 
   common.add_share_reset_forward_arg(parser)
+  parser.add_argument(
+      '--reset-forward',
+      choices=('observed', 'full'),
+      default=None,
+      help="Environment(reset_forward=...) (default: the Environment's, "
+      "'observed')",
+  )
   parser.add_argument('--worker', metavar='ROW_JSON', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
   share = common.share_reset_forward(args)
+  env_options = (share, args.reset_forward)
   programs = args.programs or (
       list(_PROGRAMS) + (list(_PPO_PROGRAMS) if args.ppo else [])
   )
 
   if args.worker:  # a worker process: one task, one program
-    row = run_one(args.tasks[0], programs[0], args.worlds, args.steps, share)
+    row = run_one(
+        args.tasks[0], programs[0], args.worlds, args.steps, *env_options
+    )
     with open(args.worker, 'w') as f:
       json.dump(row, f)
     return 0
@@ -641,9 +664,9 @@ def main(argv=None):
   for task, program in measured_programs(args.tasks, programs):
     print(f'{task}: {program} ...', flush=True)
     if args.in_process:
-      row = run_one(task, program, args.worlds, args.steps, share)
+      row = run_one(task, program, args.worlds, args.steps, *env_options)
     else:
-      row = _run_isolated(task, program, args.worlds, args.steps, share)
+      row = _run_isolated(task, program, args.worlds, args.steps, *env_options)
     if row is None:
       print(f'{task}: {program} FAILED (see above)', flush=True)
       failed.append(f'{task}/{program}')

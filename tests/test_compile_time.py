@@ -76,3 +76,17 @@ def test_share_reset_forward_reaches_the_environment(task):
     assert env.share_reset_forward is share
   # On a CPU (where the tests run) the default shares the forward pass.
   assert default is True
+
+
+@pytest.mark.parametrize('task', ['reach', 'walk:ours_off'])
+def test_reset_forward_reaches_the_environment(task):
+  """`--reset-forward` builds the measured env with that setting."""
+  assert (
+      compile_time.make_task_env(task, reset_forward='full').reset_forward_stage
+      == 'full'
+  )
+  observed = compile_time.make_task_env(task, reset_forward='observed')
+  default = compile_time.make_task_env(task)
+  assert observed.reset_forward_stage == default.reset_forward_stage
+  if task == 'reach':  # its observables need positions and velocities
+    assert observed.reset_forward_stage == 'velocity'
