@@ -183,7 +183,7 @@ def sensor_stage(mj_model) -> str:
   return 'full'
 
 
-def choose_stage(needed, model, data, mj_model) -> tuple[str, bool]:
+def choose_stage(needed, model, data, mj_model, derived=None):
   """The cheapest stage that computes every field of `needed` as `'full'`.
 
   Where `sensordata` is needed, a reduced stage computes all of it, and is
@@ -195,17 +195,22 @@ def choose_stage(needed, model, data, mj_model) -> tuple[str, bool]:
     model: the `mjx.Model`.
     data: an `mjx.Data` of the model (shapes suffice).
     mj_model: the host `MjModel` (its sensor types).
+    derived: `written('full', model, data)`, if known (tracing the full
+      forward pass to find it takes about a second).
 
   Returns:
-    `(stage, sensors)`: the stage, and whether it computes the sensors.
+    The `ResetForward` of the stage.
   """
-  needed = frozenset(needed) & written('full', model, data)
+  if derived is None:
+    derived = written('full', model, data)
+  needed = frozenset(needed) & derived
   sensors = 'sensordata' in needed
   floor = sensor_stage(mj_model) if sensors else 'none'
   for stage in STAGES[STAGES.index(floor) : -1]:
-    if needed <= written(stage, model, data, sensors):
-      return stage, sensors
-  return 'full', True
+    writes = written(stage, model, data, sensors)
+    if needed <= writes:
+      return ResetForward(stage, sensors, writes, derived)
+  return ResetForward('full', True, derived, derived)
 
 
 def keep_only(keep, derived, computed, before):
@@ -227,23 +232,15 @@ class ResetForward:
   Attributes:
     stage: one of `STAGES`.
     sensors: whether a reduced stage computes `sensordata`.
-    writes: the fields the stage writes (`written`).
-    derived: every field `mjx.forward` writes.
+    writes: the fields the stage writes (`written`; for `'full'`, which
+      `restrict` leaves alone, may be left empty).
+    derived: every field `mjx.forward` writes (likewise).
   """
 
   stage: str
   sensors: bool
   writes: frozenset
   derived: frozenset
-
-  @classmethod
-  def of(cls, stage, model, data, sensors=True):
-    return cls(
-        stage=stage,
-        sensors=sensors,
-        writes=written(stage, model, data, sensors),
-        derived=written('full', model, data),
-    )
 
   def __call__(self, model, data):
     """`data` after the stage (see the module docstring)."""

@@ -103,31 +103,32 @@ class Transitions:
     'full' on MuJoCo Warp, whose forward pass is one kernel sequence.
     """
     model, data = self.initial.model, self.initial.data
-    stage, sensors = 'full', True
-    if self.reset_forward_mode == 'observed' and not backend.is_warp(model):
-      stage, sensors = reset_forward_lib.choose_stage(
-          self._fields_read_after_reset(),
-          model,
-          data,
-          self.initial.index.mj_model,
+    if self.reset_forward_mode == 'full' or backend.is_warp(model):
+      # The full pass restricts nothing: no need to trace what it writes.
+      return reset_forward_lib.ResetForward(
+          'full', True, frozenset(), frozenset()
       )
-    return reset_forward_lib.ResetForward.of(stage, model, data, sensors)
+    derived = reset_forward_lib.written('full', model, data)
+    return reset_forward_lib.choose_stage(
+        self._fields_read_after_reset(derived),
+        model,
+        data,
+        self.initial.index.mj_model,
+        derived=derived,
+    )
 
-  def _fields_read_after_reset(self) -> frozenset:
+  def _fields_read_after_reset(self, derived) -> frozenset:
     """The `mjx.Data` fields read from a reset's state before any physics.
 
     Its readers: the observables sampled at reset, the episode's start
     metrics but `diverged` (whose `qacc` checks the forward pass itself),
     and the next step's hooks before its physics (scheduled, `before_step`
     and the first `before_substep`), except for the fields that physics
-    overwrites.
+    overwrites (`derived`: the fields the full forward pass writes).
     """
     key = jax.random.key(0)
     carry, failures = jax.eval_shape(
         lambda k: self._initialize(k, self._start(None)), key
-    )
-    derived = reset_forward_lib.written(
-        'full', self.initial.model, self.initial.data
     )
     action = jax.ShapeDtypeStruct(self.action_shape, jnp.float32)
 

@@ -164,7 +164,11 @@ def test_sensor_stage():
 def test_choose_stage(sensor_model):
   m, model, d = sensor_model
   data = mjx.put_data(m, d)
-  choose = lambda *needed: reset_forward.choose_stage(needed, model, data, m)
+
+  def choose(*needed):
+    chosen = reset_forward.choose_stage(needed, model, data, m)
+    return chosen.stage, chosen.sensors
+
   assert choose() == ('none', False)
   assert choose('qvel', 'ctrl') == ('none', False)  # not derived
   # MJX's kinematics writes qpos (its quaternions normalized).
@@ -178,12 +182,14 @@ def test_choose_stage(sensor_model):
   with_accelerometer = mujoco.MjModel.from_xml_string(
       _SENSORS_XML.replace('<clock/>', '<clock/><accelerometer site="sb"/>')
   )
-  assert reset_forward.choose_stage(
+  chosen = reset_forward.choose_stage(
       ['sensordata'],
       mjx.put_model(with_accelerometer),
       mjx.make_data(with_accelerometer),
       with_accelerometer,
-  ) == ('full', True)
+  )
+  assert (chosen.stage, chosen.sensors) == ('full', True)
+  assert chosen.writes == chosen.derived
 
 
 def test_fields_read_follows_dependences(sensor_model):
