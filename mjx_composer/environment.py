@@ -61,6 +61,7 @@ from mjx_composer import episode as episode_lib
 from mjx_composer import hooks as hooks_lib
 from mjx_composer import model_checks
 from mjx_composer import physics as physics_lib
+from mjx_composer import reset_forward as reset_forward_lib
 from mjx_composer import state as state_lib
 from mjx_composer import transitions as transitions_lib
 from mjx_composer.observation import updater as updater_lib
@@ -187,6 +188,8 @@ class Environment:
           f"reset_forward must be 'observed' or 'full', got {reset_forward!r}."
       )
     self._reset_forward = reset_forward
+    # Jitted data completions of `physics`, by the state's batch rank.
+    self._complete_data = {}
     _check_auto_reset_batch(auto_reset_batch, share_reset_forward, impl)
     self._auto_reset_batch = auto_reset_batch
     _check_arguments(
@@ -478,8 +481,34 @@ class Environment:
     return self._transitions.initial
 
   def physics(self, state: State) -> physics_lib.Physics:
-    """The `Physics` of a state (a batch of them if the state is batched)."""
-    return self._transitions.physics(state)
+    """The `Physics` of a state (a batch of them if the state is batched).
+
+    Every derived quantity of its data is the forward pass's: where the
+    state comes from a reset whose stage of the forward pass skipped some
+    (`reset_forward_stage`; FIRST states, and LAST ones under same-step
+    auto-reset), the rest is computed here, in a jitted program, so what
+    you read is what composer's reset leaves. `state.data` itself is not
+    completed.
+    """
+    physics = self._transitions.physics(state)
+    if self.reset_forward_stage == 'full':
+      return physics
+    batch_ndim = jnp.ndim(state.step_type)
+    if batch_ndim not in self._complete_data:
+      complete = self._complete_one_world
+      for _ in range(batch_ndim):
+        complete = jax.vmap(complete)
+      self._complete_data[batch_ndim] = jax.jit(complete)
+    return physics.replace(data=self._complete_data[batch_ndim](state))
+
+  def _complete_one_world(self, state: State):
+    """One world's data, its forward pass completed if it is a reset's."""
+    physics = self._transitions.physics(state)
+    reset = state.first()
+    if self._auto_reset == 'same_step':
+      reset = jnp.logical_or(reset, state.last())
+    full = reset_forward_lib.forward('full', physics.model, physics.data)
+    return episode_lib.tree_select(reset, full, physics.data)
 
   # -- reset and step ------------------------------------------------------
 

@@ -308,3 +308,29 @@ def test_bundled_tasks_stages():
 def test_reset_forward_must_be_observed_or_full():
   with pytest.raises(ValueError, match="'observed' or 'full'"):
     conftest.make_swing_env(reset_forward='partial')
+
+
+def test_physics_of_a_reset_state_is_complete():
+  runs = _rollouts(
+      lambda mode: conftest.make_swing_env(
+          time_limit=0.05, auto_reset='same_step', reset_forward=mode
+      ),
+      steps=5,
+  )
+  env, observed = runs['observed']
+  _, full = runs['full']
+  assert env.reset_forward_stage == 'position'
+  # FIRST, a step within the episode, and LAST (holding the restart).
+  assert np.asarray(observed[0].first()).all()
+  assert np.asarray(observed[5].last()).all()
+  for i in (0, 1, 5):
+    got = env.physics(observed[i]).data
+    test_environment.assert_trees_close(got, full[i].data)
+  # The reset state itself keeps the skipped fields; the accessor, not the
+  # state, is completed.
+  assert not np.allclose(observed[0].data.qacc, full[0].data.qacc)
+  # One world (unbatched) too.
+  world = jax.tree.map(lambda x: x[1], observed[0])
+  test_environment.assert_trees_close(
+      env.physics(world).data, jax.tree.map(lambda x: x[1], full[0].data)
+  )
