@@ -724,10 +724,10 @@ def main(argv=None):
       write_rollout_metrics(brax_env, policy, args, args.out)
     if args.render_worlds > 0:
       rollout_images(env, brax_env, policy, args, args.out)
-    print(
-        f'Rendered {args.render_worlds} worlds of {args.render_from} into '
-        f'{args.out}.'
-    )
+      print(
+          f'Rendered {args.render_worlds} worlds of {args.render_from} into '
+          f'{args.out}.'
+      )
     return 0
 
   rows = []
