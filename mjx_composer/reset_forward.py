@@ -15,7 +15,9 @@ This module finds, at trace time, which `mjx.Data` fields those readers use
 (`fields_read`: dead-code elimination of their jaxpr) and picks the
 cheapest stage of the forward pass that computes them (`choose_stage`):
 
-* `'none'`: nothing derived is read (e.g. only joint positions);
+* `'none'`: nothing the forward pass writes is read (e.g. only joint
+  velocities and task state; MJX's kinematics rewrites `qpos`, its
+  quaternions normalized, so reading `qpos` takes the position stage);
 * `'position'`: kinematics, centres of mass, cameras and lights, tendon
   lengths, actuator transmissions and position sensors;
 * `'velocity'`: the position stage, then body velocities, tendon and
@@ -35,9 +37,13 @@ Environment(reset_forward='full') always runs `'full'`, as composer does.
 import dataclasses
 
 import jax
-from jax._src.interpreters import partial_eval as pe
 import mujoco
 from mujoco import mjx
+
+try:  # JAX's dead-code elimination of a jaxpr: not a public API.
+  from jax._src.interpreters import partial_eval as pe  # pylint: disable=g-import-not-at-top
+except ImportError:  # A JAX without it: every field counts as read.
+  pe = None
 
 STAGES = ('none', 'position', 'velocity', 'full')
 
@@ -159,15 +165,19 @@ def fields_read(fn, data, *args) -> frozenset[str]:
   `fn` returns `(outputs, ignored)`: a pytree whose every leaf counts, and
   one whose leaves do not (e.g. values the next physics step overwrites).
   The dependence is that of the traced program after dead-code elimination,
-  so a leaf a branch or loop passes through counts as read.
+  so a leaf a branch or loop passes through counts as read. Where this JAX
+  has no dead-code elimination to call, every leaf counts as read.
   """
-  closed = jax.make_jaxpr(fn)(data, *args)
-  outputs, ignored = jax.eval_shape(fn, data, *args)
+  names = leaf_names(data)
+  if pe is None or not hasattr(pe, 'dce_jaxpr'):
+    return frozenset(names)
+  closed, (outputs, ignored) = jax.make_jaxpr(fn, return_shape=True)(
+      data, *args
+  )
   used_outputs = [True] * len(jax.tree.leaves(outputs)) + [False] * len(
       jax.tree.leaves(ignored)
   )
   _, used_inputs = pe.dce_jaxpr(closed.jaxpr, used_outputs, instantiate=False)
-  names = leaf_names(data)
   return frozenset(n for n, used in zip(names, used_inputs) if used)
 
 

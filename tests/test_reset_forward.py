@@ -207,6 +207,17 @@ def test_fields_read_follows_dependences(sensor_model):
   assert reset_forward.fields_read(fn, data, 1.0) == {'xpos', 'cvel'}
 
 
+def test_without_dead_code_elimination_everything_counts_as_read(
+    sensor_model, monkeypatch
+):
+  m, model, _ = sensor_model
+  data = mjx.make_data(model)
+  monkeypatch.setattr(reset_forward, 'pe', None)
+  read = reset_forward.fields_read(lambda d: (d.qvel, d.xpos), data)
+  assert read == set(reset_forward.leaf_names(data))
+  assert reset_forward.choose_stage(read, model, data, m).stage == 'full'
+
+
 # -- environments ------------------------------------------------------------
 
 
