@@ -156,8 +156,9 @@ class Environment:
       'full' (`mjx_composer.reset_forward`; `reset_forward_stage` says
       which). The other derived fields of the reset's `State.data` (e.g.
       `contact`, `qacc`, `efc_*`) keep their values from before the
-      forward pass. Observations, rewards and trajectories are the same as
-      with 'full', which computes everything as composer's reset does.
+      forward pass (`physics(state)` completes them). Observations,
+      rewards and trajectories are the same as with 'full', which computes
+      everything as composer's reset does.
 
   Raises:
     ValueError, NotImplementedError, ImportError: for arguments, models or
