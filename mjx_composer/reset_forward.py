@@ -193,7 +193,7 @@ def sensor_stage(mj_model) -> str:
   return 'full'
 
 
-def choose_stage(needed, model, data, mj_model, derived=None):
+def choose_stage(needed, model, data, mj_model):
   """The cheapest stage that computes every field of `needed` as `'full'`.
 
   Where `sensordata` is needed, a reduced stage computes all of it, and is
@@ -205,15 +205,16 @@ def choose_stage(needed, model, data, mj_model, derived=None):
     model: the `mjx.Model`.
     data: an `mjx.Data` of the model (shapes suffice).
     mj_model: the host `MjModel` (its sensor types).
-    derived: `written('full', model, data)`, if known (tracing the full
-      forward pass to find it takes about a second).
 
   Returns:
     The `ResetForward` of the stage.
   """
-  if derived is None:
-    derived = written('full', model, data)
-  needed = frozenset(needed) & derived
+  needed = frozenset(needed)
+  if 'sensordata' in needed and sensor_stage(mj_model) == 'full':
+    # Settled without tracing the full pass (about a second).
+    return ResetForward('full', True, frozenset(), frozenset())
+  derived = written('full', model, data)
+  needed &= derived
   sensors = 'sensordata' in needed
   floor = sensor_stage(mj_model) if sensors else 'none'
   for stage in STAGES[STAGES.index(floor) : -1]:

@@ -108,23 +108,22 @@ class Transitions:
       return reset_forward_lib.ResetForward(
           'full', True, frozenset(), frozenset()
       )
-    derived = reset_forward_lib.written('full', model, data)
     return reset_forward_lib.choose_stage(
-        self._fields_read_after_reset(derived),
+        self._fields_read_after_reset(),
         model,
         data,
         self.initial.index.mj_model,
-        derived=derived,
     )
 
-  def _fields_read_after_reset(self, derived) -> frozenset:
+  def _fields_read_after_reset(self) -> frozenset:
     """The `mjx.Data` fields read from a reset's state before any physics.
 
     Its readers: the observables sampled at reset, the episode's start
     metrics but `diverged` (whose `qacc` checks the forward pass itself),
     and the next step's hooks before its physics (scheduled, `before_step`
-    and the first `before_substep`), except for the fields that physics
-    overwrites (`derived`: the fields the full forward pass writes).
+    and the first `before_substep`). The data those hooks pass on
+    untouched to the physics is not read by them: `mjx.step` reads only the
+    integration state, which a reset's forward pass does not write.
     """
     key = jax.random.key(0)
     carry, failures = jax.eval_shape(
@@ -143,15 +142,14 @@ class Transitions:
       before = self._before_step(first, action, keys)
       before = self._before_substep(before, action, keys, 0, fields)
       after = before.carry(fields)
-      names = reset_forward_lib.leaf_names(after.data)
-      leaves = jax.tree.leaves(after.data)
-      overwritten = [x for n, x in zip(names, leaves) if n in derived]
-      kept = [x for n, x in zip(names, leaves) if n not in derived]
+      pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
+      written = [new for new, old in pairs if new is not old]
       read = (
           first.replace(data=None, metrics=metrics),
           after.replace(data=None),
+          written,
       )
-      return (read, kept), (first.data, diverged, overwritten)
+      return read, (first.data, diverged)
 
     return reset_forward_lib.fields_read(
         readers, carry.data, carry, failures, key, action
