@@ -24,6 +24,7 @@ from mjx_composer.entities import arenas
 from mjx_composer.entities import position_detector
 from mjx_composer.entities import props
 from mjx_composer.entities import robots
+from mjx_composer.entities import simulation_options as options_lib
 from mjx_composer.initializers import prop_initializer
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.tasks import reach
@@ -72,6 +73,10 @@ class Push(task.Task):
       the constraint solver the dominant cost of a step; None for no cap.
     control_timestep, physics_timestep: seconds per agent and physics step.
     observation_noise: standard deviation of the joint sensor noise.
+    solver_iterations, solver_ls_iterations: MuJoCo's solver caps written
+      on the root (`simulation_options.SOLVER_CAPS` by default: 4 and 8;
+      None keeps MuJoCo's 100 and 50, which cost MJX the full cap per step
+      for the same trajectory).
   """
 
   def __init__(
@@ -83,6 +88,8 @@ class Push(task.Task):
       control_timestep=0.02,
       physics_timestep=0.004,
       observation_noise=0.01,
+      solver_iterations=options_lib.SOLVER_CAPS['iterations'],
+      solver_ls_iterations=options_lib.SOLVER_CAPS['ls_iterations'],
   ):
     if placement not in _PLACEMENTS:
       raise ValueError(
@@ -141,6 +148,7 @@ class Push(task.Task):
         max_attempts_per_prop=max_attempts_per_prop,
     )
     self.set_timesteps(control_timestep, physics_timestep)
+    reach.cap_solver(self._arena, solver_iterations, solver_ls_iterations)
 
     arm_obs = self._arm.observables
     arm_obs.joint_positions.configure(

@@ -24,6 +24,7 @@ from mjx_composer import task
 from mjx_composer.entities import arenas
 from mjx_composer.entities import props
 from mjx_composer.entities import robots
+from mjx_composer.entities import simulation_options as options_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
 from mjx_composer.variation import colors
@@ -46,6 +47,15 @@ def gaussian_noise(scale):
   return corrupt
 
 
+def cap_solver(arena, iterations, ls_iterations):
+  """Writes the solver's iteration caps on `arena`'s spec (None: keep)."""
+  option = arena.mjcf_model.option
+  if iterations is not None:
+    option.iterations = iterations
+  if ls_iterations is not None:
+    option.ls_iterations = ls_iterations
+
+
 class Reach(task.Task):
   """Reach a random target with the arm's hand.
 
@@ -58,6 +68,10 @@ class Reach(task.Task):
     observation_noise: standard deviation of the joint sensor noise.
     randomize: resample colours, masses, sizes, friction and actuator gains
       every episode (see the module docstring).
+    solver_iterations, solver_ls_iterations: MuJoCo's solver caps written
+      on the root (`simulation_options.SOLVER_CAPS` by default: 4 and 8;
+      None keeps MuJoCo's 100 and 50, which cost MJX the full cap per step
+      for the same trajectory).
   """
 
   def __init__(
@@ -66,6 +80,8 @@ class Reach(task.Task):
       physics_timestep=0.004,
       observation_noise=0.01,
       randomize=True,
+      solver_iterations=options_lib.SOLVER_CAPS['iterations'],
+      solver_ls_iterations=options_lib.SOLVER_CAPS['ls_iterations'],
   ):
     self._arena = arenas.Floor(size=(1.5, 1.5))
     self._arm = robots.Arm()
@@ -73,6 +89,7 @@ class Reach(task.Task):
     self._ball = props.Ball()
     self._arena.add_free_entity(self._ball)
     self.set_timesteps(control_timestep, physics_timestep)
+    cap_solver(self._arena, solver_iterations, solver_ls_iterations)
 
     arm_obs = self._arm.observables
     arm_obs.joint_positions.configure(
