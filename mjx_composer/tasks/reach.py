@@ -70,8 +70,8 @@ class Reach(task.Task):
       every episode (see the module docstring).
     solver_iterations, solver_ls_iterations: MuJoCo's solver caps written
       on the root (`simulation_options.SOLVER_CAPS` by default: 4 and 8;
-      None keeps MuJoCo's 100 and 50, which cost MJX the full cap per step
-      for the same trajectory).
+      None keeps MuJoCo's 100 and 50, on which MJX's float32 solver runs
+      far longer for nearly the same trajectory).
   """
 
   def __init__(
