@@ -103,8 +103,9 @@ def default_impls(device, share_reset_forward=None) -> tuple[str, ...]:
   'warp' first on a CUDA GPU where MuJoCo Warp is installed and the fused
   restart was not asked for (`share_reset_forward=True` is 'jax' only):
   measured on one H200 at 8,192 worlds (README, `benchmarks/backends.py`),
-  MuJoCo Warp stepped the composed reach task 7.0x and walk 2.3x faster
-  than MJX's JAX implementation. 'jax' everywhere else, and after 'warp'
+  MuJoCo Warp stepped the composed reach task 7.0x (before reach's solver
+  caps, which made the JAX implementation 2.85x faster) and walk 2.3x
+  faster than MJX's JAX implementation. 'jax' everywhere else, and after 'warp'
   when Warp refuses the environment (`WarpUnsupportedError`).
   """
   if _is_cuda(device) and not share_reset_forward and warp_installed():
