@@ -57,7 +57,10 @@ Program size, per program:
   `mjx.step`, of the forward pass (`mjx.forward`, also the one inside each
   `mjx.step`), of the constraint solver and of the position stage are in the
   program, counted from MJX's named scopes in the jaxpr (a loop body counts
-  once, however many times it runs).
+  once, however many times it runs);
+* jaxpr_scopes: the jaxpr's equations per named scope path, four scopes
+  deep ('initialize/apply_variations/model_compiler/set_const'),
+  the 30 largest; `--scopes N` prints the N largest of every program.
 
 Ratios composed / raw are reported for trace, compile and total (trace +
 lowering + compile) time and for the sizes. Results go to `--out` as JSON and
@@ -166,6 +169,38 @@ def _scope_copies(eqns, scope, first_child):
   return copies
 
 
+# Control-flow and transformation names in a name stack that are not scopes
+# of the program's pieces.
+_STRUCTURAL_SCOPES = frozenset(
+    ('while', 'body', 'cond', 'scan', 'checkpoint', 'remat', 'eval_jaxpr')
+)
+
+
+def scope_counts(eqns, depth=4):
+  """Equations per named scope path (its first `depth` named scopes).
+
+  Args:
+    eqns: `(scope path, primitive)` pairs, as `_flat_eqns` yields them.
+    depth: how many nested scope names a path keeps ('forward/solve').
+
+  Returns:
+    `{path: equations}`, largest first; '' counts the equations outside
+    every named scope. The counts sum to the number of equations.
+  """
+  counts = collections.Counter()
+  for path, _ in eqns:
+    names = [
+        n
+        for n in path
+        if n not in _STRUCTURAL_SCOPES and not n.startswith('branch_')
+    ]
+    counts['/'.join(names[:depth])] += 1
+  return dict(counts.most_common())
+
+
+_SCOPE_ROWS = 30  # scopes kept per program in the JSON
+
+
 def _stablehlo_ops(module):
   """Operations in an MLIR module, outlined functions counted once."""
   count = 0
@@ -195,6 +230,8 @@ def program_sizes(traced_jaxpr, lowered, compiled):
   if traced_jaxpr is not None:
     eqns = list(_flat_eqns(traced_jaxpr.jaxpr))
     sizes['jaxpr_eqns'] = len(eqns)
+    # The largest scopes, to see where a program's equations come from.
+    sizes['jaxpr_scopes'] = dict(list(scope_counts(eqns).items())[:_SCOPE_ROWS])
     for scope, first_child in _SCOPES.items():
       sizes[f'mjx_{scope}'] = _scope_copies(eqns, scope, first_child)
   try:
@@ -555,6 +592,15 @@ def _fmt(x, spec):
   return '-' if x is None else format(x, spec)
 
 
+def print_scopes(rows, n):
+  """Each program's `n` largest named scopes, in jaxpr equations."""
+  for r in rows:
+    scopes = list(r.get('jaxpr_scopes', {}).items())[:n]
+    print(f'\n{r["task"]} / {r["program"]}: jaxpr equations by scope')
+    for path, count in scopes:
+      print(f'  {count:>7,}  {path or "(no scope)"}')
+
+
 def print_tables(rows, ratio_rows):
   print(
       '\n| task | program | trace s | lower s | compile s | total s | jaxpr '
@@ -642,6 +688,13 @@ def main(argv=None):
       help="Environment(reset_forward=...) (default: the Environment's, "
       "'observed')",
   )
+  parser.add_argument(
+      '--scopes',
+      type=int,
+      default=0,
+      metavar='N',
+      help="print each program's N largest named scopes (jaxpr equations)",
+  )
   parser.add_argument('--worker', metavar='ROW_JSON', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
   share = common.share_reset_forward(args)
@@ -704,6 +757,8 @@ def main(argv=None):
       f'{args.out}'
   )
   print_tables(rows, ratio_rows)
+  if args.scopes:
+    print_scopes(rows, args.scopes)
   if failed:
     print(f'\nFAILED: {", ".join(failed)}')
   return 1 if failed else 0

@@ -90,3 +90,30 @@ def test_reset_forward_reaches_the_environment(task):
   assert observed.reset_forward_stage == default.reset_forward_stage
   if task == 'reach':  # its observables need positions and velocities
     assert observed.reset_forward_stage == 'velocity'
+
+
+def test_scope_counts_attribute_every_equation_to_its_named_scopes():
+  import jax  # pylint: disable=g-import-not-at-top
+  import jax.numpy as jnp  # pylint: disable=g-import-not-at-top
+
+  def f(x):
+    with jax.named_scope('outer'):
+      y = jnp.sin(x)
+
+      def body(carry, _):
+        with jax.named_scope('inner'):
+          return carry * 2.0 + 1.0, None
+
+      y, _ = jax.lax.scan(body, y, None, length=3)
+    return y + 1.0
+
+  jaxpr = jax.make_jaxpr(f)(jnp.ones(2))
+  eqns = list(compile_time._flat_eqns(jaxpr.jaxpr))
+  counts = compile_time.scope_counts(eqns)
+  assert sum(counts.values()) == len(eqns)
+  # The scan's body is counted once, under both scopes, not under 'scan'.
+  assert counts['outer/inner'] == 2  # mul, add
+  assert counts['outer'] == 2  # sin, the scan itself
+  assert counts[''] == 1  # the final add
+  assert list(counts.values()) == sorted(counts.values(), reverse=True)
+  assert compile_time.scope_counts(eqns, depth=1)['outer'] == 4
