@@ -3,7 +3,7 @@
 import mujoco
 
 from mjx_composer import define
-from mjx_composer import robot
+from mjx_composer.entities.manipulators import base as manipulators
 from mjx_composer.observation import observable
 
 
@@ -27,8 +27,11 @@ class ArmObservables(observable.Observables):
     return observable.MJCFFeature('force', self._entity.actuators)
 
 
-class Arm(robot.Robot):
+class Arm(manipulators.RobotArm):
   """A three-joint arm: base yaw, shoulder and elbow pitch, torque motors.
+
+  A `RobotArm` whose `wrist_site` is its `hand` site: three joints place
+  the hand's position (not its orientation) with `set_site_to_xpos`.
 
   Args:
     name: entity name (the prefix of its compiled names).
@@ -139,4 +142,9 @@ class Arm(robot.Robot):
   @property
   def hand(self):
     """The site at the tip of the arm."""
+    return self._hand
+
+  @property
+  def wrist_site(self):
+    """The `hand` site (the arm has no separate hand entity)."""
     return self._hand

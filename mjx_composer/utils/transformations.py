@@ -62,3 +62,53 @@ def normalize(q, tolerance=None, xp=jnp):
     return q / norm
   keep = (norm < tolerance) | (xp.abs(norm - 1) <= tolerance)
   return q * xp.where(keep, 1.0, 1.0 / xp.maximum(norm, tolerance))
+
+
+def mat_to_quat(mat):
+  """The unit quaternion of (..., 3, 3) rotation matrices, like `mju_mat2Quat`.
+
+  Shepperd's method, branch-free: each of the four candidate formulas is
+  computed and the one with the largest pivot (the most accurate) kept, so
+  the result is finite for every rotation. Of the two quaternions of a
+  rotation it returns the one with `w >= 0` (MuJoCo's may return either).
+  """
+  mat = jnp.asarray(mat)
+  m00, m11, m22 = mat[..., 0, 0], mat[..., 1, 1], mat[..., 2, 2]
+  pivots = jnp.stack(
+      [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22,
+       1 - m00 - m11 + m22],
+      axis=-1,
+  )  # fmt: skip
+  d = lambda i, j: mat[..., i, j]
+  candidates = jnp.stack(
+      [
+          jnp.stack([pivots[..., 0], d(2, 1) - d(1, 2), d(0, 2) - d(2, 0),
+                     d(1, 0) - d(0, 1)], -1),
+          jnp.stack([d(2, 1) - d(1, 2), pivots[..., 1], d(0, 1) + d(1, 0),
+                     d(0, 2) + d(2, 0)], -1),
+          jnp.stack([d(0, 2) - d(2, 0), d(0, 1) + d(1, 0), pivots[..., 2],
+                     d(1, 2) + d(2, 1)], -1),
+          jnp.stack([d(1, 0) - d(0, 1), d(0, 2) + d(2, 0), d(1, 2) + d(2, 1),
+                     pivots[..., 3]], -1),
+      ],
+      axis=-2,
+  )  # fmt: skip
+  best = jnp.argmax(pivots, axis=-1)
+  q = jnp.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+  q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+  return q * jnp.where(q[..., :1] < 0, -1.0, 1.0)
+
+
+def quat_to_vel(q):
+  """The rotation vector (axis x angle, angle in [-pi, pi]) of unit `q`.
+
+  Like `mju_quat2Vel(res, q, 1)`: the angular velocity that rotates by `q`
+  in unit time.
+  """
+  q = jnp.asarray(q)
+  xyz = q[..., 1:]
+  sin_half = jnp.linalg.norm(xyz, axis=-1, keepdims=True)
+  angle = 2 * jnp.arctan2(sin_half, q[..., :1])
+  angle = jnp.where(angle > jnp.pi, angle - 2 * jnp.pi, angle)
+  safe = jnp.where(sin_half > 0, sin_half, 1.0)
+  return jnp.where(sin_half > 0, xyz * (angle / safe), 0.0)

@@ -1,0 +1,1 @@
+"""Robot arms and hands (dm_control's `entities.manipulators`)."""
