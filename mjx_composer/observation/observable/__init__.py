@@ -9,3 +9,5 @@ from mjx_composer.observation.observable.base import OPTION_NAMES
 from mjx_composer.observation.observable.collection import FreePropObservableMixin
 from mjx_composer.observation.observable.collection import Observables
 from mjx_composer.observation.observable.mjcf import MJCFFeature
+from mjx_composer.observation.observable.camera import MJCFCamera
+from mjx_composer.observation.observable.camera import MujocoCamera
