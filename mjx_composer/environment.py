@@ -160,6 +160,11 @@ class Environment:
       forward pass (`physics(state)` completes them). Observations,
       rewards and trajectories are the same as with 'full', which computes
       everything as composer's reset does.
+    raise_exception_on_physics_error, recompile_mjcf_every_episode,
+      fixed_initial_state, legacy_step: composer's options, accepted so that
+      composer code ports. Each may be left out or set to the one value this
+      batched environment implements, False; True raises a ValueError that
+      says what happens instead (`COMPOSER_OPTIONS`).
 
   Raises:
     ValueError, NotImplementedError, ImportError: for arguments, models or
@@ -184,7 +189,17 @@ class Environment:
       naconmax=None,
       njmax=None,
       reset_forward='observed',
+      raise_exception_on_physics_error=None,
+      recompile_mjcf_every_episode=None,
+      fixed_initial_state=None,
+      legacy_step=None,
   ):
+    _check_composer_options(
+        raise_exception_on_physics_error=raise_exception_on_physics_error,
+        recompile_mjcf_every_episode=recompile_mjcf_every_episode,
+        fixed_initial_state=fixed_initial_state,
+        legacy_step=legacy_step,
+    )
     if reset_forward not in ('observed', 'full'):
       raise ValueError(
           f"reset_forward must be 'observed' or 'full', got {reset_forward!r}."
@@ -559,6 +574,46 @@ class Environment:
     if not jnp.issubdtype(action.dtype, jnp.floating):
       action = action.astype(jnp.float32)
     return action
+
+
+# composer's `Environment` options that only False (or leaving them out) can
+# mean here, and what happens instead of True.
+COMPOSER_OPTIONS = {
+    'raise_exception_on_physics_error': (
+        'nothing can raise inside a jitted step: a world whose physics '
+        'diverges ends its episode (LAST, discount 0) with '
+        "metrics['diverged'] = 1 and is reset, and the other worlds are "
+        "untouched. Read metrics['diverged'] instead."
+    ),
+    'recompile_mjcf_every_episode': (
+        'the model is compiled once, when the Environment is built: '
+        'initialize_episode_mjcf and after_compile run once, on the host. '
+        'Per-episode changes belong in initialize_episode (variations write '
+        'per-world model fields).'
+    ),
+    'fixed_initial_state': (
+        "each episode's randomness comes from the world's key, and "
+        'auto-reset draws every episode afresh. To repeat an episode, call '
+        'env.reset with the same key: the same key gives the same episode.'
+    ),
+    'legacy_step': (
+        "mjx.step is MuJoCo's mj_step: composer's legacy_step=False "
+        'semantics (derived quantities in an observation lag the state by '
+        'one physics step).'
+    ),
+}
+
+
+def _check_composer_options(**options):
+  for name, value in options.items():
+    if value is None or value is False:
+      continue
+    if value is True:
+      raise ValueError(
+          f'Environment({name}=True) is not available: '
+          f'{COMPOSER_OPTIONS[name]} Pass {name}=False or leave it out.'
+      )
+    raise ValueError(f'{name} must be True, False or None, got {value!r}.')
 
 
 def _check_arguments(

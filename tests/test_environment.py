@@ -519,6 +519,16 @@ def test_bad_constructor_arguments():
     composer.Environment(conftest.SwingTask(), auto_reset='sometimes')
   with pytest.raises(ValueError, match='ObservationPadding'):
     composer.Environment(conftest.SwingTask(), delayed_observation_padding=0)
+  for name in environment_lib.COMPOSER_OPTIONS:
+    with pytest.raises(ValueError, match=f'{name}=True.*Pass {name}=False'):
+      composer.Environment(conftest.SwingTask(), **{name: True})
+    with pytest.raises(ValueError, match='True, False or None'):
+      composer.Environment(conftest.SwingTask(), **{name: 1})
+  # composer code that sets the options we implement builds as it is.
+  composer.Environment(
+      conftest.SwingTask(),
+      **{name: False for name in environment_lib.COMPOSER_OPTIONS},
+  )
   env = conftest.make_swing_env()
   with pytest.raises(ValueError, match='not a valid hook name'):
     env.add_extra_hook('before_everything', lambda *a: None)
