@@ -160,11 +160,19 @@ class Environment:
       forward pass (`physics(state)` completes them). Observations,
       rewards and trajectories are the same as with 'full', which computes
       everything as composer's reset does.
+    fixed_initial_state: composer's: every episode of a world starts as its
+      first did. `reset(key)` starts a world from `key` as always; its
+      auto-resets then reuse that key (kept in the world's persistent
+      entries), so the initial state and every random draw of the episode
+      (noise, hooks) repeat, and identical actions give identical episodes.
+      Every initialization attempt uses the same key, so a failure that
+      only randomness causes repeats (composer's behaviour).
+      `HostEnvironment` resets with its first key every time.
     raise_exception_on_physics_error, recompile_mjcf_every_episode,
-      fixed_initial_state, legacy_step: composer's options, accepted so that
-      composer code ports. Each may be left out or set to the one value this
-      batched environment implements, False; True raises a ValueError that
-      says what happens instead (`COMPOSER_OPTIONS`).
+      legacy_step: composer's options, accepted so that composer code ports.
+      Each may be left out or set to the one value this batched environment
+      implements, False; True raises a ValueError that says what happens
+      instead (`COMPOSER_OPTIONS`).
 
   Raises:
     ValueError, NotImplementedError, ImportError: for arguments, models or
@@ -197,9 +205,14 @@ class Environment:
     _check_composer_options(
         raise_exception_on_physics_error=raise_exception_on_physics_error,
         recompile_mjcf_every_episode=recompile_mjcf_every_episode,
-        fixed_initial_state=fixed_initial_state,
         legacy_step=legacy_step,
     )
+    if fixed_initial_state not in (None, True, False):
+      raise ValueError(
+          f'fixed_initial_state must be True, False or None, got '
+          f'{fixed_initial_state!r}.'
+      )
+    self._fixed_initial_state = bool(fixed_initial_state)
     if reset_forward not in ('observed', 'full'):
       raise ValueError(
           f"reset_forward must be 'observed' or 'full', got {reset_forward!r}."
@@ -373,6 +386,7 @@ class Environment:
         declared_model_fields=tuple(per_world_model_fields),
         reset_forward_mode=self._reset_forward,
         action_shape=tuple(task.action_spec(physics).shape),
+        fixed_initial_state=self._fixed_initial_state,
     )
     if self._impl == 'warp':
       # Hooks make fields per-world when reset is traced: trace it now.
@@ -384,6 +398,11 @@ class Environment:
   @property
   def task(self):
     return self._task
+
+  @property
+  def fixed_initial_state(self) -> bool:
+    """Whether every episode of a world starts as its first did."""
+    return self._fixed_initial_state
 
   @property
   def mj_model(self) -> mujoco.MjModel:
@@ -590,11 +609,6 @@ COMPOSER_OPTIONS = {
         'initialize_episode_mjcf and after_compile run once, on the host. '
         'Per-episode changes belong in initialize_episode (variations write '
         'per-world model fields).'
-    ),
-    'fixed_initial_state': (
-        "each episode's randomness comes from the world's key, and "
-        'auto-reset draws every episode afresh. To repeat an episode, call '
-        'env.reset with the same key: the same key gives the same episode.'
     ),
     'legacy_step': (
         "mjx.step is MuJoCo's mj_step: composer's legacy_step=False "

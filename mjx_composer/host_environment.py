@@ -125,7 +125,10 @@ class _HostLoop:
     return self._env.physics(self._state)
 
   def _new_state(self):
-    self._key, key = jax.random.split(self._key)
+    if self._env.fixed_initial_state:
+      key = jax.random.split(self._key)[1]  # the first episode's, every time
+    else:
+      self._key, key = jax.random.split(self._key)
     if self._mesh is not None:
       key = sharding.world_keys(key, self._num_worlds, self._mesh)
     elif self._num_worlds is not None:

@@ -56,6 +56,10 @@ def _named_scope(method):
   return scoped
 
 
+# The persistent entry holding a world's first key (`fixed_initial_state`).
+INITIAL_KEY = 'environment/initial_key'
+
+
 @dataclasses.dataclass(frozen=True)
 class Transitions:
   """Reset and step of one world (see `Environment` for their contract).
@@ -72,6 +76,10 @@ class Transitions:
       pass that its readers need, `reset_forward`) or 'full'.
     action_shape: one world's action shape (the readers' analysis traces
       the step hooks).
+    fixed_initial_state: every episode of a world starts from the key of its
+      first (`reset(key)`), kept in its persistent entries
+      (`INITIAL_KEY`), and every initialization attempt uses that episode's
+      key: composer's `fixed_initial_state`.
   """
 
   initial: physics_lib.Physics
@@ -83,6 +91,7 @@ class Transitions:
   declared_model_fields: tuple
   reset_forward_mode: str = 'full'
   action_shape: tuple = ()
+  fixed_initial_state: bool = False
 
   @functools.cached_property
   def _initial_kinematics(self) -> kinematics_lib.ReferenceKinematics:
@@ -185,8 +194,9 @@ class Transitions:
   def reset(self, key, previous: state_lib.State | None = None):
     """A new episode; `previous` is the world's last state on auto-reset."""
     with jax.named_scope('reset'):
+      key = self._episode_key(key, previous)
       init_key, obs_key, next_key = jax.random.split(key, 3)
-      carry, failures = self._initialize(init_key, self._start(previous))
+      carry, failures = self._initialize(init_key, self._start(previous, key))
       physics = self._restore(carry)
       physics = physics.replace(
           data=self.reset_forward(physics.model, physics.data)
@@ -197,9 +207,17 @@ class Transitions:
     """Same-step auto-reset: the next episode, reporting the ended one."""
     return _reporting(self.reset(stepped.key, previous=stepped), stepped)
 
-  def _start(self, previous):
+  def _episode_key(self, key, previous):
+    """The key an episode starts from: `key`, or the world's first one."""
+    if self.fixed_initial_state and previous is not None:
+      return previous.persistent[INITIAL_KEY]
+    return key
+
+  def _start(self, previous, key=None):
     start = self.initial.carry(())
     if previous is None:
+      if self.fixed_initial_state:
+        start = start.replace(persistent={**start.persistent, INITIAL_KEY: key})
       return start
     # An auto-reset keeps the world's model and persistent entries.
     return start.replace(
@@ -260,9 +278,11 @@ class Transitions:
 
     def body(loop):
       attempts, failures, _ = loop
-      key = _select_key(
-          attempts == 0, init_key, jax.random.fold_in(init_key, attempts)
-      )
+      key = init_key
+      if not self.fixed_initial_state:  # composer restores its RNG instead
+        key = _select_key(
+            attempts == 0, init_key, jax.random.fold_in(init_key, attempts)
+        )
       carry = attempt(key, start)
       failed = carry.initialization_failed.astype(jnp.int32)
       # A per-world loop condition batches the whole carry: keep Warp's
@@ -376,9 +396,17 @@ class Transitions:
     def reset_from(stepped, next_reset):
       """(key, previous state, whether it resets) of the reset iteration."""
       if next_reset is None:
-        return stepped.key, stepped, stepped.last()
+        return (
+            self._episode_key(stepped.key, stepped),
+            stepped,
+            stepped.last(),
+        )
       reset_key, previous = next_reset
-      return reset_key, previous, previous.last()
+      return (
+          self._episode_key(reset_key, previous),
+          previous,
+          previous.last(),
+      )
 
     def body(i, loop, operands):
       carry, obs_state, stepped = loop

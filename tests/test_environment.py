@@ -726,3 +726,94 @@ def test_auto_reset_batch_refusals():
     conftest.make_swing_env(auto_reset_batch=4, share_reset_forward=True)
   with pytest.raises(ValueError, match="needs impl='jax'"):
     conftest.make_swing_env(auto_reset_batch=4, impl='warp')
+
+
+# -- fixed_initial_state -------------------------------------------------------
+
+
+def _two_episodes(env, length):
+  """Observations of a world's first two episodes under the same actions."""
+  next_step = env._auto_reset == 'next_step'  # pylint: disable=protected-access
+  per_episode = length + 1 if next_step else length
+  actions = jnp.sin(jnp.arange(per_episode, dtype=jnp.float32))[:, None]
+  actions = jnp.concatenate([actions, actions])
+
+  @jax.jit
+  def run(key):
+    state = env.reset(key)
+
+    def step(state, action):
+      state = env.step(state, action)
+      return state, (state.observation, state.step_type)
+
+    _, (observations, step_types) = jax.lax.scan(step, state, actions)
+    return jax.tree.map(
+        lambda first, rest: jnp.concatenate([first[None], rest]),
+        (state.observation, state.step_type),
+        (observations, step_types),
+    )
+
+  observations, step_types = run(jax.random.key(3))
+  step_types = np.asarray(step_types)
+  first = [i for i, t in enumerate(step_types) if t == 0]
+  if not next_step:  # the LAST state holds the next episode's first step
+    first = [0] + [i for i, t in enumerate(step_types) if t == 2]
+  assert first[:2] == [0, per_episode], step_types
+  split = lambda x: (x[:per_episode], x[per_episode : 2 * per_episode])
+  return jax.tree.map(split, observations)
+
+
+@pytest.mark.parametrize('auto_reset', ['same_step', 'next_step'])
+def test_fixed_initial_state_repeats_the_first_episode(auto_reset):
+  length = 4  # control steps of 0.01 s
+  episodes = {
+      fixed: _two_episodes(
+          conftest.make_swing_env(
+              time_limit=0.04, auto_reset=auto_reset, fixed_initial_state=fixed
+          ),
+          length,
+      )
+      for fixed in (True, False)
+  }
+  for name, (first, second) in episodes[True].items():
+    np.testing.assert_array_equal(first, second, err_msg=name)
+  # Without it the second episode draws a new pose and target.
+  assert any(
+      not np.array_equal(first, second)
+      for first, second in episodes[False].values()
+  )
+  assert episodes[True].keys() == episodes[False].keys()
+
+
+def test_fixed_initial_state_host_environment_resets_alike():
+  env = composer.HostEnvironment(
+      conftest.make_swing_env(time_limit=0.05, fixed_initial_state=True),
+      seed=1,
+  )
+  first = env.reset().observation
+  env.step(np.ones(1))
+  second = env.reset().observation
+  for name in first:
+    np.testing.assert_array_equal(first[name], second[name])
+
+
+class _CoinTask(conftest.SwingTask):
+  """Fails an initialization attempt on a coin toss."""
+
+  def initialize_episode(self, physics, key):
+    physics = super().initialize_episode(physics, key)
+    heads = jax.random.bernoulli(jax.random.fold_in(key, 7))
+    return physics.fail_initialization(heads)
+
+
+def test_fixed_initial_state_repeats_every_initialization_attempt():
+  keys = jax.random.split(jax.random.key(0), 64)
+  failures = {}
+  for fixed in (True, False):
+    env = composer.Environment(
+        _CoinTask(), max_reset_attempts=3, fixed_initial_state=fixed
+    )
+    states = jax.jit(jax.vmap(env.reset))(keys)
+    failures[fixed] = set(np.asarray(states.metrics['init_failures']).tolist())
+  assert failures[True] == {0, 3}  # the same toss on every attempt
+  assert failures[False] >= {0, 1, 2}
