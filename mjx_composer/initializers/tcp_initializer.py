@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
 from mjx_composer import element_index
@@ -57,7 +58,7 @@ def _free_body_geoms(mj_model):
   free_roots = {
       int(mj_model.jnt_bodyid[j])
       for j in range(mj_model.njnt)
-      if mj_model.jnt_type[j] == 0  # mjJNT_FREE
+      if mj_model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE
   }
   roots = mj_model.body_rootid[mj_model.geom_bodyid]
   return np.flatnonzero(np.isin(roots, list(free_roots))).astype(np.int32)
