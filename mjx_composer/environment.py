@@ -205,13 +205,9 @@ class Environment:
     _check_composer_options(
         raise_exception_on_physics_error=raise_exception_on_physics_error,
         recompile_mjcf_every_episode=recompile_mjcf_every_episode,
+        fixed_initial_state=fixed_initial_state,
         legacy_step=legacy_step,
     )
-    if fixed_initial_state not in (None, True, False):
-      raise ValueError(
-          f'fixed_initial_state must be True, False or None, got '
-          f'{fixed_initial_state!r}.'
-      )
     self._fixed_initial_state = bool(fixed_initial_state)
     if reset_forward not in ('observed', 'full'):
       raise ValueError(
@@ -619,15 +615,15 @@ COMPOSER_OPTIONS = {
 
 
 def _check_composer_options(**options):
+  """composer's boolean options: True, False or None; True only if we can."""
   for name, value in options.items():
-    if value is None or value is False:
-      continue
-    if value is True:
+    if not (value is None or isinstance(value, bool)):
+      raise ValueError(f'{name} must be True, False or None, got {value!r}.')
+    if value and name in COMPOSER_OPTIONS:
       raise ValueError(
           f'Environment({name}=True) is not available: '
           f'{COMPOSER_OPTIONS[name]} Pass {name}=False or leave it out.'
       )
-    raise ValueError(f'{name} must be True, False or None, got {value!r}.')
 
 
 def _check_arguments(

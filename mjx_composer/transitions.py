@@ -136,7 +136,7 @@ class Transitions:
     """
     key = jax.random.key(0)
     carry, failures = jax.eval_shape(
-        lambda k: self._initialize(k, self._start(None)), key
+        lambda k: self._initialize(k, self._start(None, k)), key
     )
     action = jax.ShapeDtypeStruct(self.action_shape, jnp.float32)
 

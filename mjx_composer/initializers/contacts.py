@@ -35,6 +35,20 @@ from mujoco.mjx._src import math as mjx_math
 import numpy as np
 
 from mjx_composer import backend
+from mjx_composer import element_index
+
+
+def entity_geoms(index, entity) -> np.ndarray:
+  """Compiled ids of the geoms in `entity`'s subtree (an `ElementIndex`)."""
+  kind = element_index.KINDS_BY_NAME["geom"]
+  return np.asarray(
+      [
+          index.element_id(kind, geom)
+          for e in entity.iter_entities()
+          for geom in e.mjcf_model.geoms
+      ],
+      np.int32,
+  )
 
 
 def pair_groups(model: mujoco.MjModel, geoms, excluded=()):

@@ -267,21 +267,12 @@ class PropPlacer(initializer.Initializer):
     if cached is not None and cached.index is index:
       return cached
     model = index.mj_model
-    geom_kind = element_index.KINDS_BY_NAME['geom']
     joint_kind = element_index.KINDS_BY_NAME['joint']
     body_kind = element_index.KINDS_BY_NAME['body']
-
-    def geoms_of(entity):
-      return np.asarray(
-          [
-              index.element_id(geom_kind, g)
-              for g in _entity_elements(entity, 'geoms')
-          ],
-          np.int32,
-      )
-
-    prop_geoms = [geoms_of(prop) for prop in self._props]
-    ignored = [geoms_of(e) for e in ignore_contacts_with_entities]
+    prop_geoms = [contacts.entity_geoms(index, prop) for prop in self._props]
+    ignored = [
+        contacts.entity_geoms(index, e) for e in ignore_contacts_with_entities
+    ]
     fixed_fields, steps, run, all_prop_joints = (), [], [], []
     for i, prop in enumerate(self._props):
       if prop.attachment_frame is None:

@@ -33,24 +33,10 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from mjx_composer import element_index
 from mjx_composer import initializer
 from mjx_composer import robot
 from mjx_composer.initializers import contacts
 from mjx_composer.variation import base as variation_base
-
-
-def _geoms_of(index, entity):
-  """Compiled ids of the geoms in `entity`'s subtree."""
-  kind = element_index.KINDS_BY_NAME['geom']
-  return np.asarray(
-      [
-          index.element_id(kind, g)
-          for e in entity.iter_entities()
-          for g in e.mjcf_model.geoms
-      ],
-      np.int32,
-  )
 
 
 def _free_body_geoms(mj_model):
@@ -70,8 +56,12 @@ def relevant_pair_groups(mj_model, index, arm, hand=None):
   Returns:
     `((MJX function key, (n, 2) geom ids), ...)`, as `contacts.pair_groups`.
   """
-  arm_geoms = _geoms_of(index, arm)
-  hand_geoms = np.zeros(0, np.int32) if hand is None else _geoms_of(index, hand)
+  arm_geoms = contacts.entity_geoms(index, arm)
+  hand_geoms = (
+      np.zeros(0, np.int32)
+      if hand is None
+      else contacts.entity_geoms(index, hand)
+  )
   robot_geoms = np.union1d(arm_geoms, hand_geoms)
   # Free bodies' contacts never count; a hand or arm is not a free body.
   free = np.setdiff1d(_free_body_geoms(mj_model), robot_geoms)
@@ -174,9 +164,9 @@ class ToolCenterPointInitializer(initializer.Initializer):
       if self._quaternion is not None:
         target_quat, _ = variation_base.sample(self._quaternion, None, quat_key)
         target_quat = jnp.broadcast_to(jnp.asarray(target_quat, dtype), (4,))
-      start = physics.replace(data=physics.data.replace(qpos=initial_qpos))
+      # Every sample starts from the pose before the call (`physics`).
       candidate, solved = self._arm.set_site_to_xpos(
-          start,
+          physics,
           ik_key,
           site,
           target_pos,
