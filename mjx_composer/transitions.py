@@ -509,17 +509,20 @@ class Transitions:
     if n > 1:
       # Sub-steps 1..n-1 update the observations here; the updater skips,
       # at trace time, every observable that cannot be sampled there. The
-      # last sub-step's update comes after the after_step hooks.
-      obs_state = jax.lax.cond(
-          i < n - 1,
-          lambda: self.updater.update(
-              obs_state,
-              physics,
-              jax.random.fold_in(sub_key, 2),
-              i + 1,
-              substep_bounds=(1, n - 1),
-          ),
-          lambda: obs_state,
+      # last sub-step's update comes after the after_step hooks, so there
+      # the update is computed and discarded: a select, not a `lax.cond`,
+      # whose predicate a GPU copies to the host at every sub-step (a
+      # synchronization that idles the device; usually the update samples
+      # nothing here and only advances the clock).
+      updated = self.updater.update(
+          obs_state,
+          physics,
+          jax.random.fold_in(sub_key, 2),
+          jnp.minimum(i + 1, n - 1),
+          substep_bounds=(1, n - 1),
+      )
+      obs_state = jax.tree.map(
+          lambda new, old: jnp.where(i < n - 1, new, old), updated, obs_state
       )
     return physics.carry(fields), obs_state
 

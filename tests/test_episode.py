@@ -77,6 +77,58 @@ def test_select_reset_traces_the_reset_once_under_vmap():
   assert len(counter) == 1
 
 
+def test_select_reset_computes_the_batch_reset_only_when_a_world_is_done():
+  """Batched, the reset runs in a loop of at most one iteration, not a cond.
+
+  A `lax.cond` would make a GPU copy the state into the conditional's
+  output at every step without resets; a loop that does not run does not.
+  """
+  runs = []
+
+  def reset(key):
+    jax.debug.callback(lambda: runs.append(1))
+    return jax.random.uniform(key, (2,))
+
+  def step(done, key, stepped):
+    return episode.select_reset(done, reset, (key,), stepped)
+
+  keys = jax.random.split(jax.random.key(0), 4)
+  stepped = jnp.full((4, 2), -1.0)
+  batched = jax.jit(jax.vmap(step))
+  jaxpr = str(jax.make_jaxpr(jax.vmap(step))(jnp.zeros(4, bool), keys, stepped))
+  assert 'while' in jaxpr and 'cond[' not in jaxpr
+  out = jax.block_until_ready(batched(jnp.zeros(4, bool), keys, stepped))
+  jax.effects_barrier()
+  assert not runs
+  np.testing.assert_array_equal(out, stepped)
+  done = jnp.asarray([False, True, False, False])
+  out = jax.block_until_ready(batched(done, keys, stepped))
+  jax.effects_barrier()
+  assert runs
+  np.testing.assert_array_equal(out[0], stepped[0])
+  np.testing.assert_array_equal(out[1], reset(keys[1]))
+
+
+def test_select_reset_of_the_stepped_state_equals_the_per_world_select():
+  """A restart (the reset's operand is the stepped state) reads its carry."""
+
+  def restart(state):
+    return {'x': state['x'] * 2.0 + 1.0, 'n': state['n'] + 1}
+
+  def step(done, stepped):
+    return episode.select_reset(done, restart, (stepped,), stepped)
+
+  stepped = {'x': jnp.arange(8.0).reshape(4, 2), 'n': jnp.arange(4)}
+  batched = jax.jit(jax.vmap(step))
+  for done in ([False, True, False, True], [False] * 4, [True] * 4):
+    done = jnp.asarray(done)
+    got = batched(done, stepped)
+    for i in range(4):
+      single = step(done[i], jax.tree.map(lambda x: x[i], stepped))
+      np.testing.assert_array_equal(got['x'][i], single['x'])
+      np.testing.assert_array_equal(got['n'][i], single['n'])
+
+
 def _mixed_reset(key):
   """A reset whose output has every kind of leaf a `State` has."""
   a, b = jax.random.split(key)
