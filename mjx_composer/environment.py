@@ -107,9 +107,11 @@ class Environment:
       iteration of the sub-step loop, so that the step program holds one
       copy of the forward pass (`Transitions.step_and_restart`,
       `Transitions.reset_or_step`).
-      Measured on one H100 (README): reach's step program compiles in
-      about half the time; reach steps 3% and walk (every feature on) 9%
-      slower. False runs the
+      Measured (README): on one H100 (stop 28) reach's step program
+      compiled in about half the time; on one H200 (stop 31) Brax PPO on
+      reach trained 19% slower with it (the shared loop branches with
+      `lax.cond`; the separate step program has no conditional). False
+      runs the
       sub-steps as a `lax.scan` of `mjx.step` and the restart separately.
       Results are bit-identical either way. Default (None): True on a CPU
       with impl='jax', where runs are short and compiling dominates; False
