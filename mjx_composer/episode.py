@@ -265,9 +265,10 @@ def _reset_at_most_once(done, select, operands, stepped):
     _, state = loop
     return jnp.zeros((), bool), jax.vmap(select)(done, operands, state)
 
-  return jax.lax.while_loop(
-      lambda loop: loop[0], body, (jnp.any(done), stepped)
-  )[1]
+  with jax.named_scope('auto_reset'):
+    return jax.lax.while_loop(
+        lambda loop: loop[0], body, (jnp.any(done), stepped)
+    )[1]
 
 
 def _reset_in_chunks(done, reset, operands, stepped, chunk):
