@@ -2,7 +2,9 @@
 
 `overhead.py` compares the whole step with raw MJX; this finds which part
 of the difference each piece of the step holds. On the bundled reach task
-(no time limit, so no world ever resets, domain randomization off), every
+(or, with `--task walk`, the walk task with its additions off,
+`walk.PLAYGROUND_EQUIVALENT`; no time limit, so no world ever resets,
+domain randomization off), every
 program starts from the same reset states and holds the same actions:
 
 * raw:           raw MJX (`common.raw_rollout`) on the states' `mjx.Data`;
@@ -120,6 +122,17 @@ def _transitions_rollout(env, steps):
   return jax.jit(rollout)
 
 
+def make_env(task='reach'):
+  """The task without episode ends or randomization (see above)."""
+  if task == 'walk':
+    from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+
+    return common.make_env(
+        'walk', **walk.PLAYGROUND_EQUIVALENT, time_limit=float('inf')
+    )
+  return common.make_env('reach', randomize=False, time_limit=float('inf'))
+
+
 def make_program(name, env, steps):
   """`(rollout, patches)` of program `name`: `rollout(start, actions)`.
 
@@ -147,9 +160,15 @@ def main():
   parser.add_argument(
       '--programs', nargs='+', default=list(PROGRAMS), choices=PROGRAMS
   )
+  parser.add_argument(
+      '--task',
+      default='reach',
+      choices=('reach', 'walk'),
+      help='walk: `walk.PLAYGROUND_EQUIVALENT` (its additions off)',
+  )
   args = parser.parse_args()
   device = common.print_device()
-  env = common.make_env('reach', randomize=False, time_limit=float('inf'))
+  env = make_env(args.task)
   n = env.n_sub_steps
   results = []
   for worlds in args.worlds:

@@ -26,7 +26,7 @@ def _equations(jaxpr):
 
 
 def test_each_ablation_removes_a_part_and_keeps_the_physics():
-  env = common.make_env('reach', randomize=False, time_limit=float('inf'))
+  env = step_parts.make_env('reach')
   worlds = 2
   states = jax.eval_shape(
       jax.vmap(env.reset), jax.random.split(jax.random.key(0), worlds)
