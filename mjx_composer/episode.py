@@ -210,8 +210,8 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
   reset of every world at every step; the batching rule instead computes
   resets only when some world is done. With `chunk=None` (or a chunk no
   smaller than the batch) it computes the whole batch's resets (a loop of
-  at most one iteration, run when `any(done)`), then selects per world. With a smaller `chunk`, it
-  gathers the done worlds into batches of `chunk` worlds, resets those and
+  at most one iteration, run when `any(done)`), then selects per world.
+  With a smaller `chunk`, it gathers the done worlds into batches of `chunk` worlds, resets those and
   scatters them back (`_reset_in_chunks`): a step in which a few of many
   worlds end pays for a reset of `chunk` worlds, not of all. Results are
   the same either way, to float rounding (XLA may order a sum differently
@@ -254,11 +254,12 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
 def _reset_at_most_once(done, select, operands, stepped):
   """`vmap(select)(done, operands, stepped)` where any world is done.
 
-  Else `stepped`. A `lax.while_loop` that runs once or never, not a `lax.cond`: a
-  conditional's output needs buffers of its own, so on a GPU the branch
-  without resets copies the state into them at every step (measured: 18
-  copies and 13 kernels per control step of the reach task), where a loop
-  that does not run leaves its carry where it is.
+  Else `stepped`. A `lax.while_loop` that runs once or never, not a
+  `lax.cond`: a conditional's output needs buffers of its own, so on a GPU
+  the branch without resets copies the state into them at every step
+  (measured: 18 copies and 13 kernels per control step of the reach task,
+  about 3% of its throughput at 8,192 worlds), where a loop that does not
+  run leaves its carry where it is.
   """
 
   def body(loop):

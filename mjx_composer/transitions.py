@@ -511,9 +511,9 @@ class Transitions:
       # at trace time, every observable that cannot be sampled there. The
       # last sub-step's update comes after the after_step hooks, so there
       # the update is computed and discarded: a select, not a `lax.cond`,
-      # whose predicate a GPU copies to the host at every sub-step (a
-      # synchronization that idles the device; usually the update samples
-      # nothing here and only advances the clock).
+      # which on a GPU costs a host round trip and copies of the
+      # observation state at every sub-step (README, Throughput); the
+      # discarded update costs one sub-step's samples.
       updated = self.updater.update(
           obs_state,
           physics,
