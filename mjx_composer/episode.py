@@ -211,9 +211,10 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
   resets only when some world is done. With `chunk=None` (or a chunk no
   smaller than the batch) it computes the whole batch's resets (a loop of
   at most one iteration, run when `any(done)`), then selects per world.
-  With a smaller `chunk`, it gathers the done worlds into batches of `chunk` worlds, resets those and
-  scatters them back (`_reset_in_chunks`): a step in which a few of many
-  worlds end pays for a reset of `chunk` worlds, not of all. Results are
+  With a smaller `chunk`, it gathers the done worlds into batches of
+  `chunk` worlds, resets those and scatters them back (`_reset_in_chunks`):
+  a step in which a few of many worlds end pays for a reset of `chunk`
+  worlds, not of all. Results are
   the same either way, to float rounding (XLA may order a sum differently
   for another batch size). The reset is traced once and reused by every
   path.
