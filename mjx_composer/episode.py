@@ -214,10 +214,9 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
   With a smaller `chunk`, it gathers the done worlds into batches of
   `chunk` worlds, resets those and scatters them back (`_reset_in_chunks`):
   a step in which a few of many worlds end pays for a reset of `chunk`
-  worlds, not of all. Results are
-  the same either way, to float rounding (XLA may order a sum differently
-  for another batch size). The reset is traced once and reused by every
-  path.
+  worlds, not of all. Results are the same either way, to float rounding
+  (XLA may order a sum differently for another batch size). The reset is
+  traced once and reused by every path.
   """
   reset = trace_once(reset_fn, *operands)
   # A restart resets the stepped state itself: then the loop below reads it
