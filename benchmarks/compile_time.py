@@ -69,7 +69,8 @@ to stdout as tables, the ratios last.
 Tasks are the bundled ones (`common.TASKS`), or a variant of the walk task
 named as `benchmarks/playground_compare.py` names its programs, e.g.
 `walk:ours_off` (Playground's HumanoidWalk equivalent) or `walk:only_push`
-(that one feature on top of it). A variant's ratios divide by the raw
+(that one feature on top of it), or `reach:fixed` / `push:fixed` (the task
+with its per-episode randomization off). A variant's ratios divide by the raw
 programs of its base task (the same compiled model), measured once, under the
 base task, when it is among `--tasks`.
 
@@ -427,6 +428,12 @@ def measure_ppo(env, worlds, raw):
 # -- one measurement (a worker process) --------------------------------------
 
 
+# `<task>:fixed`: the task with its per-episode randomization off
+# (`randomize=False`), to see what randomization adds to each program.
+FIXED = 'fixed'
+_RANDOMIZABLE = ('reach', 'push')
+
+
 def task_name(name):
   """`--tasks`' type: a bundled task, or `walk:<variant>` (module docstring)."""
   import common  # pylint: disable=g-import-not-at-top
@@ -435,14 +442,17 @@ def task_name(name):
   base, _, variant = name.partition(':')
   if name in common.TASKS:
     return name
+  if variant == FIXED and base in _RANDOMIZABLE:
+    return name
   if base == 'walk' and variant and variant not in ('playground', 'raw'):
     try:
       return 'walk:' + playground_compare.program_name(variant)
     except argparse.ArgumentTypeError as e:
       raise argparse.ArgumentTypeError(f'{name!r}: {e}') from None
   raise argparse.ArgumentTypeError(
-      f'unknown task {name!r}: one of {", ".join(common.TASKS)}, or '
-      'walk:<variant> (ours_on, ours_off, only_<feature>[+<feature>...])'
+      f'unknown task {name!r}: one of {", ".join(common.TASKS)}, '
+      'walk:<variant> (ours_on, ours_off, only_<feature>[+<feature>...]), '
+      f'or {"/".join(_RANDOMIZABLE)}:{FIXED}'
   )
 
 
@@ -471,11 +481,12 @@ def make_task_env(task, share_reset_forward=None, reset_forward=None):
   import playground_compare  # pylint: disable=g-import-not-at-top
 
   base, _, variant = task.partition(':')
-  if not variant:
+  if not variant or variant == FIXED:
     return common.make_env(
         base,
         share_reset_forward=share_reset_forward,
         reset_forward=reset_forward,
+        **({'randomize': False} if variant == FIXED else {}),
     )
   extra = {} if reset_forward is None else {'reset_forward': reset_forward}
   return playground_compare.env_variants(

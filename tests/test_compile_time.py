@@ -4,6 +4,7 @@ import argparse
 import os
 import sys
 
+import jax
 import pytest
 
 sys.path.insert(
@@ -13,7 +14,15 @@ import compile_time  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 
 def test_tasks_are_bundled_tasks_or_walk_variants():
-  for name in ('reach', 'push', 'walk', 'joystick', 'walk:ours_off'):
+  for name in (
+      'reach',
+      'push',
+      'walk',
+      'joystick',
+      'walk:ours_off',
+      'reach:fixed',
+      'push:fixed',
+  ):
     assert compile_time.task_name(name) == name
   assert (
       compile_time.task_name('walk:only_push+noise') == 'walk:only_push+noise'
@@ -21,6 +30,7 @@ def test_tasks_are_bundled_tasks_or_walk_variants():
   for name, message in (
       ('run', 'unknown task'),
       ('reach:ours_off', 'unknown task'),
+      ('walk:fixed', 'unknown'),  # walk's variants name their features
       ('walk:playground', 'unknown task'),  # not ours: nothing to compile
       ('walk:only_wind', "unknown program 'only_wind'"),
   ):
@@ -117,3 +127,13 @@ def test_scope_counts_attribute_every_equation_to_its_named_scopes():
   assert counts[''] == 1  # the final add
   assert list(counts.values()) == sorted(counts.values(), reverse=True)
   assert compile_time.scope_counts(eqns, depth=1)['outer'] == 4
+
+
+def test_a_fixed_task_has_no_per_episode_randomization():
+  """`reach:fixed` is the same model with no per-world model fields."""
+  randomized = compile_time.make_task_env('reach')
+  fixed = compile_time.make_task_env('reach:fixed')
+  key = jax.random.key(0)
+  assert 'body_mass' in jax.eval_shape(randomized.reset, key).model_fields
+  assert not jax.eval_shape(fixed.reset, key).model_fields
+  assert fixed.mj_model.nbody == randomized.mj_model.nbody
