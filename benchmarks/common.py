@@ -10,6 +10,8 @@ checkout with the package installed or on `PYTHONPATH`:
 """
 
 import argparse
+import glob
+import gzip
 import json
 import os
 import statistics
@@ -248,6 +250,36 @@ def time_calls(fn, make_args, repeats):
   return first, statistics.median(times)
 
 
+# -- profiles ----------------------------------------------------------------
+
+
+def perfetto_events(trace_dir):
+  """The events of the newest Perfetto trace under `trace_dir`.
+
+  As `jax.profiler.trace(trace_dir, create_perfetto_trace=True)` writes it.
+  """
+  paths = glob.glob(
+      os.path.join(trace_dir, '**', 'perfetto_trace.json.gz'), recursive=True
+  )
+  if not paths:
+    raise RuntimeError(f'No Perfetto trace under {trace_dir}.')
+  with gzip.open(max(paths, key=os.path.getmtime), 'rt') as f:
+    trace = json.load(f)
+  return trace['traceEvents'] if isinstance(trace, dict) else trace
+
+
+def metadata_names(events, kind):
+  """`{id: name}` of a trace's `kind` metadata ('process_name': by pid,
+  'thread_name': by (pid, tid))."""
+  return {
+      (e['pid'] if kind == 'process_name' else (e['pid'], e['tid'])): str(
+          e.get('args', {}).get('name', '')
+      )
+      for e in events
+      if e.get('ph') == 'M' and e.get('name') == kind
+  }
+
+
 # -- command line and results ------------------------------------------------
 
 
@@ -330,3 +362,17 @@ def write_json(path, payload):
   os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
   with open(path, 'w') as f:
     json.dump(payload, f, indent=2)
+
+
+def print_ratio_table(results):
+  """Prints `results` (rows of `worlds`, `raw` and programs' physics steps
+  per second) as a Markdown table of each program's ratio to `raw`."""
+  names = [k for k in results[0] if k not in ('worlds', 'raw')]
+  print('\n| worlds | raw MJX (physics steps/s) | ' + ' | '.join(names) + ' |')
+  print('|---|---|' + '---|' * len(names))
+  for r in results:
+    print(
+        f'| {r["worlds"]:,} | {r["raw"] / 1e6:.2f} M | '
+        + ' | '.join(f'{r[k] / r["raw"]:.3f}' for k in names)
+        + ' |'
+    )

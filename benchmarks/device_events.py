@@ -25,9 +25,6 @@ counts are filled in.
 """
 
 import collections
-import glob
-import gzip
-import json
 import os
 import re
 import tempfile
@@ -41,22 +38,9 @@ import step_parts  # benchmarks/step_parts.py
 
 def _events(trace_dir):
   """The device rows' complete events of the newest Perfetto trace."""
-  path = glob.glob(
-      os.path.join(trace_dir, '**', 'perfetto_trace.json.gz'), recursive=True
-  )[0]
-  with gzip.open(path, 'rt') as f:
-    events = json.load(f)
-  events = events['traceEvents'] if isinstance(events, dict) else events
-  processes = {
-      e['pid']: str(e.get('args', {}).get('name', ''))
-      for e in events
-      if e.get('ph') == 'M' and e.get('name') == 'process_name'
-  }
-  threads = {
-      (e['pid'], e['tid']): str(e.get('args', {}).get('name', ''))
-      for e in events
-      if e.get('ph') == 'M' and e.get('name') == 'thread_name'
-  }
+  events = common.perfetto_events(trace_dir)
+  processes = common.metadata_names(events, 'process_name')
+  threads = common.metadata_names(events, 'thread_name')
   device = {p for p, name in processes.items() if '/device:' in name}
   return [
       (threads.get((e['pid'], e['tid']), ''), e)

@@ -140,15 +140,7 @@ def main():
           args.out, device, results, n_sub_steps=n, steps_per_call=args.steps
       )
 
-  names = [k for k in results[0] if k not in ('worlds', 'raw')]
-  print('\n| worlds | raw MJX (physics steps/s) | ' + ' | '.join(names) + ' |')
-  print('|---|---|' + '---|' * len(names))
-  for r in results:
-    print(
-        f'| {r["worlds"]:,} | {r["raw"] / 1e6:.2f} M | '
-        + ' | '.join(f'{r[k] / r["raw"]:.3f}' for k in names)
-        + ' |'
-    )
+  common.print_ratio_table(results)
 
 
 if __name__ == '__main__':

@@ -37,9 +37,6 @@ totals go to `--out`.
 """
 
 import collections
-import glob
-import gzip
-import json
 import os
 import re
 import tempfile
@@ -149,19 +146,8 @@ def _op_names(hlo_text):
 
 def _kernel_times(trace_dir, op_names):
   """Device microseconds per outer and inner scope; kernels per inner scope."""
-  paths = glob.glob(
-      os.path.join(trace_dir, '**', 'perfetto_trace.json.gz'), recursive=True
-  )
-  if not paths:
-    raise RuntimeError(f'No Perfetto trace under {trace_dir}.')
-  with gzip.open(max(paths, key=os.path.getmtime), 'rt') as f:
-    trace = json.load(f)
-  events = trace['traceEvents'] if isinstance(trace, dict) else trace
-  process = {
-      e['pid']: str(e.get('args', {}).get('name', ''))
-      for e in events
-      if e.get('ph') == 'M' and e.get('name') == 'process_name'
-  }
+  events = common.perfetto_events(trace_dir)
+  process = common.metadata_names(events, 'process_name')
   # Kernels run on the accelerator's rows; on a CPU the host runs them.
   accelerator = {p for p, n in process.items() if '/device:' in n}
   rows = accelerator or set(process)
