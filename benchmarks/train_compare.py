@@ -210,6 +210,14 @@ def parse_args(argv=None):
       help='ours: Environment(share_reset_forward=...); default: on a CPU only',
   )
   parser.add_argument(
+      '--auto-reset-batch',
+      type=int,
+      default=None,
+      metavar='K',
+      help='ours: Environment(auto_reset_batch=K) (worlds that end reset K '
+      "at a time; impl='jax' only); default: the whole batch",
+  )
+  parser.add_argument(
       '--max-wall-s',
       type=float,
       default=None,
@@ -375,6 +383,7 @@ def _ours_setup(name, config, args):
     setattr(targs, flag, config[ppo])
   targs.time_limit = config['episode_length'] * _WALK_CONTROL_TIMESTEP
   targs.share_reset_forward = args.share_reset_forward
+  targs.auto_reset_batch = args.auto_reset_batch
   targs.num_eval_envs = args.eval_envs
   if name == 'ours':
     env, brax_env = train_ppo.make_brax_env(targs)
@@ -479,6 +488,9 @@ def train_one(env_name, seed, config, source, args):
       'deterministic_eval': args.deterministic_eval,
       'playground_impl': args.playground_impl
       if env_name == 'playground'
+      else None,
+      'auto_reset_batch': args.auto_reset_batch
+      if env_name == 'ours'
       else None,
       'xla_flags': os.environ.get('XLA_FLAGS', ''),
       'started_at': time.strftime('%Y-%m-%d %H:%M:%S'),

@@ -214,6 +214,15 @@ def parse_args(argv=None):
       'on a GPU); default: on a CPU only',
   )
   parser.add_argument(
+      '--auto-reset-batch',
+      type=int,
+      default=None,
+      metavar='K',
+      help='Environment(auto_reset_batch=K): reset the worlds whose episodes '
+      'end K at a time instead of the whole batch (for tasks whose episodes '
+      "end often; needs impl='jax'); default: the whole batch",
+  )
+  parser.add_argument(
       '--no-compilation-cache',
       action='store_true',
       help="don't read or write JAX's persistent compilation cache (for "
@@ -503,9 +512,8 @@ def rollout_images(env, brax_env, policy, args, out):
 def make_brax_env(args):
   """`(env, brax_env)`: the task's `Environment` and its `BraxEnv`.
 
-  Built with `args.task`, `args.time_limit`, `args.share_reset_forward` and
-  `args.impl` (when given),
-  same-step auto-reset, and the task's observation groups (Brax sees the
+  Built with `args.task`, `args.time_limit`, `args.share_reset_forward`,
+  `args.impl` and `args.auto_reset_batch` (when given), same-step auto-reset, and the task's observation groups (Brax sees the
   dict of groups; `make_networks` picks from it).
   """
   from mjx_composer import cli  # pylint: disable=g-import-not-at-top
@@ -517,6 +525,7 @@ def make_brax_env(args):
       auto_reset='same_step',
       share_reset_forward=args.share_reset_forward,
       impl=getattr(args, 'impl', None),
+      auto_reset_batch=getattr(args, 'auto_reset_batch', None),
   )
   return env, brax_adapter.BraxEnv(env)
 

@@ -36,12 +36,14 @@ def make_environment(
     auto_reset='same_step',
     share_reset_forward=None,
     impl=None,
+    auto_reset_batch=None,
 ):
   """Builds a bundled task's `Environment` with its observation groups.
 
   `impl` chooses the physics implementation ('jax' or 'warp', see
   `Environment`); a task that cannot run on it is refused at build. None
-  is `Environment`'s default.
+  is `Environment`'s default. `auto_reset_batch` goes to the `Environment`
+  (None: whole-batch auto-resets).
   """
   from mjx_composer import environment  # pylint: disable=g-import-not-at-top
 
@@ -75,6 +77,7 @@ def make_environment(
       observation_groups=groups,
       share_reset_forward=share_reset_forward,
       impl=impl,
+      auto_reset_batch=auto_reset_batch,
   )
 
 

@@ -453,6 +453,11 @@ class Environment:
     return self._share_reset_forward
 
   @property
+  def auto_reset_batch(self) -> int | None:
+    """How many ended worlds reset together under `jax.vmap` (None: all)."""
+    return self._auto_reset_batch
+
+  @property
   def reset_forward_stage(self) -> str:
     """The stage of the forward pass a reset runs: 'none', 'position',
     'velocity' or 'full' (`Environment(reset_forward=...)`,

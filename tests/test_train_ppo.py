@@ -96,3 +96,14 @@ def test_write_rollout_metrics_compares_policy_and_zero_actions(
   )
   # The policy's actions reach the worlds: the reward differs.
   assert written['policy']['reward'] != written['zero_actions']['reward']
+
+
+def test_auto_reset_batch_reaches_the_environment():
+  args = train_ppo.parse_args(['--task', 'reach', '--auto-reset-batch', '4'])
+  env, brax_env = train_ppo.make_brax_env(args)
+  # Batched resets need the separate restart, also on a CPU (whose default
+  # shares the sub-step loop).
+  assert env.auto_reset_batch == 4 and not env.share_reset_forward
+  assert brax_env.environment is env
+  default_env, _ = train_ppo.make_brax_env(train_ppo.parse_args([]))
+  assert default_env.auto_reset_batch is None
