@@ -489,9 +489,7 @@ def train_one(env_name, seed, config, source, args):
       'playground_impl': args.playground_impl
       if env_name == 'playground'
       else None,
-      'auto_reset_batch': args.auto_reset_batch
-      if env_name == 'ours'
-      else None,
+      'auto_reset_batch': args.auto_reset_batch if env_name == 'ours' else None,
       'xla_flags': os.environ.get('XLA_FLAGS', ''),
       'started_at': time.strftime('%Y-%m-%d %H:%M:%S'),
       'total_s': None,
