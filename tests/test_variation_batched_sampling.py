@@ -54,6 +54,8 @@ def _bindings():
       (hsv(), np.array([0.5, 0.5, 0.5, 1.0], np.float32)),  # 12: C
       (_scale(), np.float32(2.0)),  # 13: A
       (deterministic.Constant(5.0), np.float32(0.0)),  # 14: keyless
+      (noises.Multiplicative(composer_style), np.float32(1.0)),  # 15: alone
+      (noises.Multiplicative(composer_style), np.float32(2.0)),  # 16: alone
   ]
   return [v for v, _ in rows], [i for _, i in rows]
 
@@ -80,6 +82,8 @@ def test_equal_stateless_variations_form_groups():
       [9],
       [11, 12],
       [14],
+      [15],
+      [16],
   ]
 
 

@@ -16,13 +16,13 @@ bit-identical to drawing one binding at a time
 (`tests/test_batched_sampling.py`).
 
 Drawn alone, as before: stateful variations (their states have their own
-structure per binding), variations holding a `VariationBroadcaster` proxy
-(their draws are keyed by the order in which the round first meets each
-broadcaster, which must not change), structures of variations (not one
-`Variation`), variations that compare by identity (composer-style subclasses
-without `_eq_fields`, which may read their initial value as a concrete
-array: vmapped, it is a tracer) and bindings whose values differ in shape or
-dtype.
+structure per binding), variations with a node anywhere in their tree that
+compares by identity: a `VariationBroadcaster` proxy (its draws are keyed
+by the order in which the round first meets each broadcaster, which must
+not change) or a composer-style subclass without `_eq_fields` (it may read
+its initial value as a concrete array; vmapped, that is a tracer);
+structures of variations (not one `Variation`); and bindings whose values
+differ in shape or dtype.
 """
 
 from __future__ import annotations
@@ -34,21 +34,24 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.variation import base
-from mjx_composer.variation import variation_broadcaster
 
 
-def _holds_proxy(variation) -> bool:
-  """Whether a broadcaster proxy is anywhere in the variation's tree."""
-  proxy = variation_broadcaster._BroadcastedValueProxy  # pylint: disable=protected-access
-  if isinstance(variation, proxy):
-    return True
-  operands = getattr(variation, '_operands', ())
-  return any(
-      _holds_proxy(leaf)
-      for leaf in jax.tree.leaves(
-          operands, is_leaf=lambda x: isinstance(x, base.Variation)
-      )
-      if isinstance(leaf, base.Variation)
+def _structural(variation) -> bool:
+  """Whether every node of the variation compares by structure.
+
+  A node that compares by identity (`_eq_fields` None) may be a
+  composer-style subclass, which may read its initial value as a concrete
+  array; a broadcaster proxy is one too (it draws by the round's order of
+  first use, which a group would change).
+  """
+  fields = variation._eq_fields()  # pylint: disable=protected-access
+  if fields is None:
+    return False
+  is_node = lambda x: isinstance(x, base.Variation)
+  return all(
+      _structural(leaf)
+      for leaf in jax.tree.leaves(fields, is_leaf=is_node)
+      if is_node(leaf)
   )
 
 
@@ -56,9 +59,7 @@ def _groupable(variation, state) -> bool:
   return (
       isinstance(variation, base.Variation)
       and state is None
-      # pylint: disable-next=protected-access
-      and variation._eq_fields() is not None  # structural equality
-      and not _holds_proxy(variation)
+      and _structural(variation)
   )
 
 
