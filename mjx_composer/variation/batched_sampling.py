@@ -6,9 +6,10 @@ link's colour. Drawn one binding at a time, each such binding puts its own
 copy of the variation's operations (the threefry hash, the transform of the
 uniform bits, the arithmetic) into the reset program, and the step program
 that holds an auto-reset: the walk task's 41 bindings (19 densities, 21
-gears, the floor's friction) were 41 copies; drawn in groups they are 3, and
-its step program on a CPU shrank from 43,656 to 37,497 HLO instructions
-(its compile time did not measurably change there). Here bindings whose variations compare equal (`==`, structural)
+gears, the floor's friction) were 41 copies; drawn in groups they are 3.
+On a CPU, the step program of `walk:only_randomize` (`benchmarks/
+compile_time.py`) shrank from 43,656 to 37,497 HLO instructions; its
+compile time did not measurably change there. Here bindings whose variations compare equal (`==`, structural)
 are drawn by one `jax.vmap` of the variation over their keys and values: one
 copy per group in the program. Each binding keeps its own key, and a vmapped
 draw computes exactly what the separate draws compute, so the values are
