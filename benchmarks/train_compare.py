@@ -27,7 +27,12 @@ Environments (`--envs`):
   critic both seeing the 'policy' group;
 * ours_off: the walk task with those additions off
   (`walk.PLAYGROUND_EQUIVALENT`, the 'policy' group only: HumanoidWalk's
-  observation, reward and episodes), otherwise as `ours`.
+  observation, reward and episodes), otherwise as `ours`;
+* only_<feature>[+<feature>...]: ours_off with those of ours' additions
+  switched back on, named as in `playground_compare.py` (noise, delay,
+  history, randomize, push, fall; e.g. only_noise+delay+history+randomize:
+  the shipped task without pushes and fall terminations, so its episodes,
+  and returns, are HumanoidWalk's), otherwise as `ours_off`.
 
 Hyper-parameters: `mujoco_playground.config.dm_control_suite_params.
 brax_ppo_config('HumanoidWalk')` read at run time when Playground imports
@@ -166,11 +171,28 @@ _COLOURS = {
 }
 
 
+def env_name(name):
+  """`--envs`' type: one of `ENVS`, or an only_<feature>[+...] variant."""
+  import playground_compare  # pylint: disable=g-import-not-at-top
+
+  if name in ENVS:
+    return name
+  if name.startswith('only_'):
+    return playground_compare.program_name(name)
+  raise argparse.ArgumentTypeError(
+      f'unknown env {name!r}: {", ".join(ENVS)} or only_<feature>[+...]'
+  )
+
+
 def parse_args(argv=None):
   parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
   parser.add_argument('--out', default='runs/train_compare')
   parser.add_argument(
-      '--envs', nargs='+', choices=ENVS, default=['playground', 'ours']
+      '--envs',
+      nargs='+',
+      type=env_name,
+      default=['playground', 'ours'],
+      help=f'{", ".join(ENVS)} or only_<feature>[+<feature>...]',
   )
   parser.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2])
   for name in _OVERRIDES:
@@ -369,13 +391,14 @@ def _playground_setup(config, args):
 
 
 def _ours_setup(name, config, args):
-  """(env, ppo.train kwargs, policy config) for ours / ours_off.
+  """(env, ppo.train kwargs, policy config) for ours and its variants.
 
   `train_ppo`'s walk arguments with Playground's values, built by
   `train_ppo.make_brax_env` (ours) and trained with `train_ppo.ppo_kwargs`.
   """
   # pylint: disable=g-import-not-at-top
   from mjx_composer.adapters import brax as brax_adapter
+  import playground_compare
   # pylint: enable=g-import-not-at-top
 
   targs = train_ppo.parse_args(['--task', 'walk'])
@@ -387,6 +410,11 @@ def _ours_setup(name, config, args):
   targs.num_eval_envs = args.eval_envs
   if name == 'ours':
     env, brax_env = train_ppo.make_brax_env(targs)
+  elif name.startswith('only_'):
+    env = playground_compare.env_variants(
+        [name], share_reset_forward=args.share_reset_forward
+    )[name]
+    brax_env = brax_adapter.BraxEnv(env)
   else:
     env = common.make_walk_like_playground(
         targs.time_limit, share_reset_forward=args.share_reset_forward

@@ -190,3 +190,29 @@ def test_training_on_several_devices_uses_jax():
 
 def _fail(message):
   raise SystemExit(message)
+
+
+def test_feature_variants_train_like_ours_off_with_those_features():
+  args = train_compare.parse_args(
+      ['--envs', 'playground', 'only_noise+randomize', '--seeds', '0']
+  )
+  assert args.envs == ['playground', 'only_noise+randomize']
+  with pytest.raises(SystemExit):
+    train_compare.parse_args(['--envs', 'only_wings'])
+  config = dict(train_compare.FALLBACK_EXTRA)
+  config.update({ppo: None for ppo in train_compare._TRAIN_PPO_NAMES.values()})
+  import train_ppo  # pylint: disable=g-import-not-at-top
+
+  defaults = train_ppo.parse_args(['--task', 'walk'])
+  for flag, ppo in train_compare._TRAIN_PPO_NAMES.items():
+    config[ppo] = getattr(defaults, flag)
+  brax_env, kwargs, _ = train_compare._ours_setup(
+      'only_noise+randomize', config, args
+  )
+  task = brax_env.environment.task
+  # The two features on; pushes and fall terminations stay off, so the
+  # episodes are HumanoidWalk's 1,000 steps.
+  assert task._randomize and task._pushes.interval == 0
+  assert not task._terminate_on_fall
+  assert brax_env.episode_length == 1000
+  assert kwargs['num_envs'] == config['num_envs']
