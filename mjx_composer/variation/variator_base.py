@@ -75,7 +75,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.variation import base
-from mjx_composer.variation import batched_sampling
 from mjx_composer.variation import rounds
 
 
@@ -383,21 +382,21 @@ class Variator:
         count, draw = jnp.zeros((), jnp.int32), True
       new_entry['count'] = jnp.asarray(count, jnp.int32)
 
+    values, new_states = [], []
     binding_keys = rounds.fold_in_each(
         key, [binding.slot for binding in bindings]
     )
     with base.evaluation_round(key):
-      values, new_states = batched_sampling.sample_bindings(
-          [binding.variation for binding in bindings],
-          states,
-          binding_keys,
-          initial,
-          current,
-      )
-    values = [
-        _conform(value, initial[i], binding, name)
-        for i, (value, binding) in enumerate(zip(values, bindings))
-    ]
+      for i, binding in enumerate(bindings):
+        value, state = base.sample(
+            binding.variation,
+            states[i],
+            binding_keys[i],
+            initial[i],
+            current[i],
+        )
+        values.append(_conform(value, initial[i], binding, name))
+        new_states.append(state)
     new_states = tuple(new_states)
     invalid = invalid_draw(values, plan.bounds)
     if draw is not True:
