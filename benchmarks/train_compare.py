@@ -88,7 +88,11 @@ at stop 26: `bash ../shared/gpu/wheels.sh brax==0.14.2 playground==0.2.0
 lxml jaxopt==0.8.5 ml_collections==1.1.0 tqdm==4.70.1 dm-env==1.6
 pillow==13.0.0` (about 54 MB; `dm-env` is imported by `mjx_composer`
 itself). A cold run of the reduced schedule in the README (7.9 M env steps)
-took 310-550 s on an H100, about one 10-minute device call.
+took 310-550 s on an H100 and 266-415 s on an H200, about one 10-minute
+device call. That machine brings back at most 8 files per call, and a run
+writes 9 (with `results.*`, `returns.png`, `table.md` and `summary.json`,
+which `--plot` regenerates from `runs/`): delete those four at the end of
+the command, or the policy is left behind.
 
 A CPU smoke run (a few minutes for two environments):
 
