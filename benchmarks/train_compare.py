@@ -175,7 +175,7 @@ _COLOURS = {
 }
 
 
-def env_name(name):
+def env_choice(name):
   """`--envs`' type: one of `ENVS`, or an only_<feature>[+...] variant."""
   import playground_compare  # pylint: disable=g-import-not-at-top
 
@@ -194,7 +194,7 @@ def parse_args(argv=None):
   parser.add_argument(
       '--envs',
       nargs='+',
-      type=env_name,
+      type=env_choice,
       default=['playground', 'ours'],
       help=f'{", ".join(ENVS)} or only_<feature>[+<feature>...]',
   )

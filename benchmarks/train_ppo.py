@@ -513,8 +513,9 @@ def make_brax_env(args):
   """`(env, brax_env)`: the task's `Environment` and its `BraxEnv`.
 
   Built with `args.task`, `args.time_limit`, `args.share_reset_forward`,
-  `args.impl` and `args.auto_reset_batch` (when given), same-step auto-reset, and the task's observation groups (Brax sees the
-  dict of groups; `make_networks` picks from it).
+  `args.impl` and `args.auto_reset_batch` (when given), same-step
+  auto-reset, and the task's observation groups (Brax sees the dict of
+  groups; `make_networks` picks from it).
   """
   from mjx_composer import cli  # pylint: disable=g-import-not-at-top
   from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top

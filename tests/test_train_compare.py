@@ -200,7 +200,6 @@ def test_feature_variants_train_like_ours_off_with_those_features():
   with pytest.raises(SystemExit):
     train_compare.parse_args(['--envs', 'only_wings'])
   config = dict(train_compare.FALLBACK_EXTRA)
-  config.update({ppo: None for ppo in train_compare._TRAIN_PPO_NAMES.values()})
   import train_ppo  # pylint: disable=g-import-not-at-top
 
   defaults = train_ppo.parse_args(['--task', 'walk'])
