@@ -124,8 +124,24 @@ FEATURES = {
 }
 
 
+SHARED = '_shared'
+
+
 def program_name(name):
-  """`--programs`' type: a known program, or only_ with known features."""
+  """`--programs`' type: a known program, or only_ with known features.
+
+  Ours' programs may end in `_shared`: the same environment with
+  `share_reset_forward=True` (the restart of ended episodes fused into the
+  sub-step loop), e.g. `ours_on_shared`.
+  """
+  base = name
+  if name.endswith(SHARED) and not name.startswith(('playground', 'raw')):
+    base = name[: -len(SHARED)]
+  if base.startswith('ours_on_chunk') and base != name:
+    raise argparse.ArgumentTypeError(
+        f'{name!r}: auto_reset_batch needs the separate restart'
+    )
+  name, shared = base, base != name
   features = name[len('only_') :].split('+')
   if (
       name in ('ours_on', 'ours_off', 'playground', 'raw')
@@ -138,11 +154,11 @@ def program_name(name):
           and name[len('ours_on_chunk') :].isdigit()
       )
   ):
-    return name
+    return name + (SHARED if shared else '')
   raise argparse.ArgumentTypeError(
       f'unknown program {name!r}: ours_on, ours_off, playground, raw, '
       "ours_on_chunk<K>, or only_ followed by features joined by '+' from "
-      f'{", ".join((*FEATURES, "groups"))}'
+      f'{", ".join((*FEATURES, "groups"))}; ours\' may end in {SHARED}'
   )
 
 
@@ -158,7 +174,11 @@ def env_variants(names, **env_kwargs):
   # pylint: enable=g-import-not-at-top
   envs = {}
   for name in names:
-    if name == 'ours_on':
+    if name.endswith(SHARED):
+      base = name[: -len(SHARED)]
+      kwargs = dict(env_kwargs, share_reset_forward=True)
+      envs[name] = env_variants([base], **kwargs)[base]
+    elif name == 'ours_on':
       envs[name] = common.make_env(
           'walk', time_limit=walk.EPISODE_SECONDS, **env_kwargs
       )

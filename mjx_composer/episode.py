@@ -376,15 +376,17 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
   plus one where `wants_reset(carry, operands)` holds after them. Under
   `jax.vmap` a batched loop condition would turn every branch on `i` in the
   body into a select, computing the reset at every sub-step; the batching
-  rule instead keeps `i` shared by the batch and runs the extra iteration
-  when some world wants it. Results are the same either way. The body is
-  traced once and reused by both paths.
+  rule instead keeps `i` shared by the batch, runs the body batched inside
+  the loop (so `batch_any` in it sees the batch), and runs the extra
+  iteration when some world wants it. Results are the same either way. The
+  body is traced once and reused by both paths.
 
   Args:
     n: the iterations every world runs.
     body: `(i, carry, operands) -> carry`, for one world; at `i = n` it must
       return `carry` unchanged where `wants_reset` is False (the batch runs
-      that iteration for every world).
+      that iteration for every world). Its parts that run at one `i` only
+      belong in `once_or_never`, with conditions on `i` or `batch_any`.
     wants_reset: `(carry, operands) -> bool`, for one world.
     carry: the initial carry.
     operands: per-world inputs the body reads.
@@ -427,3 +429,38 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
     return out, _out_batched(out)
 
   return looped(carry, operands)
+
+
+@jax.custom_batching.custom_vmap
+def batch_any(flag):
+  """`flag` for one world; under `jax.vmap`, whether any world's is set.
+
+  The result is shared by the batch (not batched), so a `lax.while_loop`
+  whose condition reads it keeps one trip count for every world, and the
+  `lax.cond`s and loops in its body that branch on the loop's own counter
+  stay branches and loops: a batched condition would turn them into
+  selects that compute every branch for every world.
+  """
+  return flag
+
+
+@batch_any.def_vmap
+def _batch_any_rule(axis_size, in_batched, flag):
+  del axis_size
+  (batched,) = in_batched
+  return (jnp.any(flag) if batched else flag), False
+
+
+def once_or_never(pred, fn, operand):
+  """`fn(operand)` if `pred`, else `operand`: a loop run once or never.
+
+  `pred` must be shared by the batch (a loop counter, `batch_any`). Not a
+  `lax.cond`: a conditional's output needs buffers of its own, so on a GPU
+  the branch not taken copies its operand into them, where a loop that does
+  not run leaves its carry in place (`_reset_at_most_once`).
+  """
+
+  def body(loop):
+    return jnp.zeros((), bool), fn(loop[1])
+
+  return jax.lax.while_loop(lambda loop: loop[0], body, (pred, operand))[1]

@@ -380,6 +380,17 @@ class Transitions:
   def _step_in_one_loop(self, state, action, next_step_reset):
     """The sub-steps and a reset in one loop (see the two callers).
 
+    One `lax.while_loop` over `i`: iterations `0..n-1` are the sub-steps
+    (forward pass, integrator, after-substep work); the last of them also
+    ends the control step and, where some world wants a reset, prepares it
+    (the `initialize_episode` hooks, randomization included); iteration `n`
+    runs only where some world wants it, and forwards the prepared reset
+    with actuation masked. The parts that run at one iteration only are
+    loops run once or never (`episode_lib.once_or_never`), on conditions
+    shared by the batch (the counter, `episode_lib.batch_any`), so nothing
+    in the loop is a `lax.cond` and nothing is computed for every world at
+    every sub-step but the sub-step itself.
+
     Args:
       state: the state the sub-steps start from (its key is the step's).
       action: the control step's action.
@@ -408,72 +419,82 @@ class Transitions:
           previous.last(),
       )
 
+    def prepare_restart(stepped, next_reset):
+      """The initialized carry of the restart, and its failed attempts."""
+      reset_key, previous, _ = reset_from(stepped, next_reset)
+      init_key, _, _ = jax.random.split(reset_key, 3)
+      return self._initialize(init_key, self._start(previous))
+
+    def end_step(state, keys, next_reset, loop):
+      """Ends the control step; prepares the restart where one is wanted."""
+      carry, obs_state, stepped, failures = loop
+      stepped = self._end_step(state, self._restore(carry), obs_state, keys)
+      carry, failures = episode_lib.once_or_never(
+          episode_lib.batch_any(reset_from(stepped, next_reset)[2]),
+          lambda _: prepare_restart(stepped, next_reset),
+          (carry, failures),
+      )
+      return carry, obs_state, stepped, failures
+
+    def finish_restart(ready, forwarded, failures, stepped, next_reset):
+      """The restarted state where the world resets, else `stepped`."""
+      reset_key, _, resets = reset_from(stepped, next_reset)
+      # What `mjx.forward` leaves with actuation disabled.
+      data = forwarded.data.replace(
+          act_dot=jnp.zeros_like(forwarded.data.act_dot),
+          actuator_force=ready.data.actuator_force,
+      )
+      # What the reset's stage of the forward pass leaves (`reset`).
+      data = self.reset_forward.restrict(data, ready.data)
+      _, obs_key, next_key = jax.random.split(reset_key, 3)
+      restarted = self._first_state(
+          forwarded.replace(data=data), ready, failures, obs_key, next_key
+      )
+      if next_reset is None:
+        restarted = _reporting(restarted, stepped)
+      return episode_lib.tree_select(resets, restarted, stepped)
+
     def body(i, loop, operands):
-      carry, obs_state, stepped = loop
+      carry, obs_state, stepped, failures = loop
       state, action, keys, next_reset = operands
-      reset_key, previous, resets = reset_from(stepped, next_reset)
+      # At `i = n` the carry is the prepared restart: its sub-step hooks and
+      # integration are computed and dropped (selects on the shared `i`).
+      ready = carry
+      hooked = self._before_substep(
+          self._restore(carry), action, keys, i, fields
+      ).carry(fields)
+      physics = self._restore(episode_lib.tree_select(i < n, hooked, carry))
+      physics = physics.replace(
+          data=mjx.forward(
+              _actuation_masked(physics.model, i == n), physics.data
+          )
+      )
+      moved = physics.replace(data=integrate(physics.model, physics.data))
+      moved, obs_state = self._after_substep(moved, obs_state, keys, i, fields)
+      # The restart's end first: it is the last reader of `ready` and
+      # `physics`, whose buffers the control step's end may then overwrite
+      # in place (else XLA copies them at every iteration).
+      stepped = episode_lib.once_or_never(
+          i == n,
+          lambda stepped: finish_restart(
+              ready, physics, failures, stepped, next_reset
+          ),
+          stepped,
+      )
+      carry = episode_lib.tree_select(i < n, moved, physics.carry(fields))
+      carry, obs_state, stepped, failures = episode_lib.once_or_never(
+          i == n - 1,
+          lambda loop: end_step(state, keys, next_reset, loop),
+          (carry, obs_state, stepped, failures),
+      )
+      return carry, obs_state, stepped, failures
 
-      def prepare_substep():
-        physics = self._before_substep(
-            self._restore(carry), action, keys, i, fields
-        )
-        physics = physics.replace(initialization_failed=jnp.zeros((), bool))
-        return physics.carry(fields), jnp.zeros((), jnp.int32)
-
-      def prepare_restart():
-        init_key, _, _ = jax.random.split(reset_key, 3)
-        return self._initialize(init_key, self._start(previous))
-
-      ready, failures = jax.lax.cond(i == n, prepare_restart, prepare_substep)
-      physics = self._restore(ready)
-      data = mjx.forward(_actuation_masked(physics.model, i == n), physics.data)
-      physics = physics.replace(data=data)
-
-      def finish_substep():
-        moved = physics.replace(data=integrate(physics.model, physics.data))
-        carry, new_obs_state = self._after_substep(
-            moved, obs_state, keys, i, fields
-        )
-        new_stepped = jax.lax.cond(
-            i == n - 1,
-            lambda: self._end_step(
-                state, self._restore(carry), new_obs_state, keys
-            ),
-            lambda: stepped,
-        )
-        # The loop carries no initialization flag; only restarts raise it.
-        carry = carry.replace(initialization_failed=None)
-        return carry, new_obs_state, new_stepped
-
-      def finish_restart():
-        # What `mjx.forward` leaves with actuation disabled.
-        data = physics.data.replace(
-            act_dot=jnp.zeros_like(physics.data.act_dot),
-            actuator_force=ready.data.actuator_force,
-        )
-        # What the reset's stage of the forward pass leaves (`reset`).
-        data = self.reset_forward.restrict(data, ready.data)
-        _, obs_key, next_key = jax.random.split(reset_key, 3)
-        restarted = self._first_state(
-            physics.replace(data=data), ready, failures, obs_key, next_key
-        )
-        if next_reset is None:
-          restarted = _reporting(restarted, stepped)
-        # Under vmap every world runs this iteration: keep it where the
-        # world resets (`loop_with_reset`'s contract).
-        return (
-            carry,
-            obs_state,
-            episode_lib.tree_select(resets, restarted, stepped),
-        )
-
-      return jax.lax.cond(i < n, finish_substep, finish_restart)
-
-    _, _, stepped = episode_lib.loop_with_reset(
+    start = physics.replace(initialization_failed=jnp.zeros((), bool))
+    _, _, stepped, _ = episode_lib.loop_with_reset(
         n,
         body,
         lambda loop, operands: reset_from(loop[2], operands[3])[2],
-        (physics.carry(fields), state.obs_state, state),
+        (start.carry(fields), state.obs_state, state, jnp.zeros((), jnp.int32)),
         (state, action, keys, next_step_reset),
     )
     return stepped

@@ -86,10 +86,10 @@ def _step_then_restart(env):
 def test_the_fused_path_is_taken(env, monkeypatch):
   assert env._transitions.can_fuse_restart()  # pylint: disable=protected-access
   calls = []
-  loop = episode_lib.loop_with_reset
+  loop = episode_lib.once_or_never
   monkeypatch.setattr(
       episode_lib,
-      'loop_with_reset',
+      'once_or_never',
       lambda *args: calls.append(1) or loop(*args),
   )
   jax.eval_shape(

@@ -1,0 +1,40 @@
+"""benchmarks/playground_compare.py without measuring: program names, envs."""
+
+import argparse
+import os
+import sys
+
+import pytest
+
+sys.path.insert(
+    0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'benchmarks')
+)
+import playground_compare  # pylint: disable=g-import-not-at-top,wrong-import-position
+
+
+def test_ours_programs_take_the_shared_suffix():
+  for name in (
+      'ours_on',
+      'ours_on_shared',
+      'ours_off_shared',
+      'only_noise+randomize_shared',
+      'ours_on_chunk512',
+  ):
+    assert playground_compare.program_name(name) == name
+  for name, message in (
+      ('playground_shared', 'unknown program'),
+      ('raw_shared', 'unknown program'),
+      ('ours_on_chunk512_shared', 'separate restart'),
+      ('only_wings_shared', 'unknown program'),
+  ):
+    with pytest.raises(argparse.ArgumentTypeError, match=message):
+      playground_compare.program_name(name)
+
+
+def test_a_shared_program_fuses_the_restart_whatever_the_default():
+  envs = playground_compare.env_variants(
+      ['ours_off', 'ours_off_shared'], share_reset_forward=False
+  )
+  assert not envs['ours_off'].share_reset_forward
+  assert envs['ours_off_shared'].share_reset_forward
+  assert envs['ours_off_shared'].task is not envs['ours_off'].task
