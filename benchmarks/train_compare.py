@@ -173,6 +173,8 @@ _COLOURS = {
     'ours': 'tab:orange',
     'ours_off': 'tab:green',
 }
+# For the other environments (only_... variants), in order of appearance.
+_MORE_COLOURS = ('tab:red', 'tab:purple', 'tab:brown', 'tab:pink', 'tab:cyan')
 
 
 def env_choice(name):
@@ -774,8 +776,9 @@ def plot(out, runs, summary):
   for run in runs:
     if run['rows']:
       by_env.setdefault(run['env'], []).append(run)
+  others = iter(_MORE_COLOURS)
   for env, env_runs in by_env.items():
-    colour = _COLOURS.get(env)
+    colour = _COLOURS.get(env) or next(others, None)
     for run in env_runs:
       ax.plot(
           [r['wall_s'] for r in run['rows']],

@@ -108,11 +108,10 @@ class Environment:
       copy of the forward pass (`Transitions.step_and_restart`,
       `Transitions.reset_or_step`).
       Measured (README): on one H100 (stop 28) reach's step program
-      compiled in about half the time; on one H200 (stop 31) Brax PPO on
-      reach trained 19% slower with it (the shared loop branches with
-      `lax.cond`; the separate step program has no conditional). False
-      runs the
-      sub-steps as a `lax.scan` of `mjx.step` and the restart separately.
+      compiled in about half the time; on one H100 (stop 33) the walk
+      task's first call took 12-20 s less and it ran at 0.962-0.965 of the
+      separate restart's throughput. False runs the sub-steps as a
+      `lax.scan` of `mjx.step` and the restart separately.
       Results are bit-identical either way. Default (None): True on a CPU
       with impl='jax', where runs are short and compiling dominates; False
       elsewhere (and with `auto_reset_batch`). impl='warp' refuses True
