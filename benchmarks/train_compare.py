@@ -32,7 +32,9 @@ Environments (`--envs`):
   switched back on, named as in `playground_compare.py` (noise, delay,
   history, randomize, push, fall; e.g. only_noise+delay+history+randomize:
   the shipped task without pushes and fall terminations, so its episodes,
-  and returns, are HumanoidWalk's), otherwise as `ours_off`.
+  and returns, are HumanoidWalk's), otherwise as `ours_off`; with the
+  suffix `_shared` (as in `playground_compare.py`), with
+  `share_reset_forward=True` whatever `--share-reset-forward` says.
 
 Hyper-parameters: `mujoco_playground.config.dm_control_suite_params.
 brax_ppo_config('HumanoidWalk')` read at run time when Playground imports

@@ -215,3 +215,19 @@ def test_feature_variants_train_like_ours_off_with_those_features():
   assert not task._terminate_on_fall
   assert brax_env.episode_length == 1000
   assert kwargs['num_envs'] == config['num_envs']
+
+
+def test_a_shared_feature_variant_fuses_the_restart():
+  args = train_compare.parse_args(
+      ['--envs', 'only_noise_shared', '--no-share-reset-forward']
+  )
+  assert args.envs == ['only_noise_shared']
+  config = dict(train_compare.FALLBACK_EXTRA)
+  import train_ppo  # pylint: disable=g-import-not-at-top
+
+  defaults = train_ppo.parse_args(['--task', 'walk'])
+  for flag, ppo in train_compare._TRAIN_PPO_NAMES.items():
+    config[ppo] = getattr(defaults, flag)
+  brax_env, _, _ = train_compare._ours_setup('only_noise_shared', config, args)
+  assert brax_env.environment.share_reset_forward
+  assert not brax_env.environment.task._randomize  # only the noise is on
