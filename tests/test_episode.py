@@ -1,4 +1,5 @@
-"""Episode rules: the step limit, tracing a reset once, the reset select.
+"""Episode rules: the step limit, tracing a reset once, the reset select, and
+the shared-condition loops of the fused restart (`batch_any`, `once_or_never`).
 
 `test_environment.py` checks termination, truncation, divergence and both
 auto-reset modes through a composed environment.
@@ -204,3 +205,50 @@ def test_diverged_flags_any_non_finite_state():
   Data.qacc = jnp.zeros(2)
   Data.qvel = jnp.array([jnp.inf, 0.0])
   assert bool(episode.diverged(Data))
+
+
+def test_batch_any_is_the_flag_for_one_world_and_any_under_vmap():
+  assert bool(episode.batch_any(jnp.asarray(True)))
+  assert not bool(episode.batch_any(jnp.asarray(False)))
+  flags = jnp.array([False, True, False])
+  out = jax.vmap(episode.batch_any)(flags)
+  # One value for the batch, broadcast back by vmap.
+  np.testing.assert_array_equal(out, [True, True, True])
+  np.testing.assert_array_equal(
+      jax.vmap(episode.batch_any)(jnp.zeros(3, bool)), [False] * 3
+  )
+  # Nested vmaps: any over both axes.
+  nested = jax.vmap(jax.vmap(episode.batch_any))(flags.reshape(1, 3))
+  np.testing.assert_array_equal(nested, [[True, True, True]])
+
+
+def test_once_or_never_runs_fn_once_where_pred_else_returns_operand():
+  calls = []
+
+  def double(x):
+    calls.append(1)
+    return x * 2.0
+
+  x = jnp.arange(3.0)
+  np.testing.assert_array_equal(
+      episode.once_or_never(jnp.asarray(True), double, x), x * 2
+  )
+  np.testing.assert_array_equal(
+      episode.once_or_never(jnp.asarray(False), double, x), x
+  )
+  assert len(calls) == 2  # traced once per call, run at most once
+
+
+def test_once_or_never_on_a_shared_condition_stays_a_loop_under_vmap():
+  def world(flag, x):
+    return episode.once_or_never(episode.batch_any(flag), lambda v: v + 1.0, x)
+
+  flags = jnp.array([False, True])
+  x = jnp.zeros((2, 3))
+  # Every world runs it when any wants it: the condition is the batch's.
+  np.testing.assert_array_equal(jax.vmap(world)(flags, x), np.ones((2, 3)))
+  np.testing.assert_array_equal(
+      jax.vmap(world)(jnp.zeros(2, bool), x), np.zeros((2, 3))
+  )
+  hlo = jax.jit(jax.vmap(world)).lower(flags, x).as_text()
+  assert 'stablehlo.while' in hlo and 'stablehlo.select' not in hlo
