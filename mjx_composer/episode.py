@@ -454,10 +454,13 @@ def _batch_any_rule(axis_size, in_batched, flag):
 def once_or_never(pred, fn, operand):
   """`fn(operand)` if `pred`, else `operand`: a loop run once or never.
 
-  `pred` must be shared by the batch (a loop counter, `batch_any`). Not a
-  `lax.cond`: a conditional's output needs buffers of its own, so on a GPU
-  the branch not taken copies its operand into them, where a loop that does
-  not run leaves its carry in place (`_reset_at_most_once`).
+  Meant for a `pred` shared by the batch (a loop counter, `batch_any`): the
+  loop then stays a loop under `jax.vmap`. A per-world `pred` still gives
+  each world its own result, but `vmap` runs `fn` for the whole batch when
+  any world's holds and selects. Not a `lax.cond`: a conditional's output
+  needs buffers of its own, so on a GPU the branch not taken copies its
+  operand into them, where a loop that does not run leaves its carry in
+  place (`_reset_at_most_once`).
   """
 
   def body(loop):
