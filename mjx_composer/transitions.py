@@ -389,7 +389,9 @@ class Transitions:
     loops run once or never (`episode_lib.once_or_never`), on conditions
     shared by the batch (the counter, `episode_lib.batch_any`), so nothing
     in the loop is a `lax.cond` and nothing is computed for every world at
-    every sub-step but the sub-step itself.
+    every sub-step but the sub-step itself and selects on the counter. The
+    restart's end runs before the step's end in each iteration, so that XLA
+    need not copy the restart's inputs at every sub-step (README).
 
     Args:
       state: the state the sub-steps start from (its key is the step's).
