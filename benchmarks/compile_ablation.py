@@ -29,9 +29,7 @@ The variants change the program's results: they measure, they do not run.
 import argparse
 import json
 import os
-import subprocess
 import sys
-import tempfile
 
 import compile_time
 
@@ -153,26 +151,19 @@ def run_variant(task, variant, worlds, steps):
 
 
 def _run_isolated(task, variant, worlds, steps):
-  with tempfile.TemporaryDirectory() as tmp:
-    path = os.path.join(tmp, 'row.json')
-    cmd = [
-        sys.executable,
-        os.path.abspath(__file__),
-        '--worker',
-        path,
-        '--task',
-        task,
-        '--variants',
-        variant,
-        '--worlds',
-        str(worlds),
-        '--steps',
-        str(steps),
-    ]
-    if subprocess.run(cmd, check=False).returncode:
-      return None
-    with open(path) as f:
-      return json.load(f)
+  return compile_time.run_worker(
+      __file__,
+      [
+          '--task',
+          task,
+          '--variants',
+          variant,
+          '--worlds',
+          str(worlds),
+          '--steps',
+          str(steps),
+      ],
+  )
 
 
 def main(argv=None):

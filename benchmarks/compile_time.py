@@ -541,34 +541,33 @@ def run_one(
   return row
 
 
-def _run_isolated(
-    task, program, worlds, steps, share_reset_forward=None, reset_forward=None
-):
-  """`run_one` in a fresh Python process."""
+def run_worker(script, args):
+  """`python script --worker ROW_JSON *args` in a fresh process: its row.
+
+  The worker measures and writes its row (a dict) to ROW_JSON; returns
+  None when the process fails (its output says why).
+  """
   with tempfile.TemporaryDirectory() as tmp:
     path = os.path.join(tmp, 'row.json')
-    cmd = [
-        sys.executable,
-        os.path.abspath(__file__),
-        '--worker',
-        path,
-        '--tasks',
-        task,
-        '--programs',
-        program,
-        '--steps',
-        str(steps),
-    ]
-    if worlds is not None:
-      cmd += ['--worlds', str(worlds)]
-    if share_reset_forward is not None:
-      cmd += ['--share-reset-forward', 'on' if share_reset_forward else 'off']
-    if reset_forward is not None:
-      cmd += ['--reset-forward', reset_forward]
+    cmd = [sys.executable, os.path.abspath(script), '--worker', path, *args]
     if subprocess.run(cmd, check=False).returncode:
       return None
     with open(path) as f:
       return json.load(f)
+
+
+def _run_isolated(
+    task, program, worlds, steps, share_reset_forward=None, reset_forward=None
+):
+  """`run_one` in a fresh Python process."""
+  args = ['--tasks', task, '--programs', program, '--steps', str(steps)]
+  if worlds is not None:
+    args += ['--worlds', str(worlds)]
+  if share_reset_forward is not None:
+    args += ['--share-reset-forward', 'on' if share_reset_forward else 'off']
+  if reset_forward is not None:
+    args += ['--reset-forward', reset_forward]
+  return run_worker(__file__, args)
 
 
 # -- report ------------------------------------------------------------------

@@ -134,27 +134,25 @@ def program_name(name):
   `share_reset_forward=True` (the restart of ended episodes fused into the
   sub-step loop), e.g. `ours_on_shared`.
   """
-  base = name
-  if name.endswith(SHARED) and not name.startswith(('playground', 'raw')):
-    base = name[: -len(SHARED)]
-  if base.startswith('ours_on_chunk') and base != name:
+  shared = name.endswith(SHARED) and not name.startswith(('playground', 'raw'))
+  base = name[: -len(SHARED)] if shared else name
+  if shared and base.startswith('ours_on_chunk'):
     raise argparse.ArgumentTypeError(
         f'{name!r}: auto_reset_batch needs the separate restart'
     )
-  name, shared = base, base != name
-  features = name[len('only_') :].split('+')
+  features = base[len('only_') :].split('+')
   if (
-      name in ('ours_on', 'ours_off', 'playground', 'raw')
+      base in ('ours_on', 'ours_off', 'playground', 'raw')
       or (
-          name.startswith('only_')
+          base.startswith('only_')
           and all(f in FEATURES or f == 'groups' for f in features)
       )
       or (
-          name.startswith('ours_on_chunk')
-          and name[len('ours_on_chunk') :].isdigit()
+          base.startswith('ours_on_chunk')
+          and base[len('ours_on_chunk') :].isdigit()
       )
   ):
-    return name + (SHARED if shared else '')
+    return name
   raise argparse.ArgumentTypeError(
       f'unknown program {name!r}: ours_on, ours_off, playground, raw, '
       "ours_on_chunk<K>, or only_ followed by features joined by '+' from "

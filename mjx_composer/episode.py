@@ -254,22 +254,17 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
 def _reset_at_most_once(done, select, operands, stepped):
   """`vmap(select)(done, operands, stepped)` where any world is done.
 
-  Else `stepped`. A `lax.while_loop` that runs once or never, not a
-  `lax.cond`: a conditional's output needs buffers of its own, so on a GPU
-  the branch without resets copies the state into them at every step
-  (measured: 18 copies and 13 kernels per control step of the reach task,
-  about 3% of its throughput at 8,192 worlds), where a loop that does not
-  run leaves its carry where it is.
+  Else `stepped`. A loop that runs once or never (`once_or_never`), not a
+  `lax.cond`: with a conditional, the branch without resets copied the state
+  at every step (measured: 18 copies and 13 kernels per control step of the
+  reach task, about 3% of its throughput at 8,192 worlds).
   """
-
-  def body(loop):
-    _, state = loop
-    return jnp.zeros((), bool), jax.vmap(select)(done, operands, state)
-
   with jax.named_scope('auto_reset'):
-    return jax.lax.while_loop(
-        lambda loop: loop[0], body, (jnp.any(done), stepped)
-    )[1]
+    return once_or_never(
+        jnp.any(done),
+        lambda state: jax.vmap(select)(done, operands, state),
+        stepped,
+    )
 
 
 def _reset_in_chunks(done, reset, operands, stepped, chunk):
@@ -460,7 +455,7 @@ def once_or_never(pred, fn, operand):
   any world's holds and selects. Not a `lax.cond`: a conditional's output
   needs buffers of its own, so on a GPU the branch not taken copies its
   operand into them, where a loop that does not run leaves its carry in
-  place (`_reset_at_most_once`).
+  place (measured in `_reset_at_most_once`).
   """
 
   def body(loop):
