@@ -71,7 +71,9 @@ Outputs, in `--out` (runs of several invocations merge there; a run of an
 
 `--gpus 0,1,...` runs each (env, seed) in its own process pinned to one GPU
 (`CUDA_VISIBLE_DEVICES`), as many at a time as GPUs are listed, with logs in
-`logs/`, then prints the table. `--max-wall-s` stops a run after the
+`logs/`, then prints the table. With `--devices 2 --gpus 0+1,2+3` each run
+trains on two GPUs (Brax's `pmap`, the world batch split between them),
+two runs at a time: how Playground's full schedule fits a 10-minute call. `--max-wall-s` stops a run after the
 evaluation from which the next one would end past that many seconds (for a
 command time limit); its status is then 'stopped'.
 
@@ -267,8 +269,9 @@ def parse_args(argv=None):
   parser.add_argument(
       '--gpus',
       default=None,
-      help='comma-separated GPU indices: one process per (env, seed), each '
-      'on one of them, as many at a time as listed',
+      help='comma-separated GPU indices, or groups of --devices indices '
+      'joined by + (0+1,2+3): one process per (env, seed), each on one '
+      'entry, as many at a time as entries',
   )
   parser.add_argument(
       '--plot', action='store_true', help='only plot and tabulate --out'
@@ -619,9 +622,43 @@ def _child_argv(argv, env, seed):
   return out + ['--envs', env, '--seeds', str(seed)]
 
 
+def gpu_groups(spec, devices):
+  """`--gpus`'s entries as `CUDA_VISIBLE_DEVICES` values, one per process.
+
+  Args:
+    spec: comma-separated entries, each a GPU index or `devices` indices
+      joined by '+' ('0+1,2+3' with `devices=2`).
+    devices: `--devices`, the GPUs each run trains on.
+
+  Raises:
+    ValueError: an entry does not name `devices` distinct indices, or two
+      entries share one.
+  """
+  groups, seen = [], set()
+  for entry in (e.strip() for e in spec.split(',')):
+    if not entry:
+      continue
+    ids = entry.split('+')
+    if not all(i.isdigit() for i in ids) or len(set(ids)) != len(ids):
+      raise ValueError(f'--gpus entry {entry!r}: distinct GPU indices only.')
+    if len(ids) != devices:
+      raise ValueError(
+          f'--gpus entry {entry!r} names {len(ids)} GPU(s) but --devices is '
+          f'{devices}: join {devices} indices with + per run (0+1,2+3), or '
+          'pass --devices to match.'
+      )
+    if seen & set(ids):
+      raise ValueError(f'--gpus: GPU(s) {sorted(seen & set(ids))} in two runs.')
+    seen |= set(ids)
+    groups.append(','.join(ids))
+  if not groups:
+    raise ValueError('--gpus names no GPU.')
+  return groups
+
+
 def run_parallel(args, argv):
-  """Runs each (env, seed) in its own process, one per GPU of `--gpus`."""
-  gpus = [g for g in args.gpus.split(',') if g]
+  """Runs each (env, seed) in its own process, one per entry of `--gpus`."""
+  gpus = gpu_groups(args.gpus, args.devices)
   jobs = [(e, s) for s in args.seeds for e in args.envs]
   log_dir = os.path.join(args.out, 'logs')
   os.makedirs(log_dir, exist_ok=True)

@@ -138,6 +138,19 @@ def test_child_command_line():
   assert args.envs == ['ours'] and args.seeds == [2]
 
 
+def test_gpu_groups_give_each_run_its_devices():
+  assert train_compare.gpu_groups('0,1,2', 1) == ['0', '1', '2']
+  assert train_compare.gpu_groups('0+1, 2+3', 2) == ['0,1', '2,3']
+  with pytest.raises(ValueError, match='--devices is 2'):
+    train_compare.gpu_groups('0,1', 2)
+  with pytest.raises(ValueError, match='in two runs'):
+    train_compare.gpu_groups('0+1,1+2', 2)
+  with pytest.raises(ValueError, match='distinct'):
+    train_compare.gpu_groups('0+0', 2)
+  with pytest.raises(ValueError, match='names no GPU'):
+    train_compare.gpu_groups(',', 1)
+
+
 def test_deadline_uses_the_last_interval():
   import train_ppo  # pylint: disable=g-import-not-at-top
 
