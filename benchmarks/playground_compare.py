@@ -14,6 +14,11 @@ loads) for `--steps` control steps of 5 physics steps, held actions:
 * playground: `vmap(env.step)` of `registry.load('HumanoidWalk')` from
               playground 0.2.0 with `impl='jax'` (skipped, with the reason,
               when `mujoco_playground` cannot be imported);
+* playground_trained: on request, that environment as Brax trains it
+              (`mujoco_playground.wrapper.wrap_for_brax_training`: episode
+              counter, time limit and auto-reset to a stored first state,
+              1000-step episodes): the step Playground's PPO runs, with the
+              episode bookkeeping every one of ours does in its step;
 * raw:        `vmap(mjx.step)` on ours_off's compiled model, the sub-steps in
               a `fori_loop` (`common.raw_rollout`), from `qpos0` plus noise,
               the same actions as controls;
@@ -135,6 +140,8 @@ def program_name(name):
   sub-step loop), e.g. `ours_on_shared`.
   """
   shared = name.endswith(SHARED) and not name.startswith(('playground', 'raw'))
+  if name == 'playground_trained':
+    return name
   base = name[: -len(SHARED)] if shared else name
   if shared and base.startswith('ours_on_chunk'):
     raise argparse.ArgumentTypeError(
@@ -154,7 +161,8 @@ def program_name(name):
   ):
     return name
   raise argparse.ArgumentTypeError(
-      f'unknown program {name!r}: ours_on, ours_off, playground, raw, '
+      f'unknown program {name!r}: ours_on, ours_off, playground, '
+      'playground_trained, raw, '
       "ours_on_chunk<K>, or only_ followed by features joined by '+' from "
       f'{", ".join((*FEATURES, "groups"))}; ours\' may end in {SHARED}'
   )
@@ -228,9 +236,21 @@ def _playground_env():
   return env, f'playground {version}'
 
 
-def _scan_rollout(step, steps):
-  """`rollout(state, actions)`: `steps` of `vmap(step)`, actions held."""
-  batched = jax.vmap(step)
+def _playground_trained(env, episode_length):
+  """`env` wrapped as Playground's PPO trains it (batched reset and step)."""
+  from mujoco_playground import wrapper  # pylint: disable=g-import-not-at-top
+
+  return wrapper.wrap_for_brax_training(
+      env, episode_length=episode_length, action_repeat=1
+  )
+
+
+def _scan_rollout(step, steps, batched=False):
+  """`rollout(state, actions)`: `steps` of `vmap(step)`, actions held.
+
+  With `batched`, `step` already takes a batch (not vmapped again).
+  """
+  batched = step if batched else jax.vmap(step)
 
   def rollout(state, actions):
     def body(s, _):
@@ -293,6 +313,12 @@ def main():
           _scan_rollout(playground.step, args.steps),
           jax.random.split(jax.random.PRNGKey(0), worlds),
       )
+      trained = _playground_trained(playground, envs['ours_off'].step_limit)
+      programs['playground_trained'] = (
+          trained.reset,
+          _scan_rollout(trained.step, args.steps, batched=True),
+          jax.random.split(jax.random.PRNGKey(0), worlds),
+      )
     programs['raw'] = (
         common.raw_reset(raw_model, jit=False),
         common.raw_rollout(raw_model, n, args.steps, jit=False),
@@ -313,7 +339,7 @@ def main():
           flush=True,
       )
       for ours in envs:
-        for other in ('raw', 'playground'):
+        for other in ('raw', 'playground', 'playground_trained'):
           if ours in row and other in row:
             row[f'{ours}/{other}'] = (
                 row[ours]['control_steps_per_s']
