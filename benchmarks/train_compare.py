@@ -73,7 +73,15 @@ Outputs, in `--out` (runs of several invocations merge there; a run of an
 (`CUDA_VISIBLE_DEVICES`), as many at a time as GPUs are listed, with logs in
 `logs/`, then prints the table. With `--devices 2 --gpus 0+1,2+3` each run
 trains on two GPUs (Brax's `pmap`, the world batch split between them),
-two runs at a time: how Playground's full schedule fits a 10-minute call. `--max-wall-s` stops a run after the
+two runs at a time.
+
+`--resume` continues each (env, seed) whose run in `--out` was stopped (by
+`--max-wall-s`) for the evaluations it has left, from its saved policy,
+value and normalizer parameters, in a new segment; `benchmarks/segments.py`
+says what carries over and what does not (not Adam's moments). That is how
+Playground's full schedule (about 1,000 s on one H200) trains through
+10-minute device calls: one call per segment, each carrying the runs'
+files from the one before. `--max-wall-s` stops a run after the
 evaluation from which the next one would end past that many seconds (for a
 command time limit); its status is then 'stopped'.
 
@@ -120,6 +128,7 @@ import traceback
 import numpy as np
 
 import common  # benchmarks/common.py
+import segments  # benchmarks/segments.py
 import train_ppo  # benchmarks/train_ppo.py
 
 ENVS = ('playground', 'ours', 'ours_off')
@@ -166,11 +175,14 @@ _CSV_FIELDS = (
     'step',
     'wall_s',
     'train_walltime_s',
+    'env_steps_per_s',
     'train_sps',
     'eval_walltime_s',
     'eval_return',
     'eval_return_std',
     'eval_episode_length',
+    'segment',
+    'resume_overhead_s',
 )
 _COLOURS = {
     'playground': 'tab:blue',
@@ -272,6 +284,13 @@ def parse_args(argv=None):
       help='comma-separated GPU indices, or groups of --devices indices '
       'joined by + (0+1,2+3): one process per (env, seed), each on one '
       'entry, as many at a time as entries',
+  )
+  parser.add_argument(
+      '--resume',
+      action='store_true',
+      help="continue each (env, seed)'s run stopped earlier in --out (by "
+      '--max-wall-s) from its saved parameters, for the evaluations left; '
+      'see benchmarks/segments.py',
   )
   parser.add_argument(
       '--plot', action='store_true', help='only plot and tabulate --out'
@@ -494,26 +513,12 @@ def write_merged(out):
   return runs
 
 
-def train_one(env_name, seed, config, source, args):
-  """Trains one (environment, seed); returns its run record."""
-  # pylint: disable=g-import-not-at-top
-  import jax
-  from brax.training.agents.ppo import train as ppo
+def _new_run(env_name, seed, config, source, args):
+  """A fresh run record (no evaluations yet)."""
+  import jax  # pylint: disable=g-import-not-at-top
 
-  from mjx_composer import partitioner
-  # pylint: enable=g-import-not-at-top
-
-  run_dir = os.path.join(args.out, 'runs')
-  os.makedirs(run_dir, exist_ok=True)
-  name = run_name(env_name, seed)
-  json_path = os.path.join(run_dir, name + '.json')
-  csv_path = os.path.join(run_dir, name + '.csv')
-  policy_path = os.path.join(run_dir, name + '_policy.pkl')
-  for path in (json_path, csv_path, policy_path):
-    if os.path.exists(path):
-      os.remove(path)
   device = jax.devices()[0]
-  run = {
+  return {
       'env': env_name,
       'seed': seed,
       'status': 'building',
@@ -532,28 +537,98 @@ def train_one(env_name, seed, config, source, args):
       'xla_flags': os.environ.get('XLA_FLAGS', ''),
       'started_at': time.strftime('%Y-%m-%d %H:%M:%S'),
       'total_s': None,
+      'segments': 1,
       'rows': [],
   }
+
+
+def _segment_to_train(run, config, name):
+  """`(segment index, its config)` to continue `run`, or None if done.
+
+  Raises:
+    ValueError: `run` was trained with other hyper-parameters.
+  """
+  if run['hyperparameters'] != config:
+    raise ValueError(
+        f'{name}: --resume with other hyper-parameters than the stored run '
+        f'({run["hyperparameters"]} there, {config} now): pass the same '
+        'overrides, or leave out --resume to start again.'
+    )
+  left = (
+      None
+      if run['status'] == 'finished'
+      else segments.remaining_schedule(config, run['rows'][-1]['step'])
+  )
+  if left is None:
+    return None
+  segment_config = dict(config)
+  segment_config['num_timesteps'], segment_config['num_evals'] = left
+  return run.get('segments', 1), segment_config
+
+
+def train_one(env_name, seed, config, source, args):
+  """Trains one (environment, seed); returns its run record.
+
+  With `--resume` and a stopped run of it in `--out`, trains what is left
+  of that run instead (`segments`).
+  """
+  # pylint: disable=g-import-not-at-top
+  import jax
+  from brax.training.agents.ppo import train as ppo
+
+  from mjx_composer import partitioner
+  # pylint: enable=g-import-not-at-top
+
+  run_dir = os.path.join(args.out, 'runs')
+  os.makedirs(run_dir, exist_ok=True)
+  name = run_name(env_name, seed)
+  json_path = os.path.join(run_dir, name + '.json')
+  csv_path = os.path.join(run_dir, name + '.csv')
+  policy_path = os.path.join(run_dir, name + '_policy.pkl')
+  resumed = segments.load(json_path, policy_path) if args.resume else None
+  restore = None
+  if resumed is None:
+    for path in (json_path, csv_path, policy_path):
+      if os.path.exists(path):
+        os.remove(path)
+    run = _new_run(env_name, seed, config, source, args)
+    segment, train_config = 0, config
+  else:
+    run, restore = resumed
+    run.pop('error', None)
+    todo = _segment_to_train(run, config, name)
+    if todo is None:
+      print(f'{name}: finished earlier, nothing to resume', flush=True)
+      return run
+    segment, train_config = todo
+  earlier_rows = list(run['rows'])
+  earlier_s = run['total_s'] or 0.0
   t0 = time.perf_counter()
   if env_name == 'playground':
-    env, kwargs, policy_config = _playground_setup(config, args)
+    env, kwargs, policy_config = _playground_setup(train_config, args)
   else:
-    env, kwargs, policy_config = _ours_setup(env_name, config, args)
+    env, kwargs, policy_config = _ours_setup(env_name, train_config, args)
   run['build_s'] = time.perf_counter() - t0
   kwargs.update(
-      seed=seed,
+      seed=segments.segment_seed(seed, segment),
       num_eval_envs=args.eval_envs,
       deterministic_eval=args.deterministic_eval,
       max_devices_per_host=args.devices,
   )
+  if restore is not None:
+    kwargs.update(restore_params=restore, restore_value_fn=True)
   run['status'] = 'running'
+  run['segments'] = segment + 1
   _write_json(json_path, run)
   print(
       f'{name}: training {run["env_steps_planned"]:,} env steps on '
-      f'{run["device"]} (built in {run["build_s"]:.1f}s)',
+      f'{run["device"]} (segment {segment}: '
+      f'{brax_env_steps(train_config):,} of them; built in '
+      f'{run["build_s"]:.1f}s)',
       flush=True,
   )
   rows = run['rows']
+  segment_rows = []  # This segment's, with its own steps and clock.
   start = None
 
   def save_params(unused_step, unused_make_policy, params):
@@ -561,8 +636,22 @@ def train_one(env_name, seed, config, source, args):
 
   def progress(step, metrics):
     row = train_ppo.eval_row(
-        step, metrics, time.perf_counter() - start, clock.seconds
+        step,
+        metrics,
+        time.perf_counter() - start,
+        clock.seconds,
+        previous=segment_rows[-1] if segment_rows else None,
     )
+    segment_rows.append(row)
+    if earlier_rows:
+      if len(segment_rows) == 1:
+        # The restored policy's evaluation: the run has it already.
+        return
+      row = segments.continued_row(
+          row, earlier_rows, segment, segment_rows[0]['wall_s']
+      )
+    else:
+      row.update(segment=0, resume_overhead_s=0.0)
     rows.append(row)
     train_ppo.append_csv(csv_path, row, header=len(rows) == 1)
     _write_json(json_path, run)
@@ -570,10 +659,10 @@ def train_one(env_name, seed, config, source, args):
     print(
         f'{name}: step {row["step"]:>11,} {row["wall_s"]:8.1f}s  return '
         f'{row["eval_return"]:8.2f} ± {row["eval_return_std"]:6.2f}  '
-        f'({row["train_sps"]:,.0f} steps/s)',
+        f'({row["env_steps_per_s"]:,.0f} env steps/s)',
         flush=True,
     )
-    if train_ppo.next_eval_too_late(rows, args.max_wall_s):
+    if train_ppo.next_eval_too_late(segment_rows, args.max_wall_s):
       raise train_ppo.StopTraining
 
   start = time.perf_counter()
@@ -596,7 +685,7 @@ def train_one(env_name, seed, config, source, args):
     run['status'] = 'failed'
     run['error'] = traceback.format_exc()
     print(run['error'], file=sys.stderr)
-  run['total_s'] = time.perf_counter() - start
+  run['total_s'] = earlier_s + time.perf_counter() - start
   _write_json(json_path, run)
   write_merged(args.out)
   print(f'{name}: {run["status"]} after {run["total_s"]:.1f}s', flush=True)
@@ -702,6 +791,25 @@ def time_to(rows, threshold):
   return None
 
 
+def training_rate(rows):
+  """Env steps per second of training, without each segment's first interval.
+
+  The env steps between consecutive evaluations over Brax's training time
+  between them (`train_walltime_s`: no evaluations, no resets between
+  epochs), summed over every interval but the first of each segment (of
+  the run, or of a part resumed with `--resume`), which holds compiling.
+  None without such an interval. Unlike Brax's 'training/sps'
+  (`train_sps`), it counts each step once.
+  """
+  steps = seconds = 0.0
+  for before, after in zip(rows[1:], rows[2:]):
+    if before.get('segment', 0) != after.get('segment', 0):
+      continue
+    steps += after['step'] - before['step']
+    seconds += after['train_walltime_s'] - before['train_walltime_s']
+  return steps / seconds if seconds > 0 else None
+
+
 def mean_curve(runs):
   """The seeds' mean (wall_s, return) at each evaluation index all reached."""
   n = min(len(r['rows']) for r in runs)
@@ -719,8 +827,8 @@ def summarize(runs, reference='playground', threshold=None):
     (over seeds, of each seed's last evaluation), `final_steps`, and per
     seed (in `per_seed`): `final_return`, `time_to_threshold_s` and
     `steps_to_threshold` (None where never reached), `total_s` (the run's
-    time in `ppo.train`, or its last evaluation's for a run still going)
-    and `status`.
+    time in `ppo.train`, or its last evaluation's for a run still going),
+    `env_steps_per_s` (`training_rate`) and `status`.
   """
   by_env = {}
   for run in runs:
@@ -748,6 +856,7 @@ def summarize(runs, reference='playground', threshold=None):
           'total_s': r['total_s']
           if r.get('total_s') is not None
           else r['rows'][-1]['wall_s'],
+          'env_steps_per_s': training_rate(r['rows']),
           'status': r['status'],
       }
     envs[env] = {
@@ -766,8 +875,8 @@ def format_table(summary):
   label = 'n/a' if threshold is None else f'{threshold:.1f}'
   lines = [
       f'| env | seeds | env steps | final return | time to {label} per seed '
-      '[s] | total per seed [s] |',
-      '|---|---|---|---|---|---|',
+      '[s] | total per seed [s] | training env steps/s per seed |',
+      '|---|---|---|---|---|---|---|',
   ]
   for env, s in summary['envs'].items():
     seeds = s['per_seed']
@@ -790,10 +899,16 @@ def format_table(summary):
         f'{x / 1e6:.1f} M' if x >= 100_000 else f'{x:,}'
         for x in s['final_steps']
     )
+    rates = ', '.join(
+        '–'
+        if seeds[k]['env_steps_per_s'] is None
+        else f'{seeds[k]["env_steps_per_s"] / 1e3:.0f} k'
+        for k in s['seeds']
+    )
     lines.append(
         f'| {env} | {", ".join(map(str, s["seeds"]))} | {steps} | '
         f'{s["final_return_mean"]:.1f} ± {s["final_return_std"]:.1f} | '
-        f'{hits} | {totals} |'
+        f'{hits} | {totals} | {rates} |'
     )
   return '\n'.join(lines)
 

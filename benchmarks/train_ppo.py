@@ -597,22 +597,35 @@ class CompileClock:
     return CompileClock._total - self._start
 
 
-def eval_row(step, metrics, wall_s, compile_s=0.0):
+def eval_row(step, metrics, wall_s, compile_s=0.0, previous=None):
   """One evaluation's record from Brax's `progress_fn(step, metrics)`.
 
   Keys: step (env steps so far), wall_s (the caller's clock: seconds since
   the start of `ppo.train`), compile_s (seconds of that spent lowering and
   compiling, a `CompileClock`'s), train_walltime_s (Brax's training time,
-  without evaluating; its first update includes compiling), train_sps,
-  eval_walltime_s (Brax's total time spent evaluating so far, this
-  evaluation included), eval_return and eval_return_std (over the evaluation
-  episodes), eval_episode_length.
+  without evaluating or the resets between epochs; its first update
+  includes compiling), env_steps_per_s (the env steps since `previous`, the
+  row before, over the training time since then: the training throughput;
+  0 for the first row, and without `previous`), train_sps (Brax's
+  'training/sps', which is NOT that: Brax times one training epoch but
+  counts `num_resets_per_eval` epochs' steps in it, so it overstates the
+  rate by that factor, 2 or 10 with Playground's settings), eval_walltime_s
+  (Brax's total time spent evaluating so far, this evaluation included),
+  eval_return and eval_return_std (over the evaluation episodes),
+  eval_episode_length.
   """
+  train_walltime = float(metrics.get('training/walltime', 0.0))
+  rate = 0.0
+  if previous is not None:
+    seconds = train_walltime - previous['train_walltime_s']
+    if seconds > 0:
+      rate = (int(step) - previous['step']) / seconds
   return {
       'step': int(step),
       'wall_s': float(wall_s),
       'compile_s': float(compile_s),
-      'train_walltime_s': float(metrics.get('training/walltime', 0.0)),
+      'train_walltime_s': train_walltime,
+      'env_steps_per_s': rate,
       'train_sps': float(metrics.get('training/sps', 0.0)),
       'eval_walltime_s': float(metrics.get('eval/walltime', 0.0)),
       'eval_return': float(metrics['eval/episode_reward']),
@@ -766,7 +779,13 @@ def main(argv=None):
 
   def progress(step, metrics):
     nonlocal hit
-    row = eval_row(step, metrics, time.perf_counter() - start, clock.seconds)
+    row = eval_row(
+        step,
+        metrics,
+        time.perf_counter() - start,
+        clock.seconds,
+        previous=rows[-1] if rows else None,
+    )
     rows.append(row)
     append_csv(log_path, row, header=len(rows) == 1)
     if hit is None and row['eval_return'] >= args.threshold:
@@ -776,7 +795,7 @@ def main(argv=None):
     tqdm.tqdm.write(
         f'step {step:>12,}  {row["wall_s"]:8.1f}s  return '
         f'{row["eval_return"]:8.2f} ± {row["eval_return_std"]:.2f}'
-        f'  ({row["train_sps"]:,.0f} steps/s)',
+        f'  ({row["env_steps_per_s"]:,.0f} env steps/s)',
         file=sys.stdout,
     )
     if next_eval_too_late(rows, args.max_wall_s) and 'params' in latest:

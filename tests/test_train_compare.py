@@ -151,6 +151,32 @@ def test_gpu_groups_give_each_run_its_devices():
     train_compare.gpu_groups(',', 1)
 
 
+def test_env_steps_per_s_counts_each_step_once():
+  import train_ppo  # pylint: disable=g-import-not-at-top
+
+  def metrics(walltime, brax_sps):
+    return {
+        'training/walltime': walltime,
+        'training/sps': brax_sps,
+        'eval/episode_reward': 1.0,
+        'eval/episode_reward_std': 0.0,
+        'eval/avg_episode_length': 1000.0,
+    }
+
+  first = train_ppo.eval_row(0, metrics(0.0, 0.0), 10.0)
+  assert first['env_steps_per_s'] == 0.0
+  # Two epochs of 1,000 steps in 4 s of training, 2 s each: Brax reports
+  # 2 x 1,000 / 2 s = 1,000/s for the last epoch; the rate is 500/s.
+  second = train_ppo.eval_row(2000, metrics(4.0, 1000.0), 20.0, previous=first)
+  assert second['env_steps_per_s'] == 500.0
+  assert second['train_sps'] == 1000.0
+  third = train_ppo.eval_row(4000, metrics(9.0, 800.0), 30.0, previous=second)
+  assert third['env_steps_per_s'] == 400.0
+  # The runs' rate leaves out the first interval (compiling).
+  assert train_compare.training_rate([first, second, third]) == 400.0
+  assert train_compare.training_rate([first, second]) is None
+
+
 def test_deadline_uses_the_last_interval():
   import train_ppo  # pylint: disable=g-import-not-at-top
 
