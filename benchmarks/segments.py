@@ -21,11 +21,17 @@ What carries over, and what does not:
   k)`, so no segment replays another's keys.
 
 Each segment compiles its programs again and evaluates the restored policy
-once before training; the run's rows record that as `resume_overhead_s`, so
-wall-clock times can be read with and without it.
+once before training; the run's rows record that time as
+`resume_overhead_s`, so wall-clock times can be read with and without it,
+and the run's `segment_starts` keep that evaluation's return beside the one
+the policy earned when it was saved (equal but for the evaluation's own
+randomness, when the restore took).
 """
 
+import json
 import math
+import os
+import pickle
 
 # Brax seeds of later segments: far from any seed a user passes.
 _SEGMENT_SEED_STRIDE = 1_000_003
@@ -102,18 +108,25 @@ def continued_row(row, previous_rows, segment, overhead_s):
 def load(json_path, policy_path):
   """`(run record, saved params)` of a run to continue, or None.
 
-  None when either file is missing or the run has no evaluation yet.
-  """
-  import json  # pylint: disable=g-import-not-at-top
-  import os  # pylint: disable=g-import-not-at-top
-  import pickle  # pylint: disable=g-import-not-at-top
+  None when there is no record, or it has no evaluation after training (a
+  run stopped at its first evaluation trained nothing: start it again).
 
-  if not (os.path.exists(json_path) and os.path.exists(policy_path)):
+  Raises:
+    FileNotFoundError: the record has trained evaluations but the
+      parameters file is missing.
+  """
+  if not os.path.exists(json_path):
     return None
   with open(json_path) as f:
     run = json.load(f)
-  if not run.get('rows'):
+  if not run.get('rows') or run['rows'][-1]['step'] == 0:
     return None
+  if not os.path.exists(policy_path):
+    raise FileNotFoundError(
+        f'{json_path} records {run["rows"][-1]["step"]:,} env steps but '
+        f'{policy_path}, their parameters, is missing: bring it with the '
+        'record, or leave out --resume to start the run again.'
+    )
   with open(policy_path, 'rb') as f:
     params = pickle.load(f)['params']
   return run, params

@@ -645,7 +645,17 @@ def train_one(env_name, seed, config, source, args):
     segment_rows.append(row)
     if earlier_rows:
       if len(segment_rows) == 1:
-        # The restored policy's evaluation: the run has it already.
+        # The restored policy's evaluation: kept aside (the run's rows end
+        # with this policy's), as a check that the restore took.
+        run.setdefault('segment_starts', []).append(
+            {
+                'segment': segment,
+                'overhead_s': row['wall_s'],
+                'restored_eval_return': row['eval_return'],
+                'last_eval_return': earlier_rows[-1]['eval_return'],
+            }
+        )
+        _write_json(json_path, run)
         return
       row = segments.continued_row(
           row, earlier_rows, segment, segment_rows[0]['wall_s']

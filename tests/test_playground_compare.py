@@ -19,10 +19,13 @@ def test_ours_programs_take_the_shared_suffix():
       'ours_off_shared',
       'only_noise+randomize_shared',
       'ours_on_chunk512',
+      'playground',
+      'playground_trained',
   ):
     assert playground_compare.program_name(name) == name
   for name, message in (
       ('playground_shared', 'unknown program'),
+      ('playground_trained_shared', 'unknown program'),
       ('raw_shared', 'unknown program'),
       ('ours_on_chunk512_shared', 'separate restart'),
       ('only_wings_shared', 'unknown program'),

@@ -96,17 +96,22 @@ def test_the_training_rate_leaves_out_each_segments_first_interval():
   assert train_compare.training_rate(rows[:2]) is None
 
 
-def test_load_needs_a_record_with_evaluations_and_the_parameters(tmp_path):
+def test_load_needs_trained_evaluations_and_their_parameters(tmp_path):
   json_path = str(tmp_path / 'run.json')
   policy_path = str(tmp_path / 'policy.pkl')
   assert segments.load(json_path, policy_path) is None
   train_compare._write_json(json_path, {'rows': []})
+  assert segments.load(json_path, policy_path) is None
+  # Stopped at the first evaluation (Brax saves no parameters before it).
+  train_compare._write_json(json_path, {'rows': [{'step': 0}]})
+  assert segments.load(json_path, policy_path) is None
+  train_compare._write_json(json_path, {'rows': [{'step': 0}, {'step': 8}]})
+  with pytest.raises(FileNotFoundError, match='leave out --resume'):
+    segments.load(json_path, policy_path)
   with open(policy_path, 'wb') as f:
     pickle.dump({'params': (1, 2, 3), 'config': {}}, f)
-  assert segments.load(json_path, policy_path) is None
-  train_compare._write_json(json_path, {'rows': [{'step': 0}]})
   run, params = segments.load(json_path, policy_path)
-  assert run['rows'] == [{'step': 0}] and params == (1, 2, 3)
+  assert run['rows'][-1] == {'step': 8} and params == (1, 2, 3)
 
 
 def test_resuming_checks_the_settings_and_what_is_left():
