@@ -115,9 +115,6 @@ A CPU smoke run (a few minutes for two environments):
 """
 
 import argparse
-import csv
-import glob
-import json
 import math
 import os
 import subprocess
@@ -125,11 +122,10 @@ import sys
 import time
 import traceback
 
-import numpy as np
-
 import common  # benchmarks/common.py
 import segments  # benchmarks/segments.py
 import train_ppo  # benchmarks/train_ppo.py
+import train_results  # benchmarks/train_results.py
 
 ENVS = ('playground', 'ours', 'ours_off')
 PLAYGROUND_ENV = 'HumanoidWalk'
@@ -169,28 +165,6 @@ _OVERRIDES = (
     'num_updates_per_batch',
     'episode_length',
 )
-_CSV_FIELDS = (
-    'env',
-    'seed',
-    'step',
-    'wall_s',
-    'train_walltime_s',
-    'env_steps_per_s',
-    'train_sps',
-    'eval_walltime_s',
-    'eval_return',
-    'eval_return_std',
-    'eval_episode_length',
-    'segment',
-    'resume_overhead_s',
-)
-_COLOURS = {
-    'playground': 'tab:blue',
-    'ours': 'tab:orange',
-    'ours_off': 'tab:green',
-}
-# For the other environments (only_... variants), in order of appearance.
-_MORE_COLOURS = ('tab:red', 'tab:purple', 'tab:brown', 'tab:pink', 'tab:cyan')
 
 
 def env_choice(name):
@@ -470,49 +444,6 @@ def _ours_setup(name, config, args):
   return brax_env, kwargs, policy
 
 
-# -- results -------------------------------------------------------------------
-
-
-def run_name(env, seed):
-  return f'{env}_seed{seed}'
-
-
-def _write_json(path, data):
-  """Writes `data` to `path` atomically (other processes read it)."""
-  tmp = f'{path}.{os.getpid()}.tmp'
-  with open(tmp, 'w') as f:
-    json.dump(data, f, indent=1, default=str)
-  os.replace(tmp, path)
-
-
-def load_runs(out):
-  """Every run in `out/runs/*.json` (else `out/results.json`), sorted."""
-  paths = sorted(glob.glob(os.path.join(out, 'runs', '*.json')))
-  runs = []
-  for path in paths:
-    with open(path) as f:
-      runs.append(json.load(f))
-  if not paths and os.path.exists(os.path.join(out, 'results.json')):
-    with open(os.path.join(out, 'results.json')) as f:
-      runs = json.load(f)['runs']
-  return sorted(runs, key=lambda r: (r['env'], r['seed']))
-
-
-def write_merged(out):
-  """Regenerates `results.json` and `results.csv` from `out/runs/`."""
-  runs = load_runs(out)
-  _write_json(os.path.join(out, 'results.json'), {'runs': runs})
-  tmp = os.path.join(out, f'results.csv.{os.getpid()}.tmp')
-  with open(tmp, 'w', newline='') as f:
-    writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS, extrasaction='ignore')
-    writer.writeheader()
-    for run in runs:
-      for row in run['rows']:
-        writer.writerow({'env': run['env'], 'seed': run['seed'], **row})
-  os.replace(tmp, os.path.join(out, 'results.csv'))
-  return runs
-
-
 def _new_run(env_name, seed, config, source, args):
   """A fresh run record (no evaluations yet)."""
   import jax  # pylint: disable=g-import-not-at-top
@@ -581,7 +512,7 @@ def train_one(env_name, seed, config, source, args):
 
   run_dir = os.path.join(args.out, 'runs')
   os.makedirs(run_dir, exist_ok=True)
-  name = run_name(env_name, seed)
+  name = train_results.run_name(env_name, seed)
   json_path = os.path.join(run_dir, name + '.json')
   csv_path = os.path.join(run_dir, name + '.csv')
   policy_path = os.path.join(run_dir, name + '_policy.pkl')
@@ -619,7 +550,7 @@ def train_one(env_name, seed, config, source, args):
     kwargs.update(restore_params=restore, restore_value_fn=True)
   run['status'] = 'running'
   run['segments'] = segment + 1
-  _write_json(json_path, run)
+  train_results.write_json(json_path, run)
   print(
       f'{name}: training {run["env_steps_planned"]:,} env steps on '
       f'{run["device"]} (segment {segment}: '
@@ -655,7 +586,7 @@ def train_one(env_name, seed, config, source, args):
                 'last_eval_return': earlier_rows[-1]['eval_return'],
             }
         )
-        _write_json(json_path, run)
+        train_results.write_json(json_path, run)
         return
       row = segments.continued_row(
           row, earlier_rows, segment, segment_rows[0]['wall_s']
@@ -664,8 +595,8 @@ def train_one(env_name, seed, config, source, args):
       row.update(segment=0, resume_overhead_s=0.0)
     rows.append(row)
     train_ppo.append_csv(csv_path, row, header=len(rows) == 1)
-    _write_json(json_path, run)
-    write_merged(args.out)
+    train_results.write_json(json_path, run)
+    train_results.write_merged(args.out)
     print(
         f'{name}: step {row["step"]:>11,} {row["wall_s"]:8.1f}s  return '
         f'{row["eval_return"]:8.2f} ± {row["eval_return_std"]:6.2f}  '
@@ -696,8 +627,8 @@ def train_one(env_name, seed, config, source, args):
     run['error'] = traceback.format_exc()
     print(run['error'], file=sys.stderr)
   run['total_s'] = earlier_s + time.perf_counter() - start
-  _write_json(json_path, run)
-  write_merged(args.out)
+  train_results.write_json(json_path, run)
+  train_results.write_merged(args.out)
   print(f'{name}: {run["status"]} after {run["total_s"]:.1f}s', flush=True)
   return run
 
@@ -768,7 +699,7 @@ def run_parallel(args, argv):
     for gpu in gpus:
       if gpu not in running and jobs:
         env, seed = jobs.pop(0)
-        name = run_name(env, seed)
+        name = train_results.run_name(env, seed)
         log = open(os.path.join(log_dir, name + '.log'), 'w')
         child_env = dict(os.environ, CUDA_VISIBLE_DEVICES=gpu)
         proc = subprocess.Popen(
@@ -790,205 +721,18 @@ def run_parallel(args, argv):
   return failed
 
 
-# -- plot and table ----------------------------------------------------------------
-
-
-def time_to(rows, threshold):
-  """(wall_s, step) of the first row with eval_return >= threshold, or None."""
-  for row in rows:
-    if row['eval_return'] >= threshold:
-      return row['wall_s'], row['step']
-  return None
-
-
-def training_rate(rows):
-  """Env steps per second of training, without each segment's first interval.
-
-  The env steps between consecutive evaluations over Brax's training time
-  between them (`train_walltime_s`: no evaluations, no resets between
-  epochs), summed over every interval but the first of each segment (of
-  the run, or of a part resumed with `--resume`), which holds compiling.
-  None without such an interval. Unlike Brax's 'training/sps'
-  (`train_sps`), it counts each step once.
-  """
-  steps = seconds = 0.0
-  for before, after in zip(rows[1:], rows[2:]):
-    if before.get('segment', 0) != after.get('segment', 0):
-      continue
-    steps += after['step'] - before['step']
-    seconds += after['train_walltime_s'] - before['train_walltime_s']
-  return steps / seconds if seconds > 0 else None
-
-
-def mean_curve(runs):
-  """The seeds' mean (wall_s, return) at each evaluation index all reached."""
-  n = min(len(r['rows']) for r in runs)
-  wall = [np.mean([r['rows'][i]['wall_s'] for r in runs]) for i in range(n)]
-  ret = [np.mean([r['rows'][i]['eval_return'] for r in runs]) for i in range(n)]
-  return np.array(wall), np.array(ret)
-
-
-def summarize(runs, reference='playground', threshold=None):
-  """Per-environment summary of `runs` (the `--plot` table's contents).
-
-  Returns:
-    `{'threshold': float or None, 'threshold_from': str, 'envs': {env:
-    {...}}}` where each environment has `seeds`, `final_return_mean`/`_std`
-    (over seeds, of each seed's last evaluation), `final_steps`, and per
-    seed (in `per_seed`): `final_return`, `time_to_threshold_s` and
-    `steps_to_threshold` (None where never reached), `total_s` (the run's
-    time in `ppo.train`, or its last evaluation's for a run still going),
-    `env_steps_per_s` (`training_rate`) and `status`.
-  """
-  by_env = {}
-  for run in runs:
-    if run['rows']:
-      by_env.setdefault(run['env'], []).append(run)
-  source = '--threshold'
-  if threshold is None:
-    ref = by_env.get(reference)
-    if ref:
-      threshold = float(np.mean([r['rows'][-1]['eval_return'] for r in ref]))
-      source = f"{reference}'s mean final return"
-    else:
-      source = f'no {reference} runs'
-  envs = {}
-  for env, env_runs in by_env.items():
-    finals = [r['rows'][-1]['eval_return'] for r in env_runs]
-    per_seed = {}
-    for r in env_runs:
-      hit = time_to(r['rows'], threshold) if threshold is not None else None
-      per_seed[r['seed']] = {
-          'final_return': r['rows'][-1]['eval_return'],
-          'final_step': r['rows'][-1]['step'],
-          'time_to_threshold_s': hit[0] if hit else None,
-          'steps_to_threshold': hit[1] if hit else None,
-          'total_s': r['total_s']
-          if r.get('total_s') is not None
-          else r['rows'][-1]['wall_s'],
-          'env_steps_per_s': training_rate(r['rows']),
-          'status': r['status'],
-      }
-    envs[env] = {
-        'seeds': sorted(per_seed),
-        'final_return_mean': float(np.mean(finals)),
-        'final_return_std': float(np.std(finals)),
-        'final_steps': sorted({r['rows'][-1]['step'] for r in env_runs}),
-        'per_seed': per_seed,
-    }
-  return {'threshold': threshold, 'threshold_from': source, 'envs': envs}
-
-
-def format_table(summary):
-  """The summary as a Markdown table (one row per environment)."""
-  threshold = summary['threshold']
-  label = 'n/a' if threshold is None else f'{threshold:.1f}'
-  lines = [
-      f'| env | seeds | env steps | final return | time to {label} per seed '
-      '[s] | total per seed [s] | training env steps/s per seed |',
-      '|---|---|---|---|---|---|---|',
-  ]
-  for env, s in summary['envs'].items():
-    seeds = s['per_seed']
-
-    def fmt(seed, d=seeds):
-      t = d[seed]['time_to_threshold_s']
-      return '–' if t is None else f'{t:.0f}'
-
-    hits = ', '.join(fmt(k) for k in s['seeds'])
-    totals = ', '.join(
-        f'{seeds[k]["total_s"]:.0f}'
-        + (
-            ''
-            if seeds[k]['status'] == 'finished'
-            else f' ({seeds[k]["status"]})'
-        )
-        for k in s['seeds']
-    )
-    steps = ', '.join(
-        f'{x / 1e6:.1f} M' if x >= 100_000 else f'{x:,}'
-        for x in s['final_steps']
-    )
-    rates = ', '.join(
-        '–'
-        if seeds[k]['env_steps_per_s'] is None
-        else f'{seeds[k]["env_steps_per_s"] / 1e3:.0f} k'
-        for k in s['seeds']
-    )
-    lines.append(
-        f'| {env} | {", ".join(map(str, s["seeds"]))} | {steps} | '
-        f'{s["final_return_mean"]:.1f} ± {s["final_return_std"]:.1f} | '
-        f'{hits} | {totals} | {rates} |'
-    )
-  return '\n'.join(lines)
-
-
-def plot(out, runs, summary):
-  """Draws `out/returns.png`; returns False without matplotlib."""
-  try:
-    # pylint: disable=g-import-not-at-top
-    import matplotlib
-
-    matplotlib.use('Agg')
-    import matplotlib.pyplot as plt
-    # pylint: enable=g-import-not-at-top
-  except ImportError:
-    print('matplotlib is not installed: no returns.png.')
-    return False
-  fig, ax = plt.subplots(figsize=(7, 4.5))
-  by_env = {}
-  for run in runs:
-    if run['rows']:
-      by_env.setdefault(run['env'], []).append(run)
-  others = iter(_MORE_COLOURS)
-  for env, env_runs in by_env.items():
-    colour = _COLOURS.get(env) or next(others, None)
-    for run in env_runs:
-      ax.plot(
-          [r['wall_s'] for r in run['rows']],
-          [r['eval_return'] for r in run['rows']],
-          color=colour,
-          alpha=0.35,
-          linewidth=1,
-      )
-    wall, ret = mean_curve(env_runs)
-    ax.plot(
-        wall,
-        ret,
-        color=colour,
-        linewidth=2.5,
-        marker='o',
-        markersize=3,
-        label=f'{env} (mean of {len(env_runs)} seeds)',
-    )
-  if summary['threshold'] is not None:
-    ax.axhline(
-        summary['threshold'],
-        color='k',
-        linestyle='--',
-        linewidth=1,
-        label=summary['threshold_from'],
-    )
-  ax.set_xlabel('wall-clock time since the start of ppo.train [s]')
-  ax.set_ylabel('evaluation episode return')
-  ax.set_title(f'Brax PPO, {PLAYGROUND_ENV} hyper-parameters')
-  ax.legend(loc='lower right', fontsize=8)
-  fig.tight_layout()
-  fig.savefig(os.path.join(out, 'returns.png'), dpi=110)
-  plt.close(fig)
-  return True
-
-
 def report(args):
   """The `--plot` mode: plot, table, summary.json, table.md."""
-  runs = load_runs(args.out)
+  runs = train_results.load_runs(args.out)
   if not runs:
     print(f'No runs in {args.out}.')
     return 1
-  summary = summarize(runs, args.reference, args.threshold)
-  table = format_table(summary)
-  plotted = plot(args.out, runs, summary)
-  _write_json(os.path.join(args.out, 'summary.json'), summary)
+  summary = train_results.summarize(runs, args.reference, args.threshold)
+  table = train_results.format_table(summary)
+  plotted = train_results.plot(
+      args.out, runs, summary, f'Brax PPO, {PLAYGROUND_ENV} hyper-parameters'
+  )
+  train_results.write_json(os.path.join(args.out, 'summary.json'), summary)
   with open(os.path.join(args.out, 'table.md'), 'w') as f:
     f.write(table + '\n')
   threshold = summary['threshold']

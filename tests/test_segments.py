@@ -10,6 +10,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), '..', 'benchmarks'))
 
 import segments  # pylint: disable=g-import-not-at-top,wrong-import-position
 import train_compare  # pylint: disable=g-import-not-at-top,wrong-import-position
+import train_results  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 # Playground 0.2.0's HumanoidWalk schedule: 90 training steps of 983,040.
 PLAYGROUND = dict(
@@ -91,21 +92,21 @@ def test_the_training_rate_leaves_out_each_segments_first_interval():
       row(400, 81.0, 1),
       row(500, 82.0, 1),
   ]
-  assert train_compare.training_rate(rows) == 300 / 3.0
-  assert train_compare.training_rate(rows[:3]) == 100.0
-  assert train_compare.training_rate(rows[:2]) is None
+  assert train_results.training_rate(rows) == 300 / 3.0
+  assert train_results.training_rate(rows[:3]) == 100.0
+  assert train_results.training_rate(rows[:2]) is None
 
 
 def test_load_needs_trained_evaluations_and_their_parameters(tmp_path):
   json_path = str(tmp_path / 'run.json')
   policy_path = str(tmp_path / 'policy.pkl')
   assert segments.load(json_path, policy_path) is None
-  train_compare._write_json(json_path, {'rows': []})
+  train_results.write_json(json_path, {'rows': []})
   assert segments.load(json_path, policy_path) is None
   # Stopped at the first evaluation (Brax saves no parameters before it).
-  train_compare._write_json(json_path, {'rows': [{'step': 0}]})
+  train_results.write_json(json_path, {'rows': [{'step': 0}]})
   assert segments.load(json_path, policy_path) is None
-  train_compare._write_json(json_path, {'rows': [{'step': 0}, {'step': 8}]})
+  train_results.write_json(json_path, {'rows': [{'step': 0}, {'step': 8}]})
   with pytest.raises(FileNotFoundError, match='leave out --resume'):
     segments.load(json_path, policy_path)
   with open(policy_path, 'wb') as f:

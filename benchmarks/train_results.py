@@ -1,0 +1,265 @@
+"""The runs of `train_compare.py`: their files, summary, table and plot.
+
+A run is one (environment, seed) of Brax PPO: a record in
+`OUT/runs/<env>_seed<seed>.json` holding its settings and one row per
+evaluation (see `train_ppo.eval_row`; rows of a resumed run also carry
+`segment` and `resume_overhead_s`, `segments.py`). This module reads and
+merges those records, and turns them into what `train_compare.py --plot`
+prints and draws.
+"""
+
+import csv
+import glob
+import json
+import os
+
+import numpy as np
+
+CSV_FIELDS = (
+    'env',
+    'seed',
+    'step',
+    'wall_s',
+    'train_walltime_s',
+    'env_steps_per_s',
+    'train_sps',
+    'eval_walltime_s',
+    'eval_return',
+    'eval_return_std',
+    'eval_episode_length',
+    'segment',
+    'resume_overhead_s',
+)
+_COLOURS = {
+    'playground': 'tab:blue',
+    'ours': 'tab:orange',
+    'ours_off': 'tab:green',
+}
+# For the other environments (only_... variants), in order of appearance.
+_MORE_COLOURS = ('tab:red', 'tab:purple', 'tab:brown', 'tab:pink', 'tab:cyan')
+
+
+def run_name(env, seed):
+  return f'{env}_seed{seed}'
+
+
+def write_json(path, data):
+  """Writes `data` to `path` atomically (other processes read it)."""
+  tmp = f'{path}.{os.getpid()}.tmp'
+  with open(tmp, 'w') as f:
+    json.dump(data, f, indent=1, default=str)
+  os.replace(tmp, path)
+
+
+def load_runs(out):
+  """Every run in `out/runs/*.json` (else `out/results.json`), sorted."""
+  paths = sorted(glob.glob(os.path.join(out, 'runs', '*.json')))
+  runs = []
+  for path in paths:
+    with open(path) as f:
+      runs.append(json.load(f))
+  if not paths and os.path.exists(os.path.join(out, 'results.json')):
+    with open(os.path.join(out, 'results.json')) as f:
+      runs = json.load(f)['runs']
+  return sorted(runs, key=lambda r: (r['env'], r['seed']))
+
+
+def write_merged(out):
+  """Regenerates `results.json` and `results.csv` from `out/runs/`."""
+  runs = load_runs(out)
+  write_json(os.path.join(out, 'results.json'), {'runs': runs})
+  tmp = os.path.join(out, f'results.csv.{os.getpid()}.tmp')
+  with open(tmp, 'w', newline='') as f:
+    writer = csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction='ignore')
+    writer.writeheader()
+    for run in runs:
+      for row in run['rows']:
+        writer.writerow({'env': run['env'], 'seed': run['seed'], **row})
+  os.replace(tmp, os.path.join(out, 'results.csv'))
+  return runs
+
+
+def time_to(rows, threshold):
+  """(wall_s, step) of the first row with eval_return >= threshold, or None."""
+  for row in rows:
+    if row['eval_return'] >= threshold:
+      return row['wall_s'], row['step']
+  return None
+
+
+def training_rate(rows):
+  """Env steps per second of training, without each segment's first interval.
+
+  The env steps between consecutive evaluations over Brax's training time
+  between them (`train_walltime_s`: no evaluations, no resets between
+  epochs), summed over every interval but the first of each segment (of
+  the run, or of a part resumed with `--resume`), which holds compiling.
+  None without such an interval. Unlike Brax's 'training/sps'
+  (`train_sps`), it counts each step once.
+  """
+  steps = seconds = 0.0
+  for before, after in zip(rows[1:], rows[2:]):
+    if before.get('segment', 0) != after.get('segment', 0):
+      continue
+    steps += after['step'] - before['step']
+    seconds += after['train_walltime_s'] - before['train_walltime_s']
+  return steps / seconds if seconds > 0 else None
+
+
+def mean_curve(runs):
+  """The seeds' mean (wall_s, return) at each evaluation index all reached."""
+  n = min(len(r['rows']) for r in runs)
+  wall = [np.mean([r['rows'][i]['wall_s'] for r in runs]) for i in range(n)]
+  ret = [np.mean([r['rows'][i]['eval_return'] for r in runs]) for i in range(n)]
+  return np.array(wall), np.array(ret)
+
+
+def summarize(runs, reference='playground', threshold=None):
+  """Per-environment summary of `runs` (the `--plot` table's contents).
+
+  Returns:
+    `{'threshold': float or None, 'threshold_from': str, 'envs': {env:
+    {...}}}` where each environment has `seeds`, `final_return_mean`/`_std`
+    (over seeds, of each seed's last evaluation), `final_steps`, and per
+    seed (in `per_seed`): `final_return`, `time_to_threshold_s` and
+    `steps_to_threshold` (None where never reached), `total_s` (the run's
+    time in `ppo.train`, or its last evaluation's for a run still going),
+    `env_steps_per_s` (`training_rate`) and `status`.
+  """
+  by_env = {}
+  for run in runs:
+    if run['rows']:
+      by_env.setdefault(run['env'], []).append(run)
+  source = '--threshold'
+  if threshold is None:
+    ref = by_env.get(reference)
+    if ref:
+      threshold = float(np.mean([r['rows'][-1]['eval_return'] for r in ref]))
+      source = f"{reference}'s mean final return"
+    else:
+      source = f'no {reference} runs'
+  envs = {}
+  for env, env_runs in by_env.items():
+    finals = [r['rows'][-1]['eval_return'] for r in env_runs]
+    per_seed = {}
+    for r in env_runs:
+      hit = time_to(r['rows'], threshold) if threshold is not None else None
+      per_seed[r['seed']] = {
+          'final_return': r['rows'][-1]['eval_return'],
+          'final_step': r['rows'][-1]['step'],
+          'time_to_threshold_s': hit[0] if hit else None,
+          'steps_to_threshold': hit[1] if hit else None,
+          'total_s': r['total_s']
+          if r.get('total_s') is not None
+          else r['rows'][-1]['wall_s'],
+          'env_steps_per_s': training_rate(r['rows']),
+          'status': r['status'],
+      }
+    envs[env] = {
+        'seeds': sorted(per_seed),
+        'final_return_mean': float(np.mean(finals)),
+        'final_return_std': float(np.std(finals)),
+        'final_steps': sorted({r['rows'][-1]['step'] for r in env_runs}),
+        'per_seed': per_seed,
+    }
+  return {'threshold': threshold, 'threshold_from': source, 'envs': envs}
+
+
+def format_table(summary):
+  """The summary as a Markdown table (one row per environment)."""
+  threshold = summary['threshold']
+  label = 'n/a' if threshold is None else f'{threshold:.1f}'
+  lines = [
+      f'| env | seeds | env steps | final return | time to {label} per seed '
+      '[s] | total per seed [s] | training env steps/s per seed |',
+      '|---|---|---|---|---|---|---|',
+  ]
+  for env, s in summary['envs'].items():
+    seeds = s['per_seed']
+
+    def fmt(seed, d=seeds):
+      t = d[seed]['time_to_threshold_s']
+      return '–' if t is None else f'{t:.0f}'
+
+    hits = ', '.join(fmt(k) for k in s['seeds'])
+    totals = ', '.join(
+        f'{seeds[k]["total_s"]:.0f}'
+        + (
+            ''
+            if seeds[k]['status'] == 'finished'
+            else f' ({seeds[k]["status"]})'
+        )
+        for k in s['seeds']
+    )
+    steps = ', '.join(
+        f'{x / 1e6:.1f} M' if x >= 100_000 else f'{x:,}'
+        for x in s['final_steps']
+    )
+    rates = ', '.join(
+        '–'
+        if seeds[k]['env_steps_per_s'] is None
+        else f'{seeds[k]["env_steps_per_s"] / 1e3:.0f} k'
+        for k in s['seeds']
+    )
+    lines.append(
+        f'| {env} | {", ".join(map(str, s["seeds"]))} | {steps} | '
+        f'{s["final_return_mean"]:.1f} ± {s["final_return_std"]:.1f} | '
+        f'{hits} | {totals} | {rates} |'
+    )
+  return '\n'.join(lines)
+
+
+def plot(out, runs, summary, title):
+  """Draws `out/returns.png` titled `title`; False without matplotlib."""
+  try:
+    # pylint: disable=g-import-not-at-top
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    # pylint: enable=g-import-not-at-top
+  except ImportError:
+    print('matplotlib is not installed: no returns.png.')
+    return False
+  fig, ax = plt.subplots(figsize=(7, 4.5))
+  by_env = {}
+  for run in runs:
+    if run['rows']:
+      by_env.setdefault(run['env'], []).append(run)
+  others = iter(_MORE_COLOURS)
+  for env, env_runs in by_env.items():
+    colour = _COLOURS.get(env) or next(others, None)
+    for run in env_runs:
+      ax.plot(
+          [r['wall_s'] for r in run['rows']],
+          [r['eval_return'] for r in run['rows']],
+          color=colour,
+          alpha=0.35,
+          linewidth=1,
+      )
+    wall, ret = mean_curve(env_runs)
+    ax.plot(
+        wall,
+        ret,
+        color=colour,
+        linewidth=2.5,
+        marker='o',
+        markersize=3,
+        label=f'{env} (mean of {len(env_runs)} seeds)',
+    )
+  if summary['threshold'] is not None:
+    ax.axhline(
+        summary['threshold'],
+        color='k',
+        linestyle='--',
+        linewidth=1,
+        label=summary['threshold_from'],
+    )
+  ax.set_xlabel('wall-clock time since the start of ppo.train [s]')
+  ax.set_ylabel('evaluation episode return')
+  ax.set_title(title)
+  ax.legend(loc='lower right', fontsize=8)
+  fig.tight_layout()
+  fig.savefig(os.path.join(out, 'returns.png'), dpi=110)
+  plt.close(fig)
+  return True
