@@ -719,11 +719,23 @@ def test_statistics_set_in_the_spec_are_kept():
 
 
 def _loops(jaxpr) -> int:
-  """The loops (`while`, `scan`) of a jaxpr, nested ones included."""
+  """The loops (`while`, `scan`) a GPU runs in a jaxpr, nested ones included.
+
+  Of a `lax.platform_dependent` choice, only the branch for the GPU counts
+  (`set_const` inverts the mass matrix with loops on the CPU only).
+  """
   count = 0
   for eqn in jaxpr.eqns:
     count += eqn.primitive.name in ('while', 'scan')
-    for sub in jex.core.jaxprs_in_params(eqn.params):
+    subs = jex.core.jaxprs_in_params(eqn.params)
+    platforms = eqn.params.get('branches_platforms')
+    if platforms is not None:
+      subs = [
+          branch.jaxpr
+          for branch, names in zip(eqn.params['branches'], platforms)
+          if names is None or 'cuda' in names
+      ]
+    for sub in subs:
       count += _loops(sub)
   return count
 

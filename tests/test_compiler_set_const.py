@@ -115,3 +115,33 @@ def test_geometry_stat_is_the_same_in_numpy_and_on_the_device():
     )()
     for h, d in zip(host, device):
       np.testing.assert_allclose(h, d, rtol=1e-5, atol=1e-6, err_msg=name)
+
+
+@pytest.mark.parametrize('n', [1, 3, 27])
+def test_the_cpus_inverse_matches_numpy_and_calls_no_lapack(n):
+  rng = np.random.default_rng(n)
+  a = rng.normal(size=(4, n, n))
+  a = a @ np.swapaxes(a, -1, -2) + n * np.eye(n)
+  expected = np.linalg.inv(a)
+  inverse = jax.jit(
+      jax.vmap(
+          lambda x: jax.lax.platform_dependent(
+              x,
+              cpu=set_const._spd_inverse_in_xla,
+              default=set_const._spd_inverse,
+          )
+      )
+  )
+  a32 = jnp.asarray(a, jnp.float32)
+  np.testing.assert_allclose(
+      inverse(a32), expected, rtol=0, atol=2e-6 * np.abs(expected).max()
+  )
+  np.testing.assert_allclose(
+      set_const._spd_inverse_in_xla(a32[0]),
+      set_const._spd_inverse(a32[0]),
+      rtol=0,
+      atol=2e-6 * np.abs(expected).max(),
+  )
+  # Batched LAPACK calls can deadlock XLA's CPU thread pool when two run
+  # at once (benchmarks/repro_cpu_hang.py): the CPU program has none.
+  assert 'lapack' not in inverse.lower(a32).as_text()

@@ -38,6 +38,46 @@ def _mjx_jax_data(d):
   return d._impl  # pylint: disable=protected-access
 
 
+def _spd_inverse(a):
+  """The inverse of the symmetric positive definite matrix `a` (Cholesky)."""
+  chol = jax.scipy.linalg.cho_factor(a)
+  return jax.scipy.linalg.cho_solve(chol, jnp.eye(a.shape[-1], dtype=a.dtype))
+
+
+def _spd_inverse_in_xla(a):
+  """`_spd_inverse` without LAPACK: what the CPU runs.
+
+  On the CPU, JAX lowers a batched Cholesky factorization and triangular
+  solve to LAPACK calls that split the batch into tasks on XLA's thread
+  pool and block until those finish. When two such calls run at once and
+  hold every thread of the pool, no thread is left for their tasks and the
+  program deadlocks (jaxlib 0.10; `benchmarks/repro_cpu_hang.py`). A
+  randomized reset factorized `M(qpos0)` here while MJX's forward pass
+  factorized its own mass matrix beside it, and hung on a 2-core machine.
+  These loops are plain XLA: Cholesky-Crout column by column, then the
+  inverse of the factor row by row, `inv(a) = inv(L)^T inv(L)`.
+  """
+  n = a.shape[-1]
+  index = jnp.arange(n)
+
+  def factor_column(j, lower):
+    # Columns >= j of `lower` are still zero: the product sums k < j.
+    column = a[:, j] - lower @ lower[j]
+    diagonal = jnp.sqrt(column[j])
+    column = jnp.where(index > j, column / diagonal, 0.0)
+    return lower.at[:, j].set(column.at[j].set(diagonal))
+
+  lower = jax.lax.fori_loop(0, n, factor_column, jnp.zeros_like(a))
+
+  def invert_row(i, inverse):
+    # Rows >= i of `inverse` are still zero: the product sums k < i.
+    unit = (index == i).astype(a.dtype)
+    return inverse.at[i].set((unit - lower[i] @ inverse) / lower[i, i])
+
+  inverse = jax.lax.fori_loop(0, n, invert_row, jnp.zeros_like(a))
+  return inverse.T @ inverse
+
+
 @jax.named_scope('set_const')
 def update(host, plan, fields, auto_stat):
   """Adds the `mj_setConst` quantities that the bound attributes can change.
@@ -66,8 +106,9 @@ def update(host, plan, fields, auto_stat):
   if nv:
     d = mjx.crb(mx, d)
     full = mjx.full_m(mx, d)
-    chol = jax.scipy.linalg.cho_factor(full)
-    minv = jax.scipy.linalg.cho_solve(chol, jnp.eye(nv, dtype=full.dtype))
+    minv = jax.lax.platform_dependent(
+        full, cpu=_spd_inverse_in_xla, default=_spd_inverse
+    )
     diag_m = jnp.diagonal(full)
   if m.ntendon:
     d = mjx.tendon(mx, d)
