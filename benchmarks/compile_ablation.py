@@ -130,9 +130,11 @@ def run_variant(task, variant, worlds, steps):
   compile_time._disable_persistent_cache()  # pylint: disable=protected-access
   import jax  # pylint: disable=g-import-not-at-top
 
+  from mjx_composer import cpu_linalg  # pylint: disable=g-import-not-at-top
   from mjx_composer import prng_lowering  # pylint: disable=g-import-not-at-top
 
   prng_lowering.enable()
+  cpu_linalg.enable()
   for part in PARTS if variant == 'no_all' else (variant,):
     if part in PARTS:
       remove(part)

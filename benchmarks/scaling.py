@@ -55,6 +55,7 @@ import jax
 import common  # benchmarks/common.py
 from mjx_composer import compilation_cache
 from mjx_composer import partitioner
+from mjx_composer import cpu_linalg
 from mjx_composer import prng_lowering
 from mjx_composer import sharding
 
@@ -215,6 +216,7 @@ def main():
 
   cache_dir = compilation_cache.enable()
   prng_lowering.enable()
+  cpu_linalg.enable()
   device = common.print_device()
   local = jax.local_devices()
   counts = sorted({1, len(local)})

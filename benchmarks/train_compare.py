@@ -771,10 +771,12 @@ def main(argv=None):
       ).strip()
   # pylint: disable=g-import-not-at-top
   from mjx_composer import compilation_cache
+  from mjx_composer import cpu_linalg
   from mjx_composer import prng_lowering
   # pylint: enable=g-import-not-at-top
   cache = compilation_cache.enable(enabled=args.compilation_cache)
   prng_lowering.enable()
+  cpu_linalg.enable()
   config, source = hyperparameters(args)
   print(f'Hyper-parameters ({source}): {config}')
   print(

@@ -710,12 +710,14 @@ def main(argv=None):
   from brax.training.agents.ppo import train as ppo
   from mjx_composer import compilation_cache
   from mjx_composer import partitioner
+  from mjx_composer import cpu_linalg
   from mjx_composer import prng_lowering
   # pylint: enable=g-import-not-at-top
   cache_dir = compilation_cache.enable(
       enabled=False if args.no_compilation_cache else None
   )
   prng_lowering.enable()
+  cpu_linalg.enable()
   os.makedirs(args.out, exist_ok=True)
   device = jax.devices()[0]
   local_devices = jax.local_device_count()

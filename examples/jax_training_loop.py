@@ -29,6 +29,7 @@ import optax
 
 from mjx_composer import cli
 from mjx_composer import compilation_cache
+from mjx_composer import cpu_linalg
 from mjx_composer import prng_lowering
 
 
@@ -135,6 +136,7 @@ def main(argv=None):
   args = parser.parse_args(argv)
   compilation_cache.enable()
   prng_lowering.enable()
+  cpu_linalg.enable()
 
   env = cli.make_environment(
       'reach', time_limit=args.time_limit, auto_reset='same_step'

@@ -163,6 +163,7 @@ def demo_parser():
 def demo(argv=None):
   # pylint: disable=g-import-not-at-top
   from mjx_composer import compilation_cache
+  from mjx_composer import cpu_linalg
   from mjx_composer import prng_lowering
 
   # pylint: enable=g-import-not-at-top
@@ -175,6 +176,7 @@ def demo(argv=None):
       enabled=False if args.no_compilation_cache else None
   )
   prng_lowering.enable()
+  cpu_linalg.enable()
 
   print(
       f'JAX {jax.__version__} on {jax.devices()[0].platform}: '

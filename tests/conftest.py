@@ -23,6 +23,7 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer import compilation_cache
+from mjx_composer import cpu_linalg
 from mjx_composer import prng_lowering
 
 # Keep compiled programs on disk between test runs (~/.cache/mjx_composer/jax,
@@ -32,6 +33,7 @@ from mjx_composer import prng_lowering
 compilation_cache.enable()
 # Threefry as one GPU kernel per call (no effect on a CPU), as our scripts.
 prng_lowering.enable()
+cpu_linalg.enable()
 
 jax.config.update(
     'jax_disable_most_optimizations',
