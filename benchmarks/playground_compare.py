@@ -53,6 +53,8 @@ import time
 import jax
 import numpy as np
 
+from mjx_composer import cpu_linalg
+
 import common  # benchmarks/common.py
 
 # What `import mujoco_playground` + `registry.load('HumanoidWalk')` needs
@@ -282,6 +284,7 @@ def main():
   )
   common.add_share_reset_forward_arg(parser)  # ours_on_chunk<K> needs off
   args = parser.parse_args()
+  cpu_linalg.enable()  # before compiling: see its module docstring
   device = common.print_device()
 
   names = args.programs or ('ours_on', 'ours_off', 'playground', 'raw')
