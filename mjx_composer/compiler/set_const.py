@@ -20,6 +20,7 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer import backend
+from mjx_composer import cpu_linalg
 from mjx_composer.compiler import frames
 from mjx_composer.compiler import inertia
 from mjx_composer.utils import transformations as tr
@@ -47,27 +48,19 @@ def _spd_inverse(a):
 def _spd_inverse_in_xla(a):
   """`_spd_inverse` without LAPACK: what the CPU runs.
 
-  On the CPU, JAX lowers a batched Cholesky factorization and triangular
-  solve to LAPACK calls that split the batch into tasks on XLA's thread
-  pool and block until those finish. When two such calls run at once and
+  On the CPU, JAX lowers a batched Cholesky factorization to a LAPACK call
+  that splits the batch into tasks on XLA's thread pool and blocks until
+  those finish. When two such calls run at once and
   hold every thread of the pool, no thread is left for their tasks and the
   program deadlocks (jaxlib 0.10; `benchmarks/repro_cpu_hang.py`). A
   randomized reset factorized `M(qpos0)` here while MJX's forward pass
   factorized its own mass matrix beside it, and hung on a 2-core machine.
-  These loops are plain XLA: Cholesky-Crout column by column, then the
-  inverse of the factor row by row, `inv(a) = inv(L)^T inv(L)`.
+  These loops are plain XLA: `cpu_linalg.cholesky`, then the inverse of
+  the factor row by row, `inv(a) = inv(L)^T inv(L)`.
   """
   n = a.shape[-1]
   index = jnp.arange(n)
-
-  def factor_column(j, lower):
-    # Columns >= j of `lower` are still zero: the product sums k < j.
-    column = a[:, j] - lower @ lower[j]
-    diagonal = jnp.sqrt(column[j])
-    column = jnp.where(index > j, column / diagonal, 0.0)
-    return lower.at[:, j].set(column.at[j].set(diagonal))
-
-  lower = jax.lax.fori_loop(0, n, factor_column, jnp.zeros_like(a))
+  lower = cpu_linalg.cholesky(a)
 
   def invert_row(i, inverse):
     # Rows >= i of `inverse` are still zero: the product sums k < i.
