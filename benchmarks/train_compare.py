@@ -81,7 +81,10 @@ value and normalizer parameters, in a new segment; `benchmarks/segments.py`
 says what carries over and what does not (not Adam's moments). That is how
 Playground's full schedule (about 1,000 s on one H200) trains through
 10-minute device calls: one call per segment, each carrying the runs'
-files from the one before. `--max-wall-s` stops a run after the
+files from the one before (with `carry`: a device call's working copy keeps
+no ignored folder of the call before, even on a machine still held). The
+table and plot then time a run as if it had trained in one process
+(`train_results.one_process_wall`). `--max-wall-s` stops a run after the
 evaluation from which the next one would end past that many seconds (for a
 command time limit); its status is then 'stopped'.
 
@@ -740,7 +743,9 @@ def report(args):
       'Reference return: '
       + ('none' if threshold is None else f'{threshold:.2f}')
       + f' ({summary["threshold_from"]}); time is wall-clock since the start '
-      'of ppo.train, compilation and evaluations included.'
+      'of ppo.train, compilation and evaluations included (for a run '
+      'trained in segments, without the later segments\' resume overheads: '
+      'see the note under the table).'
   )
   print(table)
   if plotted:

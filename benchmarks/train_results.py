@@ -6,6 +6,15 @@ evaluation (see `train_ppo.eval_row`; rows of a resumed run also carry
 `segment` and `resume_overhead_s`, `segments.py`). This module reads and
 merges those records, and turns them into what `train_compare.py --plot`
 prints and draws.
+
+Times are read on the clock of one process (`one_process_wall`). A run
+continued with `--resume` pays, in each segment after the first, a resume
+overhead (compiling again, evaluating the restored policy again) that the
+same run in one process would not; its rows' `wall_s` include them. That
+overhead is an artefact of the 10-minute device calls the run was split
+into, not of either environment (both are segmented alike), so times to the
+threshold, totals and the plot leave it out, and the table says how much
+was left out.
 """
 
 import csv
@@ -79,11 +88,42 @@ def write_merged(out):
   return runs
 
 
-def time_to(rows, threshold):
-  """(wall_s, step) of the first row with eval_return >= threshold, or None."""
+def one_process_wall(rows):
+  """Each row's wall-clock as if the run had been trained in one process.
+
+  A row's `wall_s` continues the previous segment's clock, so it includes
+  the resume overhead (`resume_overhead_s`: compiling again and evaluating
+  the restored policy again) of every segment after the first up to and
+  including its own. This subtracts them; segment 0's compiling and first
+  evaluation, which one process pays too, stay.
+
+  Args:
+    rows: a run's rows, in order; those without `segment` are segment 0.
+
+  Returns:
+    A list of seconds, one per row: `wall_s` for an unsegmented run.
+  """
+  out = []
+  left_out = 0.0
+  segment = 0
   for row in rows:
+    if row.get('segment', 0) != segment:
+      segment = row.get('segment', 0)
+      if segment >= 1:
+        left_out += row.get('resume_overhead_s', 0.0)
+    out.append(row['wall_s'] - left_out)
+  return out
+
+
+def time_to(rows, threshold):
+  """(seconds, step) of the first row with eval_return >= threshold, or None.
+
+  The seconds are `one_process_wall`'s: without later segments' resume
+  overheads.
+  """
+  for wall, row in zip(one_process_wall(rows), rows):
     if row['eval_return'] >= threshold:
-      return row['wall_s'], row['step']
+      return wall, row['step']
   return None
 
 
@@ -107,9 +147,13 @@ def training_rate(rows):
 
 
 def mean_curve(runs):
-  """The seeds' mean (wall_s, return) at each evaluation index all reached."""
+  """The seeds' mean (seconds, return) at each evaluation index all reached.
+
+  Seconds are `one_process_wall`'s.
+  """
   n = min(len(r['rows']) for r in runs)
-  wall = [np.mean([r['rows'][i]['wall_s'] for r in runs]) for i in range(n)]
+  walls = [one_process_wall(r['rows']) for r in runs]
+  wall = [np.mean([w[i] for w in walls]) for i in range(n)]
   ret = [np.mean([r['rows'][i]['eval_return'] for r in runs]) for i in range(n)]
   return np.array(wall), np.array(ret)
 
@@ -124,7 +168,12 @@ def summarize(runs, reference='playground', threshold=None):
     seed (in `per_seed`): `final_return`, `time_to_threshold_s` and
     `steps_to_threshold` (None where never reached), `total_s` (the run's
     time in `ppo.train`, or its last evaluation's for a run still going),
-    `env_steps_per_s` (`training_rate`) and `status`.
+    `env_steps_per_s` (`training_rate`), `status`, `segments` (the
+    processes it was trained in, `--resume`) and `resume_overhead_s`. Times
+    are on `one_process_wall`'s clock: the resume overheads of the segments
+    after the first, `resume_overhead_s` seconds in all, are left out of
+    `time_to_threshold_s` and `total_s` (they are an artefact of splitting
+    the run into device calls, not of the environment).
   """
   by_env = {}
   for run in runs:
@@ -144,16 +193,28 @@ def summarize(runs, reference='playground', threshold=None):
     per_seed = {}
     for r in env_runs:
       hit = time_to(r['rows'], threshold) if threshold is not None else None
+      last_wall = one_process_wall(r['rows'])[-1]
+      left_out = r['rows'][-1]['wall_s'] - last_wall
+      n_segments = max(
+          r.get('segments') or 1,
+          max(row.get('segment', 0) for row in r['rows']) + 1,
+      )
+      if r.get('total_s') is None:
+        total = last_wall
+      elif n_segments > 1:
+        total = r['total_s'] - left_out
+      else:
+        total = r['total_s']
       per_seed[r['seed']] = {
           'final_return': r['rows'][-1]['eval_return'],
           'final_step': r['rows'][-1]['step'],
           'time_to_threshold_s': hit[0] if hit else None,
           'steps_to_threshold': hit[1] if hit else None,
-          'total_s': r['total_s']
-          if r.get('total_s') is not None
-          else r['rows'][-1]['wall_s'],
+          'total_s': total,
           'env_steps_per_s': training_rate(r['rows']),
           'status': r['status'],
+          'segments': n_segments,
+          'resume_overhead_s': left_out,
       }
     envs[env] = {
         'seeds': sorted(per_seed),
@@ -166,7 +227,13 @@ def summarize(runs, reference='playground', threshold=None):
 
 
 def format_table(summary):
-  """The summary as a Markdown table (one row per environment)."""
+  """The summary as a Markdown table (one row per environment).
+
+  Where a seed was trained in more than one segment (`--resume`), a
+  footnote after the table says that its times are one-process-equivalent
+  wall-clock, and how many seconds of resume overheads each seed's leave
+  out (`summarize`).
+  """
   threshold = summary['threshold']
   label = 'n/a' if threshold is None else f'{threshold:.1f}'
   lines = [
@@ -206,11 +273,34 @@ def format_table(summary):
         f'{s["final_return_mean"]:.1f} ± {s["final_return_std"]:.1f} | '
         f'{hits} | {totals} | {rates} |'
     )
+  segmented = [
+      f'{env} '
+      + ', '.join(
+          f'{s["per_seed"][k].get("resume_overhead_s", 0.0):.0f}'
+          for k in s['seeds']
+      )
+      + ' s'
+      for env, s in summary['envs'].items()
+      if any(d.get('segments', 1) > 1 for d in s['per_seed'].values())
+  ]
+  if segmented:
+    # A blank line first: a line right under a table would be one of its rows.
+    lines += [
+        '',
+        'Times are one-process-equivalent wall-clock: runs trained in '
+        'segments (`--resume`) leave out the resume overheads of the '
+        'segments after the first (compiling again, evaluating the restored '
+        f'policy again; {"; ".join(segmented)} in all per seed).',
+    ]
   return '\n'.join(lines)
 
 
 def plot(out, runs, summary, title):
-  """Draws `out/returns.png` titled `title`; False without matplotlib."""
+  """Draws `out/returns.png` titled `title`; False without matplotlib.
+
+  Times are `one_process_wall`'s (the x label says so where a run was
+  segmented).
+  """
   try:
     # pylint: disable=g-import-not-at-top
     import matplotlib
@@ -231,7 +321,7 @@ def plot(out, runs, summary, title):
     colour = _COLOURS.get(env) or next(others, None)
     for run in env_runs:
       ax.plot(
-          [r['wall_s'] for r in run['rows']],
+          one_process_wall(run['rows']),
           [r['eval_return'] for r in run['rows']],
           color=colour,
           alpha=0.35,
@@ -255,7 +345,13 @@ def plot(out, runs, summary, title):
         linewidth=1,
         label=summary['threshold_from'],
     )
-  ax.set_xlabel('wall-clock time since the start of ppo.train [s]')
+  segmented = any(
+      row.get('segment', 0) > 0 for run in runs for row in run['rows']
+  )
+  ax.set_xlabel(
+      'wall-clock time since the start of ppo.train [s]'
+      + (', one-process equivalent' if segmented else '')
+  )
   ax.set_ylabel('evaluation episode return')
   ax.set_title(title)
   ax.legend(loc='lower right', fontsize=8)

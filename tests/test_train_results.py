@@ -35,6 +35,21 @@ def _run(env, seed, points, status='finished', total_s=None):
   }
 
 
+def _segmented_run(env, seed, segments, status='finished', total_s=None):
+  """A run trained in `segments`, each `(resume_overhead_s, points)`.
+
+  The points are `_run`'s (wall_s, step, return), on the run's continued
+  clock (as `segments.continued_row` writes them).
+  """
+  run = _run(env, seed, [p for _, points in segments for p in points])
+  run.update(status=status, total_s=total_s, segments=len(segments))
+  rows = iter(run['rows'])
+  for k, (overhead, points) in enumerate(segments):
+    for _ in points:
+      next(rows).update(segment=k, resume_overhead_s=overhead)
+  return run
+
+
 def _write_run(out, run):
   os.makedirs(os.path.join(out, 'runs'), exist_ok=True)
   name = train_results.run_name(run['env'], run['seed'])
@@ -118,3 +133,99 @@ def test_the_plot_mode_writes_the_table_and_summary(tmp_path):
   except ImportError:
     return
   assert os.path.getsize(os.path.join(out, 'returns.png')) > 0
+
+
+def test_one_process_wall_is_wall_s_for_an_unsegmented_run():
+  run = _run('ours', 0, [(20, 0, 5), (70, 10, 390), (90, 20, 400)])
+  assert train_results.one_process_wall(run['rows']) == [20, 70, 90]
+  # Rows of a run trained since `segment` was recorded: segment 0 only.
+  single = _segmented_run('ours', 0, [(0.0, [(20, 0, 5), (70, 10, 390)])])
+  assert train_results.one_process_wall(single['rows']) == [20, 70]
+  assert train_results.one_process_wall([]) == []
+
+
+def test_one_process_wall_subtracts_later_segments_overheads():
+  seg0 = (0.0, [(20, 0, 5), (70, 10, 100)])
+  # Segment 1 took 30 s before training (its rows' wall_s include them),
+  # segment 2 took 25 s.
+  seg1 = (30.0, [(150, 20, 200), (200, 30, 300)])
+  seg2 = (25.0, [(290, 40, 350), (340, 50, 400)])
+  two = _segmented_run('ours', 0, [seg0, seg1])
+  assert train_results.one_process_wall(two['rows']) == pytest.approx(
+      [20, 70, 120, 170]
+  )
+  three = _segmented_run('ours', 0, [seg0, seg1, seg2])
+  assert train_results.one_process_wall(three['rows']) == pytest.approx(
+      [20, 70, 120, 170, 235, 285]
+  )
+  # The mean curve is on the same clock.
+  wall, ret = train_results.mean_curve([three, three])
+  assert list(wall) == pytest.approx([20, 70, 120, 170, 235, 285])
+  assert list(ret) == [5, 100, 200, 300, 350, 400]
+
+
+def test_summary_times_leave_out_resume_overheads():
+  runs = [
+      _run('playground', 0, [(20, 0, 5), (70, 10, 300)], total_s=75),
+      # Reaches 300 in segment 2, at 235 s in one process (290 - 30 - 25).
+      _segmented_run(
+          'ours',
+          0,
+          [
+              (0.0, [(20, 0, 5), (70, 10, 100)]),
+              (30.0, [(150, 20, 200), (200, 30, 250)]),
+              (25.0, [(290, 40, 300), (340, 50, 400)]),
+          ],
+          total_s=350,
+      ),
+      # Still running (no total_s) in its second segment.
+      _segmented_run(
+          'ours',
+          1,
+          [
+              (0.0, [(20, 0, 5), (70, 10, 100)]),
+              (40.0, [(160, 20, 300)]),
+          ],
+          status='running',
+      ),
+  ]
+  summary = train_results.summarize(runs)
+  assert summary['threshold'] == pytest.approx(300.0)
+  ours = summary['envs']['ours']['per_seed']
+  assert ours[0]['time_to_threshold_s'] == pytest.approx(235)
+  assert ours[0]['steps_to_threshold'] == 40
+  assert ours[0]['total_s'] == pytest.approx(295)
+  assert ours[0]['segments'] == 3
+  assert ours[0]['resume_overhead_s'] == pytest.approx(55)
+  assert ours[1]['time_to_threshold_s'] == pytest.approx(120)
+  assert ours[1]['total_s'] == pytest.approx(120)
+  assert ours[1]['segments'] == 2
+  assert ours[1]['resume_overhead_s'] == pytest.approx(40)
+  pg = summary['envs']['playground']['per_seed'][0]
+  assert pg['time_to_threshold_s'] == 70
+  assert pg['total_s'] == 75
+  assert pg['segments'] == 1
+  assert pg['resume_overhead_s'] == 0.0
+  table = train_results.format_table(summary)
+  assert '| 235, 120 | 295, 120 (running) |' in table
+  footnote = table.splitlines()[-1]
+  assert footnote.startswith('Times are one-process-equivalent wall-clock')
+  assert 'ours 55, 40 s in all per seed' in footnote
+  assert 'playground' not in footnote
+  # A blank line parts the footnote from the table.
+  assert table.splitlines()[-2] == ''
+
+
+def test_no_footnote_for_unsegmented_runs():
+  runs = [
+      _run('playground', 0, [(10, 0, 5), (50, 10, 300)], total_s=55),
+      # Segment keys, but one segment only.
+      _segmented_run(
+          'ours', 0, [(0.0, [(20, 0, 5), (70, 10, 390)])], total_s=75
+      ),
+  ]
+  summary = train_results.summarize(runs)
+  assert summary['envs']['ours']['per_seed'][0]['total_s'] == 75
+  table = train_results.format_table(summary)
+  assert 'one-process' not in table
+  assert len(table.splitlines()) == 4
