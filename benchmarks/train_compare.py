@@ -744,7 +744,7 @@ def report(args):
       + ('none' if threshold is None else f'{threshold:.2f}')
       + f' ({summary["threshold_from"]}); time is wall-clock since the start '
       'of ppo.train, compilation and evaluations included (for a run '
-      'trained in segments, without the later segments\' resume overheads: '
+      "trained in segments, without the later segments' resume overheads: "
       'see the note under the table).'
   )
   print(table)
