@@ -125,7 +125,6 @@ import sys
 import time
 import traceback
 
-import common  # benchmarks/common.py
 import segments  # benchmarks/segments.py
 import train_ppo  # benchmarks/train_ppo.py
 import train_results  # benchmarks/train_results.py
@@ -415,18 +414,16 @@ def _ours_setup(name, config, args):
   targs.share_reset_forward = args.share_reset_forward
   targs.auto_reset_batch = args.auto_reset_batch
   targs.num_eval_envs = args.eval_envs
-  if name == 'ours':
-    env, brax_env = train_ppo.make_brax_env(targs)
-  elif name.startswith('only_'):
+  if name.startswith('only_'):
     env = playground_compare.env_variants(
         [name], share_reset_forward=args.share_reset_forward
     )[name]
     brax_env = brax_adapter.BraxEnv(env)
   else:
-    env = common.make_walk_like_playground(
-        targs.time_limit, share_reset_forward=args.share_reset_forward
-    )
-    brax_env = brax_adapter.BraxEnv(env)
+    # ours_off: `train_ppo.py --task walk --like-playground`, which also
+    # renders its policies (`--render-from`).
+    targs.like_playground = name == 'ours_off'
+    env, brax_env = train_ppo.make_brax_env(targs)
   if brax_env.episode_length != config['episode_length']:
     raise ValueError(
         f'{name}: episodes of {brax_env.episode_length} steps, Playground '

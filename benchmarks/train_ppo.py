@@ -256,6 +256,13 @@ def parse_args(argv=None):
       '(default: train to --num-timesteps)',
   )
   parser.add_argument(
+      '--like-playground',
+      action='store_true',
+      help="walk only: the task as Playground's HumanoidWalk (no noise, "
+      'latency, history, randomization, pushes or fall terminations; '
+      "the 'policy' group alone), as train_compare.py's ours_off",
+  )
+  parser.add_argument(
       '--render-from',
       metavar='POLICY_PKL',
       default=None,
@@ -265,6 +272,8 @@ def parse_args(argv=None):
   task, _ = parser.parse_known_args(argv)
   parser.set_defaults(**TASK_DEFAULTS.get(task.task, {}))
   args = parser.parse_args(argv)
+  if args.like_playground and args.task != 'walk':
+    parser.error(f'--like-playground is for --task walk, not {args.task!r}.')
   if (args.batch_size * args.num_minibatches) % args.num_envs:
     parser.error(
         '--batch-size x --num-minibatches must be a multiple of ' '--num-envs.'
@@ -515,11 +524,22 @@ def make_brax_env(args):
   Built with `args.task`, `args.time_limit`, `args.share_reset_forward`,
   `args.impl` and `args.auto_reset_batch` (when given), same-step
   auto-reset, and the task's observation groups (Brax sees the dict of
-  groups; `make_networks` picks from it).
+  groups; `make_networks` picks from it). With `args.like_playground`, the
+  walk task as Playground's HumanoidWalk (`common.make_walk_like_playground`).
   """
   from mjx_composer import cli  # pylint: disable=g-import-not-at-top
   from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
 
+  if getattr(args, 'like_playground', False):
+    import common  # pylint: disable=g-import-not-at-top  # benchmarks/common.py
+
+    env = common.make_walk_like_playground(
+        args.time_limit,
+        share_reset_forward=args.share_reset_forward,
+        impl=getattr(args, 'impl', None),
+        auto_reset_batch=getattr(args, 'auto_reset_batch', None),
+    )
+    return env, brax_adapter.BraxEnv(env)
   env = cli.make_environment(
       args.task,
       time_limit=args.time_limit,

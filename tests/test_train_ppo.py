@@ -107,3 +107,22 @@ def test_auto_reset_batch_reaches_the_environment():
   assert brax_env.environment is env
   default_env, _ = train_ppo.make_brax_env(train_ppo.parse_args([]))
   assert default_env.auto_reset_batch is None
+
+
+def test_like_playground_builds_train_compares_ours_off():
+  args = train_ppo.parse_args(['--task', 'walk', '--like-playground'])
+  env, brax_env = train_ppo.make_brax_env(args)
+  # HumanoidWalk's observation alone, and none of issue 14's additions.
+  assert set(brax_env.observation_size) == {'policy'}
+  # HumanoidWalk's 67 values: no history stacked onto them.
+  assert brax_env.observation_size['policy'] == (67,)
+  default_env, default_brax = train_ppo.make_brax_env(
+      train_ppo.parse_args(['--task', 'walk'])
+  )
+  assert 'critic' in default_brax.observation_size
+  assert env.time_limit == default_env.time_limit
+
+
+def test_like_playground_is_for_the_walk_task_only():
+  with pytest.raises(SystemExit):
+    train_ppo.parse_args(['--task', 'reach', '--like-playground'])
