@@ -497,6 +497,33 @@ def _segment_to_train(run, config, name):
   return run.get('segments', 1), segment_config
 
 
+def _check_something_to_resume(args):
+  """Refuses `--resume` where `--out` holds none of the requested runs.
+
+  A run without a record starts from its first step, so `--resume` over
+  an empty `--out` (say, a device call whose command did not bring the
+  previous call's runs) would quietly train every run's first segment
+  again.
+
+  Raises:
+    SystemExit: no requested (env, seed) has a record in `--out/runs/`.
+  """
+  wanted = [
+      os.path.join(
+          args.out, 'runs', train_results.run_name(env, seed) + '.json'
+      )
+      for seed in args.seeds
+      for env in args.envs
+  ]
+  if not any(os.path.exists(path) for path in wanted):
+    sys.exit(
+        f'--resume: {os.path.join(args.out, "runs")} holds no record of '
+        f'{", ".join(args.envs)} with seeds {args.seeds}. Bring the earlier '
+        "call's runs (records and *_policy.pkl) into --out (on a device, "
+        'with carry), or leave out --resume to start these runs.'
+    )
+
+
 def train_one(env_name, seed, config, source, args):
   """Trains one (environment, seed); returns its run record.
 
@@ -758,6 +785,8 @@ def main(argv=None):
   args = parse_args(argv)
   if args.plot:
     return report(args)
+  if args.resume:
+    _check_something_to_resume(args)
   os.makedirs(args.out, exist_ok=True)
   if args.gpus:
     failed = run_parallel(args, argv)

@@ -181,3 +181,30 @@ def test_a_shared_feature_variant_fuses_the_restart():
   brax_env, _, _ = train_compare._ours_setup('only_noise_shared', config, args)
   assert brax_env.environment.share_reset_forward
   assert not brax_env.environment.task._randomize  # only the noise is on
+
+
+def test_resume_refuses_an_out_without_the_runs(tmp_path):
+  # The mistake it guards against: the previous call's runs not brought.
+  with pytest.raises(SystemExit, match='holds no record'):
+    train_compare.main(
+        [
+            '--out',
+            str(tmp_path),
+            '--envs',
+            'ours_off',
+            '--seeds',
+            '0',
+            '--resume',
+        ]
+    )
+  assert not (tmp_path / 'runs').exists()
+
+
+def test_resume_goes_on_where_one_requested_run_has_a_record(tmp_path):
+  (tmp_path / 'runs').mkdir()
+  (tmp_path / 'runs' / 'ours_off_seed1.json').write_text('{}')
+  args = train_compare.parse_args(
+      ['--out', str(tmp_path), '--envs', 'ours_off', '--seeds', '0', '1']
+      + ['--resume']
+  )
+  train_compare._check_something_to_resume(args)  # pylint: disable=protected-access
