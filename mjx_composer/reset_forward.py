@@ -25,8 +25,15 @@ cheapest stage of the forward pass that computes them (`choose_stage`):
 * `'full'`: `mjx.forward`, everything.
 
 Sensors are computed by a reduced stage only where `sensordata` is read,
-and then all of them: only where every sensor of the model is one the stage
-computes exactly (`POSITION_SENSORS`, `VELOCITY_SENSORS`), else `'full'`.
+and only where every sensor read is one the stage computes exactly
+(`POSITION_SENSORS`, `VELOCITY_SENSORS`), else the stage is `'full'`. Which
+sensors are read comes from the readers' jaxpr (`sensordata_read`): the
+elements its static slices take, or every sensor where `sensordata` reaches
+anything else. So a humanoid whose observations read its centre-of-mass
+velocity sensor takes the velocity stage although the model also has an
+accelerometer and force sensors; a reduced stage then computes every sensor
+it computes exactly, and the others keep their values from before the
+forward pass, as the fields the stage does not compute do.
 
 Every stage ends as `mjx.forward` with actuation disabled does
 (`mjx.fwd_actuation`: `act_dot` and `qfrc_actuator` zero). Fields the stage
@@ -37,8 +44,10 @@ Environment(reset_forward='full') always runs `'full'`, as composer does.
 import dataclasses
 
 import jax
+import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
+import numpy as np
 
 try:  # JAX's dead-code elimination of a jaxpr: not a public API.
   from jax._src.interpreters import partial_eval as pe  # pylint: disable=g-import-not-at-top
@@ -77,6 +86,8 @@ VELOCITY_SENSORS = frozenset(
         _S.mjSENS_BALLANGVEL,
         _S.mjSENS_FRAMELINVEL,
         _S.mjSENS_FRAMEANGVEL,
+        _S.mjSENS_SUBTREELINVEL,
+        _S.mjSENS_SUBTREEANGMOM,
     }
 )
 
@@ -159,31 +170,128 @@ def written(stage, model, data, sensors=True) -> frozenset[str]:
   return out['names']
 
 
-def fields_read(fn, data, *args) -> frozenset[str]:
-  """The leaves of `data` that `fn(data, *args)`'s outputs depend on.
+@dataclasses.dataclass(frozen=True)
+class Reads:
+  """What a function reads of an `mjx.Data` (`reads`).
+
+  Attributes:
+    fields: the names (`leaf_names`) of the leaves it reads.
+    sensordata: the indices of the `sensordata` elements it reads, or None
+      for all of them (also where that could not be told).
+  """
+
+  fields: frozenset
+  sensordata: frozenset | None
+
+
+def reads(fn, data, *args) -> Reads:
+  """What `fn(data, *args)`'s outputs depend on, of `data`.
 
   `fn` returns `(outputs, ignored)`: a pytree whose every leaf counts, and
   one whose leaves do not (e.g. values the next physics step overwrites).
   The dependence is that of the traced program after dead-code elimination,
   so a leaf a branch or loop passes through counts as read. Where this JAX
-  has no dead-code elimination to call, every leaf counts as read.
+  has no dead-code elimination to call, everything counts as read.
   """
   names = leaf_names(data)
   if pe is None or not hasattr(pe, 'dce_jaxpr'):
-    return frozenset(names)
+    return Reads(frozenset(names), None)
   closed, (outputs, ignored) = jax.make_jaxpr(fn, return_shape=True)(
       data, *args
   )
   used_outputs = [True] * len(jax.tree.leaves(outputs)) + [False] * len(
       jax.tree.leaves(ignored)
   )
-  _, used_inputs = pe.dce_jaxpr(closed.jaxpr, used_outputs, instantiate=False)
-  return frozenset(n for n, used in zip(names, used_inputs) if used)
+  jaxpr, used_inputs = pe.dce_jaxpr(
+      closed.jaxpr, used_outputs, instantiate=False
+  )
+  used = [n for n, u in zip(names, used_inputs) if u]
+  sensordata = None
+  if 'sensordata' in used:
+    sensordata = _elements_read(jaxpr, jaxpr.invars[used.index('sensordata')])
+  return Reads(frozenset(used), sensordata)
 
 
-def sensor_stage(mj_model) -> str:
-  """The least stage that computes every sensor of `mj_model` exactly."""
-  types = {mujoco.mjtSensor(int(t)) for t in mj_model.sensor_type}
+def fields_read(fn, data, *args) -> frozenset[str]:
+  """The leaves of `data` that `fn(data, *args)`'s outputs depend on.
+
+  `reads(...).fields`: see `reads`.
+  """
+  return reads(fn, data, *args).fields
+
+
+def sensordata_read(fn, data, *args) -> frozenset | None:
+  """The `sensordata` elements `fn(data, *args)` reads; None: all of them.
+
+  `reads(...).sensordata` where `sensordata` is read at all, else empty.
+  """
+  found = reads(fn, data, *args)
+  if 'sensordata' not in found.fields:
+    return frozenset()
+  return found.sensordata
+
+
+# Primitives whose parameter holds a sub-jaxpr called with the operands in
+# order (jit, checkpointing, custom derivatives).
+_CALL_JAXPR_PARAMS = ('jaxpr', 'call_jaxpr', 'fun_jaxpr')
+
+
+def _elements_read(jaxpr, var):
+  """Indices of the 1-D `var`'s elements that `jaxpr` reads, or None.
+
+  Known only where every use of `var` is a static `slice`, a
+  `dynamic_slice` at a literal index, or a call whose sub-jaxpr uses its
+  operand so; any other use (an output, a gather, a branch, a loop, an
+  arithmetic operation on the whole array) gives None: every element.
+  """
+  if any(out is var for out in jaxpr.outvars):
+    return None
+  size = var.aval.shape[0] if var.aval.shape else 1
+  found = set()
+  for eqn in jaxpr.eqns:
+    positions = [i for i, v in enumerate(eqn.invars) if v is var]
+    if not positions:
+      continue
+    name = eqn.primitive.name
+    if name == 'slice' and positions == [0]:
+      (start,), (limit,) = (
+          eqn.params['start_indices'],
+          eqn.params['limit_indices'],
+      )
+      stride = (eqn.params['strides'] or (1,))[0]
+      found.update(range(start, limit, stride))
+      continue
+    if name == 'dynamic_slice' and positions == [0]:
+      start = getattr(eqn.invars[1], 'val', None)
+      if start is None or len(eqn.invars) != 2:
+        return None
+      (n,) = eqn.params['slice_sizes']
+      start = min(max(int(start), 0), size - n)  # As dynamic_slice clamps.
+      found.update(range(start, start + n))
+      continue
+    sub = next(
+        (eqn.params[k] for k in _CALL_JAXPR_PARAMS if k in eqn.params), None
+    )
+    sub = getattr(sub, 'jaxpr', sub)
+    if sub is None or len(sub.invars) != len(eqn.invars):
+      return None
+    for i in positions:
+      inner = _elements_read(sub, sub.invars[i])
+      if inner is None:
+        return None
+      found |= inner
+  return frozenset(found)
+
+
+def sensor_stage(mj_model, sensors=None) -> str:
+  """The least stage that computes `sensors` of `mj_model` exactly.
+
+  Args:
+    mj_model: the host `MjModel`.
+    sensors: sensor ids; None: every sensor of the model.
+  """
+  ids = range(mj_model.nsensor) if sensors is None else sensors
+  types = {mujoco.mjtSensor(int(mj_model.sensor_type[i])) for i in ids}
   if not types:
     return 'none'
   if not types - POSITION_SENSORS:
@@ -193,34 +301,73 @@ def sensor_stage(mj_model) -> str:
   return 'full'
 
 
-def choose_stage(needed, model, data, mj_model):
+def sensors_of_elements(mj_model, elements) -> tuple[int, ...]:
+  """The ids of the sensors with any `sensordata` element in `elements`.
+
+  None (elements not known) gives every sensor.
+  """
+  if elements is None:
+    return tuple(range(mj_model.nsensor))
+  return tuple(
+      i
+      for i in range(mj_model.nsensor)
+      if any(
+          adr in elements
+          for adr in range(
+              mj_model.sensor_adr[i],
+              mj_model.sensor_adr[i] + mj_model.sensor_dim[i],
+          )
+      )
+  )
+
+
+def _exact_rows(mj_model, stage) -> np.ndarray:
+  """Mask of the `sensordata` elements `stage` computes exactly."""
+  exact = POSITION_SENSORS | (
+      VELOCITY_SENSORS if stage == 'velocity' else set()
+  )
+  mask = np.zeros(mj_model.nsensordata, bool)
+  for i in range(mj_model.nsensor):
+    if mujoco.mjtSensor(int(mj_model.sensor_type[i])) in exact:
+      adr = mj_model.sensor_adr[i]
+      mask[adr : adr + mj_model.sensor_dim[i]] = True
+  return mask
+
+
+def choose_stage(needed, model, data, mj_model, sensordata=None):
   """The cheapest stage that computes every field of `needed` as `'full'`.
 
-  Where `sensordata` is needed, a reduced stage computes all of it, and is
-  chosen only where every sensor of the model belongs to it
-  (`sensor_stage`); elsewhere the reduced stages skip the sensors.
+  Where `sensordata` is needed, a reduced stage is chosen only where it
+  computes every sensor read exactly (`sensor_stage`); it then computes
+  every sensor it computes exactly, and leaves the others as they were.
+  Elsewhere the reduced stages skip the sensors.
 
   Args:
     needed: the names (`leaf_names`) of the fields the readers use.
     model: the `mjx.Model`.
     data: an `mjx.Data` of the model (shapes suffice).
     mj_model: the host `MjModel` (its sensor types).
+    sensordata: the `sensordata` elements read (`reads`); None: all.
 
   Returns:
     The `ResetForward` of the stage.
   """
   needed = frozenset(needed)
-  if 'sensordata' in needed and sensor_stage(mj_model) == 'full':
+  read = sensors_of_elements(mj_model, sensordata)
+  if 'sensordata' in needed and sensor_stage(mj_model, read) == 'full':
     # Settled without tracing the full pass (about a second).
     return ResetForward('full', True, frozenset(), frozenset())
   derived = written('full', model, data)
   needed &= derived
   sensors = 'sensordata' in needed
-  floor = sensor_stage(mj_model) if sensors else 'none'
+  floor = sensor_stage(mj_model, read) if sensors else 'none'
   for stage in STAGES[STAGES.index(floor) : -1]:
     writes = written(stage, model, data, sensors)
     if needed <= writes:
-      return ResetForward(stage, sensors, writes, derived)
+      rows = _exact_rows(mj_model, stage) if sensors else None
+      if rows is not None and rows.all():
+        rows = None  # Every sensor: nothing to keep from before.
+      return ResetForward(stage, sensors, writes, derived, rows)
   return ResetForward('full', True, derived, derived)
 
 
@@ -246,16 +393,33 @@ class ResetForward:
     writes: the fields the stage writes (`written`; for `'full'`, which
       `restrict` leaves alone, may be left empty).
     derived: every field `mjx.forward` writes (likewise).
+    sensor_rows: where a reduced stage computes `sensordata` but not all
+      of it exactly, the mask of the elements it does (the others keep
+      their values from before); else None.
   """
 
   stage: str
   sensors: bool
   writes: frozenset
   derived: frozenset
+  sensor_rows: np.ndarray | None = dataclasses.field(
+      default=None, compare=False
+  )
 
   def __call__(self, model, data):
     """`data` after the stage (see the module docstring)."""
-    return forward(self.stage, model, data, self.sensors)
+    return self._keep_inexact_sensors(
+        forward(self.stage, model, data, self.sensors), data
+    )
+
+  def _keep_inexact_sensors(self, computed, before):
+    if self.sensor_rows is None:
+      return computed
+    return computed.replace(
+        sensordata=jnp.where(
+            self.sensor_rows, computed.sensordata, before.sensordata
+        )
+    )
 
   def restrict(self, computed, before):
     """A full forward pass's `computed` data, as this stage leaves it.
@@ -267,4 +431,6 @@ class ResetForward:
     """
     if self.stage == 'full':
       return computed
-    return keep_only(self.writes, self.derived, computed, before)
+    return self._keep_inexact_sensors(
+        keep_only(self.writes, self.derived, computed, before), before
+    )

@@ -108,7 +108,7 @@ class Transitions:
     """The stage of the forward pass that a reset runs.
 
     With `reset_forward_mode='observed'`, the cheapest stage that computes
-    what the FIRST state's readers read (`_fields_read_after_reset`);
+    what the FIRST state's readers read (`_read_after_reset`);
     'full' on MuJoCo Warp, whose forward pass is one kernel sequence.
     """
     model, data = self.initial.model, self.initial.data
@@ -117,15 +117,17 @@ class Transitions:
       return reset_forward_lib.ResetForward(
           'full', True, frozenset(), frozenset()
       )
+    read = self._read_after_reset()
     return reset_forward_lib.choose_stage(
-        self._fields_read_after_reset(),
+        read.fields,
         model,
         data,
         self.initial.index.mj_model,
+        sensordata=read.sensordata,
     )
 
-  def _fields_read_after_reset(self) -> frozenset:
-    """The `mjx.Data` fields read from a reset's state before any physics.
+  def _read_after_reset(self) -> reset_forward_lib.Reads:
+    """What is read of a reset's `mjx.Data` before any physics.
 
     Its readers: the observables sampled at reset, the episode's start
     metrics but `diverged` (whose `qacc` checks the forward pass itself),
@@ -160,7 +162,7 @@ class Transitions:
       )
       return read, (first.data, diverged)
 
-    return reset_forward_lib.fields_read(
+    return reset_forward_lib.reads(
         readers, carry.data, carry, failures, key, action
     )
 

@@ -63,6 +63,8 @@ _SENSORS_XML = """
     <ballangvel joint="ball"/>
     <framelinvel objtype="body" objname="free"/>
     <frameangvel objtype="site" objname="sb"/>
+    <subtreelinvel body="a"/>
+    <subtreeangmom body="a"/>
   </sensor>
 </mujoco>
 """
@@ -192,6 +194,92 @@ def test_choose_stage(sensor_model):
   assert chosen.writes == chosen.derived
 
 
+def _with_accelerometer():
+  """The sensor model with an accelerometer after its other sensors."""
+  m = mujoco.MjModel.from_xml_string(
+      _SENSORS_XML.replace('</sensor>', '<accelerometer site="sb"/></sensor>')
+  )
+  return m, mjx.put_model(m), mjx.make_data(m)
+
+
+def _gyro_elements(m):
+  gyro = int(np.flatnonzero(m.sensor_type == mujoco.mjtSensor.mjSENS_GYRO)[0])
+  return frozenset(range(m.sensor_adr[gyro], m.sensor_adr[gyro] + 3))
+
+
+def test_choose_stage_from_the_sensors_read(sensor_model):
+  m, model, data = _with_accelerometer()
+  adr = int(m.sensor_adr[m.nsensor - 1])  # the accelerometer's
+
+  def choose(elements):
+    return reset_forward.choose_stage(
+        ['sensordata'], model, data, m, sensordata=elements
+    )
+
+  # Only the gyro read: the velocity stage, which leaves the accelerometer.
+  chosen = choose(_gyro_elements(m))
+  assert (chosen.stage, chosen.sensors) == ('velocity', True)
+  expected = np.ones(m.nsensordata, bool)
+  expected[adr : adr + 3] = False
+  np.testing.assert_array_equal(chosen.sensor_rows, expected)
+  # One element of the accelerometer read, or not known which: full.
+  assert choose(_gyro_elements(m) | {adr + 1}).stage == 'full'
+  assert choose(None).stage == 'full'
+  # Where the stage computes every sensor, nothing is masked.
+  m, model, _ = sensor_model
+  chosen = reset_forward.choose_stage(
+      ['sensordata'],
+      model,
+      mjx.make_data(m),
+      m,
+      sensordata=_gyro_elements(m),
+  )
+  assert chosen.stage == 'velocity' and chosen.sensor_rows is None
+
+
+def test_a_reduced_stage_keeps_the_sensors_it_does_not_compute():
+  m, model, _ = _with_accelerometer()
+  d = _moving_state(m)
+  data = mjx.put_data(m, d)
+  before = data.replace(sensordata=jnp.full_like(data.sensordata, 7.0))
+  adr = int(m.sensor_adr[m.nsensor - 1])  # the accelerometer's
+  chosen = reset_forward.choose_stage(
+      ['sensordata'], model, data, m, sensordata=_gyro_elements(m)
+  )
+  reduced = jax.jit(lambda x: chosen(model, x))(before)
+  full = jax.jit(lambda x: reset_forward.forward('full', model, x))(before)
+  got, want = np.asarray(reduced.sensordata), np.asarray(full.sensordata)
+  np.testing.assert_array_equal(got[adr : adr + 3], 7.0)
+  assert np.abs(want[adr : adr + 3] - 7.0).max() > 1.0
+  np.testing.assert_allclose(got[:adr], want[:adr], rtol=1e-5, atol=1e-6)
+  # A fused restart's full pass, restricted, leaves the same.
+  restricted = chosen.restrict(full, before)
+  np.testing.assert_array_equal(restricted.sensordata[adr : adr + 3], 7.0)
+  np.testing.assert_array_equal(restricted.sensordata[:adr], want[:adr])
+
+
+def test_sensordata_read_takes_static_slices(sensor_model):
+  _, model, _ = sensor_model
+  data = mjx.make_data(model)
+
+  def sliced(d):
+    inner = jax.jit(lambda x: x[3:6] * 2.0)
+    return (inner(d.sensordata), d.sensordata[9]), ()
+
+  assert reset_forward.sensordata_read(sliced, data) == {3, 4, 5, 9}
+  assert reset_forward.sensordata_read(lambda d: (d.xpos, ()), data) == set()
+  # A whole-array operation, or an index not known at trace time: all.
+  assert (
+      reset_forward.sensordata_read(lambda d: (d.sensordata.sum(), ()), data)
+      is None
+  )
+
+  def indexed(d, i):
+    return d.sensordata[i], ()
+
+  assert reset_forward.sensordata_read(indexed, data, 2) is None
+
+
 def test_fields_read_follows_dependences(sensor_model):
   _, model, _ = sensor_model
   data = mjx.make_data(model)
@@ -292,6 +380,66 @@ def test_observed_resets_make_the_same_episodes(
   assert np.abs(np.asarray(first_full.data.qacc)).max() > 1.0  # gravity
 
 
+class _ReadsAVelocitySensor(conftest.SwingTask):
+  """The swing task whose `before_step` reads the model's centre-of-mass
+  velocity sensor, in a model that also has an accelerometer."""
+
+  def __init__(self):
+    super().__init__()
+    spec = self.arena.mjcf_model
+    self.com_velocity = spec.add_sensor(
+        name='com_velocity',
+        type=mujoco.mjtSensor.mjSENS_SUBTREELINVEL,
+        objtype=mujoco.mjtObj.mjOBJ_BODY,
+        objname='world',
+    )
+    spec.worldbody.add_site(name='imu', pos=[0.1, 0, 0.5])
+    self.accelerometer = spec.add_sensor(
+        name='accelerometer',
+        type=mujoco.mjtSensor.mjSENS_ACCELEROMETER,
+        objtype=mujoco.mjtObj.mjOBJ_SITE,
+        objname='imu',
+    )
+
+  def before_step(self, physics, action, key):
+    read = jnp.sum(physics.bind(self.com_velocity).sensordata)
+    applied = physics.data.qfrc_applied.at[0].set(1e-2 * read)
+    return physics.replace(data=physics.data.replace(qfrc_applied=applied))
+
+
+@pytest.mark.parametrize('share_reset_forward', [True, False])
+def test_resets_reading_one_sensor_skip_the_others(share_reset_forward):
+  runs = _rollouts(
+      lambda mode: composer.Environment(
+          _ReadsAVelocitySensor(),
+          time_limit=0.05,
+          auto_reset='same_step',
+          share_reset_forward=share_reset_forward,
+          reset_forward=mode,
+      )
+  )
+  env, observed = runs['observed']
+  # Not 'full' for the accelerometer that nothing reads.
+  assert env.reset_forward_stage == 'velocity'
+  _assert_same_episodes(observed, runs['full'][1])
+  accelerometer = env.mj_model.sensor('accelerometer')
+  rows = slice(accelerometer.adr[0], accelerometer.adr[0] + 3)
+  com = env.mj_model.sensor('com_velocity')
+  com_rows = slice(com.adr[0], com.adr[0] + 3)
+  # The sensor read is the full pass's; the accelerometer keeps its value
+  # from before (the initial data's), which the full pass would change.
+  for state, full in zip(observed[:1], runs['full'][1][:1]):
+    np.testing.assert_array_equal(
+        state.data.sensordata[:, com_rows], full.data.sensordata[:, com_rows]
+    )
+    initial = np.asarray(env.initial_physics().data.sensordata)[rows]
+    np.testing.assert_array_equal(
+        state.data.sensordata[:, rows],
+        np.broadcast_to(initial, state.data.sensordata[:, rows].shape),
+    )
+    assert np.abs(full.data.sensordata[:, rows] - initial).max() > 1.0
+
+
 @pytest.mark.parametrize(
     'field, stage', [('cvel', 'velocity'), ('qacc', 'full')]
 )
@@ -313,6 +461,25 @@ def test_bundled_tasks_stages():
 
   env = composer.Environment(reach.Reach(), time_limit=1.0)
   # Ball pose and velocity sensors, a delayed hand position: velocities.
+  assert env.reset_forward_stage == 'velocity'
+
+
+def test_walk_stages_follow_the_sensors_read():
+  from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+
+  # The critic group reads the torso's accelerometer: the full pass.
+  assert (
+      composer.Environment(walk.Walk(), time_limit=1.0).reset_forward_stage
+      == 'full'
+  )
+  # HumanoidWalk's observation reads the centre-of-mass velocity sensor
+  # alone of the humanoid's 16: velocities suffice.
+  task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)
+  env = composer.Environment(
+      task,
+      time_limit=1.0,
+      observation_groups={'policy': task.observation_groups()['policy']},
+  )
   assert env.reset_forward_stage == 'velocity'
 
 
