@@ -208,7 +208,11 @@ def reads(fn, data, *args) -> Reads:
   used = [n for n, u in zip(names, used_inputs) if u]
   sensordata = None
   if 'sensordata' in used:
-    sensordata = _elements_read(jaxpr, jaxpr.invars[used.index('sensordata')])
+    sensordata = _elements_read(
+        jaxpr,
+        jaxpr.invars[used.index('sensordata')],
+        dict(zip(closed.jaxpr.constvars, closed.consts)),
+    )
   return Reads(frozenset(used), sensordata)
 
 
@@ -234,53 +238,133 @@ def sensordata_read(fn, data, *args) -> frozenset | None:
 # Primitives whose parameter holds a sub-jaxpr called with the operands in
 # order (jit, checkpointing, custom derivatives).
 _CALL_JAXPR_PARAMS = ('jaxpr', 'call_jaxpr', 'fun_jaxpr')
+# Constant folding evaluates no operation on more elements than this, nor
+# chains of operations deeper than this.
+_FOLD_MAX_ELEMENTS = 1 << 16
+_FOLD_MAX_DEPTH = 32
 
 
-def _elements_read(jaxpr, var):
+def _elements_read(jaxpr, var, known=None):
   """Indices of the 1-D `var`'s elements that `jaxpr` reads, or None.
 
   Known only where every use of `var` is a static `slice`, a
-  `dynamic_slice` at a literal index, or a call whose sub-jaxpr uses its
-  operand so; any other use (an output, a gather, a branch, a loop, an
-  arithmetic operation on the whole array) gives None: every element.
+  `dynamic_slice` at a constant index, a one-element-per-index `gather` at
+  constant indices (an index array, as a binding of non-contiguous
+  sensors takes), or a call whose sub-jaxpr uses its operand so; any other
+  use (an output, a branch, a loop, an operation on the whole array) gives
+  None: every element. `known` maps the jaxpr's constant vars to their
+  values (a closed jaxpr's constants); `_Constants` folds what is computed
+  from them.
   """
   if any(out is var for out in jaxpr.outvars):
     return None
+  constants = _Constants(jaxpr, known or {})
   size = var.aval.shape[0] if var.aval.shape else 1
   found = set()
   for eqn in jaxpr.eqns:
     positions = [i for i, v in enumerate(eqn.invars) if v is var]
     if not positions:
       continue
-    name = eqn.primitive.name
-    if name == 'slice' and positions == [0]:
-      (start,), (limit,) = (
-          eqn.params['start_indices'],
-          eqn.params['limit_indices'],
-      )
-      stride = (eqn.params['strides'] or (1,))[0]
-      found.update(range(start, limit, stride))
-      continue
-    if name == 'dynamic_slice' and positions == [0]:
-      start = getattr(eqn.invars[1], 'val', None)
-      if start is None or len(eqn.invars) != 2:
-        return None
-      (n,) = eqn.params['slice_sizes']
-      start = min(max(int(start), 0), size - n)  # As dynamic_slice clamps.
-      found.update(range(start, start + n))
-      continue
-    sub = next(
-        (eqn.params[k] for k in _CALL_JAXPR_PARAMS if k in eqn.params), None
-    )
-    sub = getattr(sub, 'jaxpr', sub)
-    if sub is None or len(sub.invars) != len(eqn.invars):
+    elements = _elements_of_use(eqn, positions, size, constants)
+    if elements is None:
       return None
-    for i in positions:
-      inner = _elements_read(sub, sub.invars[i])
-      if inner is None:
-        return None
-      found |= inner
+    found |= elements
   return frozenset(found)
+
+
+def _elements_of_use(eqn, positions, size, constants):
+  """The elements `eqn` reads of the operand at `positions`, or None."""
+  name = eqn.primitive.name
+  if positions != [0] and name in ('slice', 'dynamic_slice', 'gather'):
+    return None
+  if name == 'slice':
+    (start,), (limit,) = (
+        eqn.params['start_indices'],
+        eqn.params['limit_indices'],
+    )
+    return frozenset(range(start, limit, (eqn.params['strides'] or (1,))[0]))
+  if name == 'dynamic_slice':
+    start = constants.value(eqn.invars[1]) if len(eqn.invars) == 2 else None
+    if start is None:
+      return None
+    (n,) = eqn.params['slice_sizes']
+    start = min(max(int(start), 0), size - n)  # As dynamic_slice clamps.
+    return frozenset(range(start, start + n))
+  if name == 'gather':
+    numbers = eqn.params['dimension_numbers']
+    indices = constants.value(eqn.invars[1])
+    if (
+        indices is None
+        or eqn.params['slice_sizes'] != (1,)
+        or tuple(numbers.offset_dims) != ()
+        or tuple(numbers.collapsed_slice_dims) != (0,)
+        or tuple(numbers.start_index_map) != (0,)
+    ):
+      return None
+    indices = np.asarray(indices).reshape(-1)
+    if indices.size and (indices.min() < 0 or indices.max() >= size):
+      return None  # Out of bounds: clamped or filled, as the mode says.
+    return frozenset(int(i) for i in indices)
+  sub = next(
+      (eqn.params[k] for k in _CALL_JAXPR_PARAMS if k in eqn.params), None
+  )
+  sub = getattr(sub, 'jaxpr', sub)
+  if sub is None or len(sub.invars) != len(eqn.invars):
+    return None
+  inner_known = {}
+  for inner, outer in zip(sub.invars, eqn.invars):
+    value = constants.value(outer)
+    if value is not None:
+      inner_known[inner] = value
+  found = set()
+  for i in positions:
+    inner = _elements_read(sub, sub.invars[i], inner_known)
+    if inner is None:
+      return None
+    found |= inner
+  return frozenset(found)
+
+
+class _Constants:
+  """The values of a jaxpr's vars computed from constants alone, on demand.
+
+  A var's value is a literal's, a known constant's, or that of the equation
+  computing it, evaluated where all its operands have values (index
+  arithmetic: the negative-index wrap, broadcasts, casts); equations with
+  sub-jaxprs, large operands, and anything that fails to evaluate (a key,
+  an effect) give None.
+  """
+
+  def __init__(self, jaxpr, known):
+    self._known = dict(known)
+    self._producers = {out: eqn for eqn in jaxpr.eqns for out in eqn.outvars}
+
+  def value(self, var, depth=0):
+    if hasattr(var, 'val'):  # a Literal
+      return var.val
+    if var in self._known:
+      return self._known[var]
+    eqn = self._producers.get(var)
+    if eqn is None or depth > _FOLD_MAX_DEPTH:
+      return None
+    if any(
+        hasattr(p, 'eqns') or hasattr(p, 'jaxpr') for p in eqn.params.values()
+    ):
+      return None
+    values = [self.value(v, depth + 1) for v in eqn.invars]
+    if any(v is None for v in values) or (
+        sum(np.size(v) for v in values) > _FOLD_MAX_ELEMENTS
+    ):
+      return None
+    try:
+      with jax.ensure_compile_time_eval():
+        out = eqn.primitive.bind(*values, **eqn.params)
+      outs = out if eqn.primitive.multiple_results else [out]
+      for out_var, out_value in zip(eqn.outvars, outs):
+        self._known[out_var] = np.asarray(out_value)
+    except Exception:  # pylint: disable=broad-except
+      return None
+    return self._known.get(var)
 
 
 def sensor_stage(mj_model, sensors=None) -> str:

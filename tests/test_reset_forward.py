@@ -267,6 +267,12 @@ def test_sensordata_read_takes_static_slices(sensor_model):
     return (inner(d.sensordata), d.sensordata[9]), ()
 
   assert reset_forward.sensordata_read(sliced, data) == {3, 4, 5, 9}
+
+  def gathered(d):  # A binding of non-contiguous sensors takes an array.
+    return d.sensordata[np.array([2, 7, 8, -1])], ()
+
+  last = int(data.sensordata.shape[0]) - 1
+  assert reset_forward.sensordata_read(gathered, data) == {2, 7, 8, last}
   assert reset_forward.sensordata_read(lambda d: (d.xpos, ()), data) == set()
   # A whole-array operation, or an index not known at trace time: all.
   assert (
@@ -278,6 +284,11 @@ def test_sensordata_read_takes_static_slices(sensor_model):
     return d.sensordata[i], ()
 
   assert reset_forward.sensordata_read(indexed, data, 2) is None
+
+  def gathered_at(d, i):
+    return d.sensordata[jnp.stack([i, i + 1])], ()
+
+  assert reset_forward.sensordata_read(gathered_at, data, 2) is None
 
 
 def test_fields_read_follows_dependences(sensor_model):
