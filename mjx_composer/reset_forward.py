@@ -12,7 +12,7 @@ sampled at reset, the episode's start metrics, and the next step's hooks
 that run before its physics.
 
 This module finds, at trace time, which `mjx.Data` fields those readers use
-(`fields_read`: dead-code elimination of their jaxpr) and picks the
+(`data_reads.reads`: dead-code elimination of their jaxpr) and picks the
 cheapest stage of the forward pass that computes them (`choose_stage`):
 
 * `'none'`: nothing the forward pass writes is read (e.g. only joint
@@ -27,9 +27,9 @@ cheapest stage of the forward pass that computes them (`choose_stage`):
 Sensors are computed by a reduced stage only where `sensordata` is read,
 and only where every sensor read is one the stage computes exactly
 (`POSITION_SENSORS`, `VELOCITY_SENSORS`), else the stage is `'full'`. Which
-sensors are read comes from the readers' jaxpr (`sensordata_read`): the
-elements its static slices take, or every sensor where `sensordata` reaches
-anything else. So a humanoid whose observations read its centre-of-mass
+fields and sensors are read comes from the readers' jaxpr
+(`data_reads.reads`): the elements its static slices and constant-index
+gathers take, or every sensor where `sensordata` reaches anything else. So a humanoid whose observations read its centre-of-mass
 velocity sensor takes the velocity stage although the model also has an
 accelerometer and force sensors; a reduced stage then computes every sensor
 it computes exactly, and the others keep their values from before the
@@ -49,10 +49,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-try:  # JAX's dead-code elimination of a jaxpr: not a public API.
-  from jax._src.interpreters import partial_eval as pe  # pylint: disable=g-import-not-at-top
-except ImportError:  # A JAX without it: every field counts as read.
-  pe = None
+from mjx_composer import data_reads
 
 STAGES = ('none', 'position', 'velocity', 'full')
 
@@ -139,18 +136,6 @@ def forward(stage, model, data, sensors=True):
   return mjx.fwd_actuation(model, _STAGE_FNS[stage](model, data, sensors))
 
 
-def leaf_names(data) -> list[str]:
-  """The names of `data`'s leaves, e.g. `'qpos'`, `'_impl.efc_J'`."""
-  paths, _ = jax.tree_util.tree_flatten_with_path(data)
-  return [
-      '.'.join(
-          str(getattr(k, 'name', getattr(k, 'key', getattr(k, 'idx', k))))
-          for k in path
-      )
-      for path, _ in paths
-  ]
-
-
 def written(stage, model, data, sensors=True) -> frozenset[str]:
   """The leaves of `data` that `forward(stage, ...)` writes (by tracing)."""
   out = {}
@@ -161,210 +146,13 @@ def written(stage, model, data, sensors=True) -> frozenset[str]:
     after = jax.tree.leaves(result)
     out['names'] = frozenset(
         name
-        for name, old, new in zip(leaf_names(data), before, after)
+        for name, old, new in zip(data_reads.leaf_names(data), before, after)
         if new is not old
     )
     return result
 
   jax.eval_shape(run, data)
   return out['names']
-
-
-@dataclasses.dataclass(frozen=True)
-class Reads:
-  """What a function reads of an `mjx.Data` (`reads`).
-
-  Attributes:
-    fields: the names (`leaf_names`) of the leaves it reads.
-    sensordata: the indices of the `sensordata` elements it reads, or None
-      for all of them (also where that could not be told).
-  """
-
-  fields: frozenset
-  sensordata: frozenset | None
-
-
-def reads(fn, data, *args) -> Reads:
-  """What `fn(data, *args)`'s outputs depend on, of `data`.
-
-  `fn` returns `(outputs, ignored)`: a pytree whose every leaf counts, and
-  one whose leaves do not (e.g. values the next physics step overwrites).
-  The dependence is that of the traced program after dead-code elimination,
-  so a leaf a branch or loop passes through counts as read. Where this JAX
-  has no dead-code elimination to call, everything counts as read.
-  """
-  names = leaf_names(data)
-  if pe is None or not hasattr(pe, 'dce_jaxpr'):
-    return Reads(frozenset(names), None)
-  closed, (outputs, ignored) = jax.make_jaxpr(fn, return_shape=True)(
-      data, *args
-  )
-  used_outputs = [True] * len(jax.tree.leaves(outputs)) + [False] * len(
-      jax.tree.leaves(ignored)
-  )
-  jaxpr, used_inputs = pe.dce_jaxpr(
-      closed.jaxpr, used_outputs, instantiate=False
-  )
-  used = [n for n, u in zip(names, used_inputs) if u]
-  sensordata = None
-  if 'sensordata' in used:
-    sensordata = _elements_read(
-        jaxpr,
-        jaxpr.invars[used.index('sensordata')],
-        dict(zip(closed.jaxpr.constvars, closed.consts)),
-    )
-  return Reads(frozenset(used), sensordata)
-
-
-def fields_read(fn, data, *args) -> frozenset[str]:
-  """The leaves of `data` that `fn(data, *args)`'s outputs depend on.
-
-  `reads(...).fields`: see `reads`.
-  """
-  return reads(fn, data, *args).fields
-
-
-def sensordata_read(fn, data, *args) -> frozenset | None:
-  """The `sensordata` elements `fn(data, *args)` reads; None: all of them.
-
-  `reads(...).sensordata` where `sensordata` is read at all, else empty.
-  """
-  found = reads(fn, data, *args)
-  if 'sensordata' not in found.fields:
-    return frozenset()
-  return found.sensordata
-
-
-# Primitives whose parameter holds a sub-jaxpr called with the operands in
-# order (jit, checkpointing, custom derivatives).
-_CALL_JAXPR_PARAMS = ('jaxpr', 'call_jaxpr', 'fun_jaxpr')
-# Constant folding evaluates no operation on more elements than this, nor
-# chains of operations deeper than this.
-_FOLD_MAX_ELEMENTS = 1 << 16
-_FOLD_MAX_DEPTH = 32
-
-
-def _elements_read(jaxpr, var, known=None):
-  """Indices of the 1-D `var`'s elements that `jaxpr` reads, or None.
-
-  Known only where every use of `var` is a static `slice`, a
-  `dynamic_slice` at a constant index, a one-element-per-index `gather` at
-  constant indices (an index array, as a binding of non-contiguous
-  sensors takes), or a call whose sub-jaxpr uses its operand so; any other
-  use (an output, a branch, a loop, an operation on the whole array) gives
-  None: every element. `known` maps the jaxpr's constant vars to their
-  values (a closed jaxpr's constants); `_Constants` folds what is computed
-  from them.
-  """
-  if any(out is var for out in jaxpr.outvars):
-    return None
-  constants = _Constants(jaxpr, known or {})
-  size = var.aval.shape[0] if var.aval.shape else 1
-  found = set()
-  for eqn in jaxpr.eqns:
-    positions = [i for i, v in enumerate(eqn.invars) if v is var]
-    if not positions:
-      continue
-    elements = _elements_of_use(eqn, positions, size, constants)
-    if elements is None:
-      return None
-    found |= elements
-  return frozenset(found)
-
-
-def _elements_of_use(eqn, positions, size, constants):
-  """The elements `eqn` reads of the operand at `positions`, or None."""
-  name = eqn.primitive.name
-  if positions != [0] and name in ('slice', 'dynamic_slice', 'gather'):
-    return None
-  if name == 'slice':
-    (start,), (limit,) = (
-        eqn.params['start_indices'],
-        eqn.params['limit_indices'],
-    )
-    return frozenset(range(start, limit, (eqn.params['strides'] or (1,))[0]))
-  if name == 'dynamic_slice':
-    start = constants.value(eqn.invars[1]) if len(eqn.invars) == 2 else None
-    if start is None:
-      return None
-    (n,) = eqn.params['slice_sizes']
-    start = min(max(int(start), 0), size - n)  # As dynamic_slice clamps.
-    return frozenset(range(start, start + n))
-  if name == 'gather':
-    numbers = eqn.params['dimension_numbers']
-    indices = constants.value(eqn.invars[1])
-    if (
-        indices is None
-        or eqn.params['slice_sizes'] != (1,)
-        or tuple(numbers.offset_dims) != ()
-        or tuple(numbers.collapsed_slice_dims) != (0,)
-        or tuple(numbers.start_index_map) != (0,)
-    ):
-      return None
-    indices = np.asarray(indices).reshape(-1)
-    if indices.size and (indices.min() < 0 or indices.max() >= size):
-      return None  # Out of bounds: clamped or filled, as the mode says.
-    return frozenset(int(i) for i in indices)
-  sub = next(
-      (eqn.params[k] for k in _CALL_JAXPR_PARAMS if k in eqn.params), None
-  )
-  sub = getattr(sub, 'jaxpr', sub)
-  if sub is None or len(sub.invars) != len(eqn.invars):
-    return None
-  inner_known = {}
-  for inner, outer in zip(sub.invars, eqn.invars):
-    value = constants.value(outer)
-    if value is not None:
-      inner_known[inner] = value
-  found = set()
-  for i in positions:
-    inner = _elements_read(sub, sub.invars[i], inner_known)
-    if inner is None:
-      return None
-    found |= inner
-  return frozenset(found)
-
-
-class _Constants:
-  """The values of a jaxpr's vars computed from constants alone, on demand.
-
-  A var's value is a literal's, a known constant's, or that of the equation
-  computing it, evaluated where all its operands have values (index
-  arithmetic: the negative-index wrap, broadcasts, casts); equations with
-  sub-jaxprs, large operands, and anything that fails to evaluate (a key,
-  an effect) give None.
-  """
-
-  def __init__(self, jaxpr, known):
-    self._known = dict(known)
-    self._producers = {out: eqn for eqn in jaxpr.eqns for out in eqn.outvars}
-
-  def value(self, var, depth=0):
-    if hasattr(var, 'val'):  # a Literal
-      return var.val
-    if var in self._known:
-      return self._known[var]
-    eqn = self._producers.get(var)
-    if eqn is None or depth > _FOLD_MAX_DEPTH:
-      return None
-    if any(
-        hasattr(p, 'eqns') or hasattr(p, 'jaxpr') for p in eqn.params.values()
-    ):
-      return None
-    values = [self.value(v, depth + 1) for v in eqn.invars]
-    if any(v is None for v in values) or (
-        sum(np.size(v) for v in values) > _FOLD_MAX_ELEMENTS
-    ):
-      return None
-    try:
-      with jax.ensure_compile_time_eval():
-        out = eqn.primitive.bind(*values, **eqn.params)
-      outs = out if eqn.primitive.multiple_results else [out]
-      for out_var, out_value in zip(eqn.outvars, outs):
-        self._known[out_var] = np.asarray(out_value)
-    except Exception:  # pylint: disable=broad-except
-      return None
-    return self._known.get(var)
 
 
 def sensor_stage(mj_model, sensors=None) -> str:
@@ -431,7 +219,8 @@ def choose_stage(needed, model, data, mj_model, sensordata=None):
     model: the `mjx.Model`.
     data: an `mjx.Data` of the model (shapes suffice).
     mj_model: the host `MjModel` (its sensor types).
-    sensordata: the `sensordata` elements read (`reads`); None: all.
+    sensordata: the `sensordata` elements read (`data_reads.reads`);
+      None: all.
 
   Returns:
     The `ResetForward` of the stage.
@@ -457,7 +246,7 @@ def choose_stage(needed, model, data, mj_model, sensordata=None):
 
 def keep_only(keep, derived, computed, before):
   """`computed`, but `before`'s leaves where in `derived` and not in `keep`."""
-  names = leaf_names(computed)
+  names = data_reads.leaf_names(computed)
   leaves = [
       old if name in derived and name not in keep else new
       for name, new, old in zip(

@@ -19,6 +19,7 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer import backend
+from mjx_composer import data_reads
 from mjx_composer import episode as episode_lib
 from mjx_composer import kinematics as kinematics_lib
 from mjx_composer import physics as physics_lib
@@ -126,7 +127,7 @@ class Transitions:
         sensordata=read.sensordata,
     )
 
-  def _read_after_reset(self) -> reset_forward_lib.Reads:
+  def _read_after_reset(self) -> data_reads.Reads:
     """What is read of a reset's `mjx.Data` before any physics.
 
     Its readers: the observables sampled at reset, the episode's start
@@ -162,9 +163,7 @@ class Transitions:
       )
       return read, (first.data, diverged)
 
-    return reset_forward_lib.reads(
-        readers, carry.data, carry, failures, key, action
-    )
+    return data_reads.reads(readers, carry.data, carry, failures, key, action)
 
   def physics(self, state: state_lib.State) -> physics_lib.Physics:
     """The `Physics` of a `State`."""

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
+from mjx_composer import data_reads
 from mjx_composer import reset_forward
 from tests import conftest
 from tests import test_environment
@@ -106,7 +107,7 @@ def test_reduced_stages_compute_what_the_forward_pass_does(sensor_model, stage):
   assert {'xpos', 'site_xpos', 'subtree_com', 'sensordata'} <= writes
   assert ('cvel' in writes) == (stage == 'velocity')
   assert not writes & {'qacc', 'qfrc_bias', 'qfrc_constraint'}
-  names = reset_forward.leaf_names(data)
+  names = data_reads.leaf_names(data)
   for name, a, b in zip(names, jax.tree.leaves(reduced), jax.tree.leaves(full)):
     if name in writes and name != 'sensordata':
       np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6, err_msg=name)
@@ -258,63 +259,19 @@ def test_a_reduced_stage_keeps_the_sensors_it_does_not_compute():
   np.testing.assert_array_equal(restricted.sensordata[:adr], want[:adr])
 
 
-def test_sensordata_read_takes_static_slices(sensor_model):
-  _, model, _ = sensor_model
-  data = mjx.make_data(model)
-
-  def sliced(d):
-    inner = jax.jit(lambda x: x[3:6] * 2.0)
-    return (inner(d.sensordata), d.sensordata[9]), ()
-
-  assert reset_forward.sensordata_read(sliced, data) == {3, 4, 5, 9}
-
-  def gathered(d):  # A binding of non-contiguous sensors takes an array.
-    return d.sensordata[np.array([2, 7, 8, -1])], ()
-
-  last = int(data.sensordata.shape[0]) - 1
-  assert reset_forward.sensordata_read(gathered, data) == {2, 7, 8, last}
-  assert reset_forward.sensordata_read(lambda d: (d.xpos, ()), data) == set()
-  # A whole-array operation, or an index not known at trace time: all.
-  assert (
-      reset_forward.sensordata_read(lambda d: (d.sensordata.sum(), ()), data)
-      is None
-  )
-
-  def indexed(d, i):
-    return d.sensordata[i], ()
-
-  assert reset_forward.sensordata_read(indexed, data, 2) is None
-
-  def gathered_at(d, i):
-    return d.sensordata[jnp.stack([i, i + 1])], ()
-
-  assert reset_forward.sensordata_read(gathered_at, data, 2) is None
-
-
-def test_fields_read_follows_dependences(sensor_model):
-  _, model, _ = sensor_model
-  data = mjx.make_data(model)
-
-  def fn(data, scale):
-    branch = jax.lax.cond(
-        scale > 0, lambda: data.cvel, lambda: jnp.zeros_like(data.cvel)
-    )
-    read = (data.xpos * scale, branch)
-    ignored = (data.qacc, data.sensordata)
-    return read, ignored
-
-  assert reset_forward.fields_read(fn, data, 1.0) == {'xpos', 'cvel'}
-
-
 def test_without_dead_code_elimination_everything_counts_as_read(
     sensor_model, monkeypatch
 ):
   m, model, _ = sensor_model
   data = mjx.make_data(model)
-  monkeypatch.setattr(reset_forward, 'pe', None)
-  read = reset_forward.fields_read(lambda d: (d.qvel, d.xpos), data)
-  assert read == set(reset_forward.leaf_names(data))
-  assert reset_forward.choose_stage(read, model, data, m).stage == 'full'
+  monkeypatch.setattr(data_reads, 'pe', None)
+  read = data_reads.reads(lambda d: (d.qvel, d.xpos), data)
+  assert read.fields == set(data_reads.leaf_names(data))
+  assert read.sensordata is None
+  chosen = reset_forward.choose_stage(
+      read.fields, model, data, m, sensordata=read.sensordata
+  )
+  assert chosen.stage == 'full'
 
 
 # -- environments ------------------------------------------------------------
