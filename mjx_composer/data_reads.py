@@ -46,8 +46,9 @@ class Reads:
 
   Attributes:
     fields: the names (`leaf_names`) of the leaves it reads.
-    sensordata: the indices of the `sensordata` elements it reads, or None
-      for all of them (also where that could not be told).
+    sensordata: the indices of the `sensordata` elements it reads: empty
+      where it reads no `sensordata`, None for all of them (also where that
+      could not be told).
   """
 
   fields: frozenset
@@ -76,7 +77,7 @@ def reads(fn, data, *args) -> Reads:
       closed.jaxpr, used_outputs, instantiate=False
   )
   used = [n for n, u in zip(names, used_inputs) if u]
-  sensordata = None
+  sensordata = frozenset()
   if 'sensordata' in used:
     sensordata = _elements_read(
         jaxpr,
@@ -97,12 +98,9 @@ def fields_read(fn, data, *args) -> frozenset[str]:
 def sensordata_read(fn, data, *args) -> frozenset | None:
   """The `sensordata` elements `fn(data, *args)` reads; None: all of them.
 
-  `reads(...).sensordata` where `sensordata` is read at all, else empty.
+  `reads(...).sensordata`: see `reads`.
   """
-  found = reads(fn, data, *args)
-  if 'sensordata' not in found.fields:
-    return frozenset()
-  return found.sensordata
+  return reads(fn, data, *args).sensordata
 
 
 # Primitives whose parameter holds a sub-jaxpr called with the operands in
