@@ -199,12 +199,7 @@ def summarize(runs, reference='playground', threshold=None):
           r.get('segments') or 1,
           max(row.get('segment', 0) for row in r['rows']) + 1,
       )
-      if r.get('total_s') is None:
-        total = last_wall
-      elif n_segments > 1:
-        total = r['total_s'] - left_out
-      else:
-        total = r['total_s']
+      total = last_wall if r.get('total_s') is None else r['total_s'] - left_out
       per_seed[r['seed']] = {
           'final_return': r['rows'][-1]['eval_return'],
           'final_step': r['rows'][-1]['step'],

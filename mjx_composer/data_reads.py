@@ -4,14 +4,15 @@ A reset's forward pass needs to compute only what is read of the new state
 before the next physics step (`reset_forward.py`). This module answers that
 from the readers' jaxpr, at trace time:
 
-* the fields: the inputs left after dead-code elimination (`reads`,
-  `fields_read`), so a field that only reaches ignored outputs is not read,
+* the fields: the inputs left after dead-code elimination, so a field that only reaches ignored outputs is not read,
   and one that passes through a branch or loop is;
 * the `sensordata` elements: those the remaining program takes with static
   slices, constant-index dynamic slices or constant-index gathers (a
   binding of one sensor, or of several non-contiguous ones), following calls
   into their sub-jaxprs; any other use of `sensordata` counts as reading
-  all of it (`sensordata_read`).
+  all of it.
+
+`reads` returns both.
 
 Both err towards reading more, never less: a JAX without dead-code
 elimination makes everything read.
@@ -85,22 +86,6 @@ def reads(fn, data, *args) -> Reads:
         dict(zip(closed.jaxpr.constvars, closed.consts)),
     )
   return Reads(frozenset(used), sensordata)
-
-
-def fields_read(fn, data, *args) -> frozenset[str]:
-  """The leaves of `data` that `fn(data, *args)`'s outputs depend on.
-
-  `reads(...).fields`: see `reads`.
-  """
-  return reads(fn, data, *args).fields
-
-
-def sensordata_read(fn, data, *args) -> frozenset | None:
-  """The `sensordata` elements `fn(data, *args)` reads; None: all of them.
-
-  `reads(...).sensordata`: see `reads`.
-  """
-  return reads(fn, data, *args).sensordata
 
 
 # Primitives whose parameter holds a sub-jaxpr called with the operands in

@@ -29,9 +29,10 @@ and only where every sensor read is one the stage computes exactly
 (`POSITION_SENSORS`, `VELOCITY_SENSORS`), else the stage is `'full'`. Which
 fields and sensors are read comes from the readers' jaxpr
 (`data_reads.reads`): the elements its static slices and constant-index
-gathers take, or every sensor where `sensordata` reaches anything else. So a humanoid whose observations read its centre-of-mass
-velocity sensor takes the velocity stage although the model also has an
-accelerometer and force sensors; a reduced stage then computes every sensor
+gathers take, or every sensor where `sensordata` reaches anything else. So
+a humanoid whose observations read its centre-of-mass velocity sensor takes
+the velocity stage although the model also has an accelerometer and force
+sensors; a reduced stage then computes every sensor
 it computes exactly, and the others keep their values from before the
 forward pass, as the fields the stage does not compute do.
 
@@ -155,6 +156,17 @@ def written(stage, model, data, sensors=True) -> frozenset[str]:
   return out['names']
 
 
+# The sensor types each reduced stage computes exactly.
+_EXACT_SENSORS = {
+    'position': POSITION_SENSORS,
+    'velocity': POSITION_SENSORS | VELOCITY_SENSORS,
+}
+
+
+def _sensor_type(mj_model, i):
+  return mujoco.mjtSensor(int(mj_model.sensor_type[i]))
+
+
 def sensor_stage(mj_model, sensors=None) -> str:
   """The least stage that computes `sensors` of `mj_model` exactly.
 
@@ -163,13 +175,12 @@ def sensor_stage(mj_model, sensors=None) -> str:
     sensors: sensor ids; None: every sensor of the model.
   """
   ids = range(mj_model.nsensor) if sensors is None else sensors
-  types = {mujoco.mjtSensor(int(mj_model.sensor_type[i])) for i in ids}
+  types = {_sensor_type(mj_model, i) for i in ids}
   if not types:
     return 'none'
-  if not types - POSITION_SENSORS:
-    return 'position'
-  if not types - POSITION_SENSORS - VELOCITY_SENSORS:
-    return 'velocity'
+  for stage, exact in _EXACT_SENSORS.items():
+    if types <= exact:
+      return stage
   return 'full'
 
 
@@ -195,12 +206,9 @@ def sensors_of_elements(mj_model, elements) -> tuple[int, ...]:
 
 def _exact_rows(mj_model, stage) -> np.ndarray:
   """Mask of the `sensordata` elements `stage` computes exactly."""
-  exact = POSITION_SENSORS | (
-      VELOCITY_SENSORS if stage == 'velocity' else set()
-  )
   mask = np.zeros(mj_model.nsensordata, bool)
   for i in range(mj_model.nsensor):
-    if mujoco.mjtSensor(int(mj_model.sensor_type[i])) in exact:
+    if _sensor_type(mj_model, i) in _EXACT_SENSORS[stage]:
       adr = mj_model.sensor_adr[i]
       mask[adr : adr + mj_model.sensor_dim[i]] = True
   return mask

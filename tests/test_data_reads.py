@@ -41,32 +41,32 @@ def test_sensordata_read_takes_static_slices(model):
     inner = jax.jit(lambda x: x[3:6] * 2.0)
     return (inner(d.sensordata), d.sensordata[9]), ()
 
-  assert data_reads.sensordata_read(sliced, data) == {3, 4, 5, 9}
+  assert data_reads.reads(sliced, data).sensordata == {3, 4, 5, 9}
 
   def gathered(d):  # A binding of non-contiguous sensors takes an array.
     return d.sensordata[np.array([2, 7, 8, -1])], ()
 
   last = int(data.sensordata.shape[0]) - 1
-  assert data_reads.sensordata_read(gathered, data) == {2, 7, 8, last}
-  assert data_reads.sensordata_read(lambda d: (d.xpos, ()), data) == set()
+  assert data_reads.reads(gathered, data).sensordata == {2, 7, 8, last}
+  assert data_reads.reads(lambda d: (d.xpos, ()), data).sensordata == set()
   # A whole-array operation, or an index not known at trace time: all.
   assert (
-      data_reads.sensordata_read(lambda d: (d.sensordata.sum(), ()), data)
+      data_reads.reads(lambda d: (d.sensordata.sum(), ()), data).sensordata
       is None
   )
 
   def indexed(d, i):
     return d.sensordata[i], ()
 
-  assert data_reads.sensordata_read(indexed, data, 2) is None
+  assert data_reads.reads(indexed, data, 2).sensordata is None
 
   def gathered_at(d, i):
     return d.sensordata[jnp.stack([i, i + 1])], ()
 
-  assert data_reads.sensordata_read(gathered_at, data, 2) is None
+  assert data_reads.reads(gathered_at, data, 2).sensordata is None
 
 
-def test_fields_read_follows_dependences(model):
+def test_fields_read_follow_dependences(model):
   data = mjx.make_data(model)
 
   def fn(data, scale):
@@ -77,4 +77,4 @@ def test_fields_read_follows_dependences(model):
     ignored = (data.qacc, data.sensordata)
     return read, ignored
 
-  assert data_reads.fields_read(fn, data, 1.0) == {'xpos', 'cvel'}
+  assert data_reads.reads(fn, data, 1.0).fields == {'xpos', 'cvel'}
