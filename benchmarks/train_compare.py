@@ -444,16 +444,23 @@ def _ours_setup(name, config, args):
   return brax_env, kwargs, policy
 
 
+def _device_name():
+  """This process's first device, as 'platform: kind'."""
+  import jax  # pylint: disable=g-import-not-at-top
+
+  device = jax.devices()[0]
+  return f'{device.platform}: {device.device_kind}'
+
+
 def _new_run(env_name, seed, config, source, args):
   """A fresh run record (no evaluations yet)."""
   import jax  # pylint: disable=g-import-not-at-top
 
-  device = jax.devices()[0]
   return {
       'env': env_name,
       'seed': seed,
       'status': 'building',
-      'device': f'{device.platform}: {device.device_kind}',
+      'device': _device_name(),
       'devices': args.devices,
       'jax': jax.__version__,
       'hyperparameters': config,
@@ -608,6 +615,8 @@ def train_one(env_name, seed, config, source, args):
         run.setdefault('segment_starts', []).append(
             {
                 'segment': segment,
+                # A later segment may run on another kind of GPU.
+                'device': _device_name(),
                 'overhead_s': row['wall_s'],
                 'restored_eval_return': row['eval_return'],
                 'last_eval_return': earlier_rows[-1]['eval_return'],
@@ -630,7 +639,9 @@ def train_one(env_name, seed, config, source, args):
         f'({row["env_steps_per_s"]:,.0f} env steps/s)',
         flush=True,
     )
-    if train_ppo.next_eval_too_late(segment_rows, args.max_wall_s):
+    if train_ppo.next_eval_too_late(
+        segment_rows, args.max_wall_s, brax_env_steps(train_config)
+    ):
       raise train_ppo.StopTraining
 
   start = time.perf_counter()

@@ -667,7 +667,7 @@ class StopTraining(Exception):
   """Raised by a `progress_fn` to end `ppo.train` after an evaluation."""
 
 
-def next_eval_too_late(rows, max_wall_s):
+def next_eval_too_late(rows, max_wall_s, planned_steps=None):
   """Whether the evaluation after `rows[-1]` would end after `max_wall_s`.
 
   The next evaluation is expected as long after the last as the last was
@@ -676,9 +676,13 @@ def next_eval_too_late(rows, max_wall_s):
   compiles the training program, and the updates after it do not. (A
   program that compiles again later, like Brax's evaluator on Playground's
   environments, makes the estimate short by that compile.) False when
-  `max_wall_s` is None.
+  `max_wall_s` is None, and after the last evaluation (`rows[-1]`'s step
+  reaches `planned_steps`, where given): a run that has trained all its
+  steps is finished, not stopped.
   """
   if max_wall_s is None or not rows:
+    return False
+  if planned_steps is not None and rows[-1]['step'] >= planned_steps:
     return False
   last = rows[-1]
   before = rows[-2] if len(rows) > 1 else {'wall_s': 0.0, 'compile_s': 0.0}
@@ -820,7 +824,10 @@ def main(argv=None):
         f'  ({row["env_steps_per_s"]:,.0f} env steps/s)',
         file=sys.stdout,
     )
-    if next_eval_too_late(rows, args.max_wall_s) and 'params' in latest:
+    if (
+        next_eval_too_late(rows, args.max_wall_s, args.num_timesteps)
+        and 'params' in latest
+    ):
       raise StopTraining
 
   start = time.perf_counter()

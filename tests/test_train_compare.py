@@ -100,6 +100,18 @@ def test_deadline_uses_the_last_interval():
   assert train_ppo.next_eval_too_late(rows, 159.0)
 
 
+def test_no_deadline_after_the_last_evaluation():
+  import train_ppo  # pylint: disable=g-import-not-at-top
+
+  rows = [{'step': 0, 'wall_s': 100.0}, {'step': 500, 'wall_s': 300.0}]
+  # A next evaluation would end at 500 s, past the limit; but with 500
+  # steps planned there is none, so the run finishes rather than stops.
+  assert train_ppo.next_eval_too_late(rows, 400.0)
+  assert train_ppo.next_eval_too_late(rows, 400.0, planned_steps=1000)
+  assert not train_ppo.next_eval_too_late(rows, 400.0, planned_steps=500)
+  assert not train_ppo.next_eval_too_late(rows, 400.0, planned_steps=400)
+
+
 def test_deadline_leaves_out_the_time_spent_compiling():
   import train_ppo  # pylint: disable=g-import-not-at-top
 
