@@ -22,7 +22,9 @@ What carries over, and what does not:
 
 Each segment compiles its programs again and evaluates the restored policy
 once before training; the run's rows record that time as
-`resume_overhead_s`, so wall-clock times can be read with and without it,
+`resume_overhead_s` (and the compile seconds within it as
+`resume_compile_s`), so wall-clock times can be read with and without it
+(`train_results.one_process_wall`),
 and the run's `segment_starts` keep that evaluation's return beside the one
 the policy earned when it was saved (equal but for the evaluation's own
 randomness, when the restore took).
@@ -85,13 +87,14 @@ def segment_seed(seed, segment):
   return seed + _SEGMENT_SEED_STRIDE * segment
 
 
-def continued_row(row, previous_rows, segment, overhead_s):
+def continued_row(row, previous_rows, segment, overhead_s, overhead_compile_s):
   """`row` of a resumed segment, placed after the run's `previous_rows`.
 
-  Steps, wall-clock and Brax's training time continue from the last
-  previous row; `segment` and `resume_overhead_s` (the seconds this segment
-  spent before its first training step: compiling and the restored
-  policy's evaluation) are recorded with it.
+  Steps, wall-clock, compile seconds and Brax's training time continue from
+  the last previous row; `segment`, `resume_overhead_s` (the seconds this
+  segment spent before its first training step: building, compiling and
+  the restored policy's evaluation) and `resume_compile_s` (the compile
+  seconds of those) are recorded with it.
   """
   last = previous_rows[-1]
   out = dict(row)
@@ -102,6 +105,7 @@ def continued_row(row, previous_rows, segment, overhead_s):
   out['eval_walltime_s'] = last['eval_walltime_s'] + row['eval_walltime_s']
   out['segment'] = segment
   out['resume_overhead_s'] = overhead_s
+  out['resume_compile_s'] = overhead_compile_s
   return out
 
 

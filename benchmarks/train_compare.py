@@ -618,6 +618,7 @@ def train_one(env_name, seed, config, source, args):
                 # A later segment may run on another kind of GPU.
                 'device': _device_name(),
                 'overhead_s': row['wall_s'],
+                'overhead_compile_s': row['compile_s'],
                 'restored_eval_return': row['eval_return'],
                 'last_eval_return': earlier_rows[-1]['eval_return'],
             }
@@ -625,7 +626,11 @@ def train_one(env_name, seed, config, source, args):
         train_results.write_json(json_path, run)
         return
       row = segments.continued_row(
-          row, earlier_rows, segment, segment_rows[0]['wall_s']
+          row,
+          earlier_rows,
+          segment,
+          segment_rows[0]['wall_s'],
+          segment_rows[0]['compile_s'],
       )
     else:
       row.update(segment=0, resume_overhead_s=0.0)
@@ -779,7 +784,7 @@ def report(args):
       + ('none' if threshold is None else f'{threshold:.2f}')
       + f' ({summary["threshold_from"]}); time is wall-clock since the start '
       'of ppo.train, compilation and evaluations included (for a run '
-      "trained in segments, without the later segments' resume overheads: "
+      'trained in segments, without what the later segments spent resuming: '
       'see the note under the table).'
   )
   print(table)

@@ -9,8 +9,9 @@ prints and draws.
 
 Times are read on the clock of one process (`one_process_wall`). A run
 continued with `--resume` pays, in each segment after the first, a resume
-overhead (compiling again, evaluating the restored policy again) that the
-same run in one process would not; its rows' `wall_s` include them. That
+overhead (compiling again, evaluating the restored policy again, then
+compiling the training program again) that the same run in one process
+would not; its rows' `wall_s` include them. That
 overhead is an artefact of the 10-minute device calls the run was split
 into, not of either environment (both are segmented alike), so times to the
 threshold, totals and the plot leave it out, and the table says how much
@@ -38,6 +39,7 @@ CSV_FIELDS = (
     'eval_episode_length',
     'segment',
     'resume_overhead_s',
+    'resume_compile_s',
 )
 _COLOURS = {
     'playground': 'tab:blue',
@@ -92,10 +94,20 @@ def one_process_wall(rows):
   """Each row's wall-clock as if the run had been trained in one process.
 
   A row's `wall_s` continues the previous segment's clock, so it includes
-  the resume overhead (`resume_overhead_s`: compiling again and evaluating
-  the restored policy again) of every segment after the first up to and
-  including its own. This subtracts them; segment 0's compiling and first
-  evaluation, which one process pays too, stay.
+  what resuming cost in every segment after the first up to its own: the
+  segment's resume overhead (`resume_overhead_s`: building, compiling the
+  evaluator again and evaluating the restored policy again, before the
+  first training step), and then compiling the training program again
+  (in its first interval). This subtracts both; segment 0's compiling and
+  first evaluation, which one process pays too, stay.
+
+  The second part is the segment's compile seconds up to its first row
+  (`compile_s` counts on, `segments.continued_row`) less those of the
+  overhead (`resume_compile_s`). Rows written before the overhead's own
+  compile seconds were recorded lack `resume_compile_s`; for them the
+  larger of the overhead and the segment's compile seconds is left out,
+  which leaves in the restored policy's evaluation run (seconds, not
+  compiling) or less.
 
   Args:
     rows: a run's rows, in order; those without `segment` are segment 0.
@@ -106,20 +118,36 @@ def one_process_wall(rows):
   out = []
   left_out = 0.0
   segment = 0
+  previous = None
   for row in rows:
     if row.get('segment', 0) != segment:
       segment = row.get('segment', 0)
       if segment >= 1:
-        left_out += row.get('resume_overhead_s', 0.0)
+        left_out += resume_cost(row, previous)
     out.append(row['wall_s'] - left_out)
+    previous = row
   return out
+
+
+def resume_cost(first, before):
+  """Seconds a segment spent resuming: `one_process_wall`'s left-out part.
+
+  Args:
+    first: the segment's first row (after its first training interval).
+    before: the previous segment's last row.
+  """
+  overhead = first.get('resume_overhead_s', 0.0)
+  compiled = first.get('compile_s', 0.0) - (before or {}).get('compile_s', 0.0)
+  if 'resume_compile_s' in first:
+    return overhead + max(compiled - first['resume_compile_s'], 0.0)
+  return max(overhead, compiled)
 
 
 def time_to(rows, threshold):
   """(seconds, step) of the first row with eval_return >= threshold, or None.
 
-  The seconds are `one_process_wall`'s: without later segments' resume
-  overheads.
+  The seconds are `one_process_wall`'s: without what later segments spent
+  resuming.
   """
   for wall, row in zip(one_process_wall(rows), rows):
     if row['eval_return'] >= threshold:
@@ -169,11 +197,11 @@ def summarize(runs, reference='playground', threshold=None):
     `steps_to_threshold` (None where never reached), `total_s` (the run's
     time in `ppo.train`, or its last evaluation's for a run still going),
     `env_steps_per_s` (`training_rate`), `status`, `segments` (the
-    processes it was trained in, `--resume`) and `resume_overhead_s`. Times
-    are on `one_process_wall`'s clock: the resume overheads of the segments
-    after the first, `resume_overhead_s` seconds in all, are left out of
-    `time_to_threshold_s` and `total_s` (they are an artefact of splitting
-    the run into device calls, not of the environment).
+    processes it was trained in, `--resume`) and `resume_s`. Times are on
+    `one_process_wall`'s clock: what the segments after the first spent
+    resuming, `resume_s` seconds in all, is left out of
+    `time_to_threshold_s` and `total_s` (an artefact of splitting the run
+    into device calls, not of the environment).
   """
   by_env = {}
   for run in runs:
@@ -209,7 +237,7 @@ def summarize(runs, reference='playground', threshold=None):
           'env_steps_per_s': training_rate(r['rows']),
           'status': r['status'],
           'segments': n_segments,
-          'resume_overhead_s': left_out,
+          'resume_s': left_out,
       }
     envs[env] = {
         'seeds': sorted(per_seed),
@@ -226,8 +254,8 @@ def format_table(summary):
 
   Where a seed was trained in more than one segment (`--resume`), a
   footnote after the table says that its times are one-process-equivalent
-  wall-clock, and how many seconds of resume overheads each seed's leave
-  out (`summarize`).
+  wall-clock, and how many seconds of resuming each seed's leave out
+  (`summarize`).
   """
   threshold = summary['threshold']
   label = 'n/a' if threshold is None else f'{threshold:.1f}'
@@ -271,8 +299,7 @@ def format_table(summary):
   segmented = [
       f'{env} '
       + ', '.join(
-          f'{s["per_seed"][k].get("resume_overhead_s", 0.0):.0f}'
-          for k in s['seeds']
+          f'{s["per_seed"][k].get("resume_s", 0.0):.0f}' for k in s['seeds']
       )
       + ' s'
       for env, s in summary['envs'].items()
@@ -283,9 +310,9 @@ def format_table(summary):
     lines += [
         '',
         'Times are one-process-equivalent wall-clock: runs trained in '
-        'segments (`--resume`) leave out the resume overheads of the '
-        'segments after the first (compiling again, evaluating the restored '
-        f'policy again; {"; ".join(segmented)} in all per seed).',
+        'segments (`--resume`) leave out what the segments after the first '
+        'spent resuming (compiling again, evaluating the restored policy '
+        f'again; {"; ".join(segmented)} in all per seed).',
     ]
   return '\n'.join(lines)
 

@@ -67,7 +67,7 @@ def test_a_continued_row_follows_the_earlier_ones():
       eval_walltime_s=2.0,
       eval_return=3.0,
   )
-  out = segments.continued_row(row, earlier, 1, 4.0)
+  out = segments.continued_row(row, earlier, 1, 4.0, 3.0)
   assert out == dict(
       step=140,
       wall_s=65.0,
@@ -77,6 +77,7 @@ def test_a_continued_row_follows_the_earlier_ones():
       eval_return=3.0,
       segment=1,
       resume_overhead_s=4.0,
+      resume_compile_s=3.0,
   )
 
 

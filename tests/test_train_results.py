@@ -164,6 +164,33 @@ def test_one_process_wall_subtracts_later_segments_overheads():
   assert list(ret) == [5, 100, 200, 300, 350, 400]
 
 
+def test_one_process_wall_leaves_out_compiling_the_training_program_again():
+  seg0 = (0.0, [(20, 0, 5), (70, 10, 100)])
+  seg1 = (30.0, [(150, 20, 200), (200, 30, 300)])
+  run = _segmented_run('ours', 0, [seg0, seg1])
+  rows = run['rows']
+  # Segment 0 compiled 15 s in all; segment 1 compiled 20 s within its
+  # 30 s overhead, and 12 s more (the training program) before its first
+  # row.
+  for row, compile_s in zip(rows, (10, 15, 47, 47)):
+    row['compile_s'] = compile_s
+  rows[2]['resume_compile_s'] = 20.0
+  assert train_results.one_process_wall(rows) == pytest.approx(
+      [20, 70, 150 - 30 - 12, 200 - 30 - 12]
+  )
+  # Rows without the overhead's compile seconds (before stop 36): the
+  # larger of the overhead (30) and the segment's compiling (32).
+  del rows[2]['resume_compile_s']
+  assert train_results.one_process_wall(rows) == pytest.approx(
+      [20, 70, 150 - 32, 200 - 32]
+  )
+  for row in rows[2:]:
+    row['compile_s'] = 40  # 25 s of compiling: the overhead is larger.
+  assert train_results.one_process_wall(rows) == pytest.approx(
+      [20, 70, 120, 170]
+  )
+
+
 def test_summary_times_leave_out_resume_overheads():
   runs = [
       _run('playground', 0, [(20, 0, 5), (70, 10, 300)], total_s=75),
@@ -196,16 +223,16 @@ def test_summary_times_leave_out_resume_overheads():
   assert ours[0]['steps_to_threshold'] == 40
   assert ours[0]['total_s'] == pytest.approx(295)
   assert ours[0]['segments'] == 3
-  assert ours[0]['resume_overhead_s'] == pytest.approx(55)
+  assert ours[0]['resume_s'] == pytest.approx(55)
   assert ours[1]['time_to_threshold_s'] == pytest.approx(120)
   assert ours[1]['total_s'] == pytest.approx(120)
   assert ours[1]['segments'] == 2
-  assert ours[1]['resume_overhead_s'] == pytest.approx(40)
+  assert ours[1]['resume_s'] == pytest.approx(40)
   pg = summary['envs']['playground']['per_seed'][0]
   assert pg['time_to_threshold_s'] == 70
   assert pg['total_s'] == 75
   assert pg['segments'] == 1
-  assert pg['resume_overhead_s'] == 0.0
+  assert pg['resume_s'] == 0.0
   table = train_results.format_table(summary)
   assert '| 235, 120 | 295, 120 (running) |' in table
   footnote = table.splitlines()[-1]
