@@ -79,14 +79,15 @@ two runs at a time.
 `--max-wall-s`) for the evaluations it has left, from its saved policy,
 value and normalizer parameters, in a new segment; `benchmarks/segments.py`
 says what carries over and what does not (not Adam's moments). That is how
-Playground's full schedule (about 1,000 s on one H200) trains through
+Playground's full schedule (about 1,150 s on one H100) trains through
 10-minute device calls: one call per segment, each carrying the runs'
 files from the one before (with `carry`: a device call's working copy keeps
 no ignored folder of the call before, even on a machine still held). The
 table and plot then time a run as if it had trained in one process
 (`train_results.one_process_wall`). `--max-wall-s` stops a run after the
 evaluation from which the next one would end past that many seconds (for a
-command time limit); its status is then 'stopped'.
+command time limit); its status is then 'stopped' (a run whose last
+evaluation is done is 'finished', whatever the time).
 
 `--plot` trains nothing: it reads `runs/` and draws `returns.png` (return
 against wall-clock time: a colour per environment, a thin line per seed,
