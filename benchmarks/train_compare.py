@@ -79,7 +79,7 @@ two runs at a time.
 `--max-wall-s`) for the evaluations it has left, from its saved policy,
 value and normalizer parameters, in a new segment; `benchmarks/segments.py`
 says what carries over and what does not (not Adam's moments). That is how
-Playground's full schedule (about 1,150 s on one H100) trains through
+Playground's full schedule (about 1,150 s in one process on one GPU) trains through
 10-minute device calls: one call per segment, each carrying the runs'
 files from the one before (with `carry`: a device call's working copy keeps
 no ignored folder of the call before, even on a machine still held). The
