@@ -138,13 +138,23 @@ def main(argv=None):
       '--steps', type=int, default=1000, help='control steps (one episode)'
   )
   parser.add_argument('--seed', type=int, default=0)
+  parser.add_argument(
+      '--envs', nargs='+', choices=ENVS, default=list(ENVS), help='run in'
+  )
+  parser.add_argument(
+      '--modes',
+      nargs='+',
+      choices=('deterministic', 'stochastic'),
+      default=['deterministic', 'stochastic'],
+      help='which actions: the mean, sampled, or both',
+  )
   parser.add_argument('--out', default=None, help='JSON of the returns')
   args = parser.parse_args(argv)
 
-  envs = {name: make_env(name) for name in ENVS}
+  envs = {name: make_env(name) for name in args.envs}
   results = []
   for path in args.policies:
-    for deterministic in (True, False):
+    for deterministic in [mode == 'deterministic' for mode in args.modes]:
       policy = load_policy(path, deterministic)
       for name, env in envs.items():
         returns = episode_returns(
