@@ -50,28 +50,11 @@ def load_policy(path, deterministic):
   is one vector) and 'group' for one trained on ours (a dict with the
   'policy' group's vector).
   """
-  # pylint: disable=g-import-not-at-top
-  from brax.training.acme import running_statistics
-  from brax.training.agents.ppo import networks as ppo_networks
-  # pylint: enable=g-import-not-at-top
-
   with open(path, 'rb') as f:
     saved = pickle.load(f)
-  config = saved['config']
-  if config.get('env') != 'playground':
-    return train_ppo.load_policy(path, deterministic), 'group'
-  # As `train_compare`'s Playground runs build it: Brax's default networks.
-  networks = ppo_networks.make_ppo_networks(
-      config['observation_size'],
-      config['action_size'],
-      preprocess_observations_fn=(
-          running_statistics.normalize
-          if config['normalize']
-          else lambda x, unused_params: x
-      ),
-  )
-  make_policy = ppo_networks.make_inference_fn(networks)
-  return make_policy(saved['params'], deterministic=deterministic), 'array'
+  if saved['config'].get('env') == 'playground':
+    return train_ppo.playground_policy(saved, deterministic), 'array'
+  return train_ppo.load_policy(path, deterministic), 'group'
 
 
 def make_env(name):

@@ -316,13 +316,22 @@ def make_networks(args):
 
 
 def load_policy(path, deterministic=True):
-  """Rebuilds `policy(obs, key) -> (action, extras)` from a `policy.pkl`."""
+  """Rebuilds `policy(obs, key) -> (action, extras)` from a `policy.pkl`.
+
+  The file is one of ours (`save_policy` with `policy_config`), or one of
+  `train_compare.py`'s Playground runs: that policy is given the 'policy'
+  group's vector as its observation (`--task walk --like-playground`'s is
+  Playground's HumanoidWalk observation, `swap_policies.py`).
+  """
   from brax.training.acme import running_statistics  # pylint: disable=g-import-not-at-top
   from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
 
   with open(path, 'rb') as f:
     saved = pickle.load(f)
   config = saved['config']
+  if config.get('env') == 'playground':
+    policy = playground_policy(saved, deterministic)
+    return lambda obs, key: policy(obs['policy'], key)
   networks = ppo_networks.make_ppo_networks(
       {k: tuple(v) for k, v in config['observation_size'].items()},
       config['action_size'],
@@ -335,6 +344,28 @@ def load_policy(path, deterministic=True):
       value_obs_key=config['value_obs_key'],
       policy_hidden_layer_sizes=tuple(config['policy_layers']),
       value_hidden_layer_sizes=tuple(config['value_layers']),
+  )
+  make_policy = ppo_networks.make_inference_fn(networks)
+  return make_policy(saved['params'], deterministic=deterministic)
+
+
+def playground_policy(saved, deterministic=True):
+  """`policy(vector, key)` of a Playground run's saved `{'params', 'config'}`.
+
+  Brax's default PPO networks, as `train_compare.py` trains Playground.
+  """
+  from brax.training.acme import running_statistics  # pylint: disable=g-import-not-at-top
+  from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
+
+  config = saved['config']
+  networks = ppo_networks.make_ppo_networks(
+      config['observation_size'],
+      config['action_size'],
+      preprocess_observations_fn=(
+          running_statistics.normalize
+          if config['normalize']
+          else lambda x, unused_params: x
+      ),
   )
   make_policy = ppo_networks.make_inference_fn(networks)
   return make_policy(saved['params'], deterministic=deterministic)

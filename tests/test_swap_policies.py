@@ -70,6 +70,18 @@ def test_a_playground_policy_takes_one_vector(tmp_path):
   np.testing.assert_allclose(action, want, rtol=1e-6)
 
 
+def test_train_ppo_gives_a_playground_policy_the_policy_group(tmp_path):
+  path = str(tmp_path / 'playground_seed0_policy.pkl')
+  _save_playground_policy(path)
+  array_policy, _ = swap_policies.load_policy(path, deterministic=True)
+  group_policy = train_ppo.load_policy(path, deterministic=True)
+  obs = jnp.linspace(-1.0, 1.0, _OBS)
+  np.testing.assert_array_equal(
+      group_policy({'policy': obs}, jax.random.key(0))[0],
+      array_policy(obs, jax.random.key(0))[0],
+  )
+
+
 def test_observations_are_given_in_the_policys_form():
   vector = jnp.arange(4.0)
   group = {'policy': vector}
