@@ -79,10 +79,11 @@ two runs at a time.
 `--max-wall-s`) for the evaluations it has left, from its saved policy,
 value and normalizer parameters, in a new segment; `benchmarks/segments.py`
 says what carries over and what does not (not Adam's moments). That is how
-Playground's full schedule (about 1,150 s in one process on one GPU) trains through
-10-minute device calls: one call per segment, each carrying the runs'
-files from the one before (with `carry`: a device call's working copy keeps
-no ignored folder of the call before, even on a machine still held). The
+Playground's full schedule (about 1,150 s in one process on one GPU)
+trains through 10-minute device calls: one call per segment, each carrying
+the runs' files from the one before (with `carry`: a device call's working
+copy keeps no ignored folder of the call before, even on a machine still
+held). The
 table and plot then time a run as if it had trained in one process
 (`train_results.one_process_wall`). `--max-wall-s` stops a run after the
 evaluation from which the next one would end past that many seconds (for a
@@ -619,7 +620,6 @@ def train_one(env_name, seed, config, source, args):
                 # A later segment may run on another kind of GPU.
                 'device': _device_name(),
                 'overhead_s': row['wall_s'],
-                'overhead_compile_s': row['compile_s'],
                 'restored_eval_return': row['eval_return'],
                 'last_eval_return': earlier_rows[-1]['eval_return'],
             }

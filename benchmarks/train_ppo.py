@@ -323,7 +323,6 @@ def load_policy(path, deterministic=True):
   group's vector as its observation (`--task walk --like-playground`'s is
   Playground's HumanoidWalk observation, `swap_policies.py`).
   """
-  from brax.training.acme import running_statistics  # pylint: disable=g-import-not-at-top
   from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
 
   with open(path, 'rb') as f:
@@ -335,11 +334,7 @@ def load_policy(path, deterministic=True):
   networks = ppo_networks.make_ppo_networks(
       {k: tuple(v) for k, v in config['observation_size'].items()},
       config['action_size'],
-      preprocess_observations_fn=(
-          running_statistics.normalize
-          if config['normalize']
-          else lambda x, unused_params: x
-      ),
+      preprocess_observations_fn=_preprocess(config['normalize']),
       policy_obs_key='policy',
       value_obs_key=config['value_obs_key'],
       policy_hidden_layer_sizes=tuple(config['policy_layers']),
@@ -349,23 +344,27 @@ def load_policy(path, deterministic=True):
   return make_policy(saved['params'], deterministic=deterministic)
 
 
+def _preprocess(normalize):
+  """Brax's observation preprocessing for a saved policy's `normalize`."""
+  from brax.training.acme import running_statistics  # pylint: disable=g-import-not-at-top
+
+  if normalize:
+    return running_statistics.normalize
+  return lambda x, unused_params: x
+
+
 def playground_policy(saved, deterministic=True):
   """`policy(vector, key)` of a Playground run's saved `{'params', 'config'}`.
 
   Brax's default PPO networks, as `train_compare.py` trains Playground.
   """
-  from brax.training.acme import running_statistics  # pylint: disable=g-import-not-at-top
   from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
 
   config = saved['config']
   networks = ppo_networks.make_ppo_networks(
       config['observation_size'],
       config['action_size'],
-      preprocess_observations_fn=(
-          running_statistics.normalize
-          if config['normalize']
-          else lambda x, unused_params: x
-      ),
+      preprocess_observations_fn=_preprocess(config['normalize']),
   )
   make_policy = ppo_networks.make_inference_fn(networks)
   return make_policy(saved['params'], deterministic=deterministic)

@@ -137,7 +137,7 @@ def resume_cost(first, before):
     before: the previous segment's last row.
   """
   overhead = first.get('resume_overhead_s', 0.0)
-  compiled = first.get('compile_s', 0.0) - (before or {}).get('compile_s', 0.0)
+  compiled = first.get('compile_s', 0.0) - before.get('compile_s', 0.0)
   if 'resume_compile_s' in first:
     return overhead + max(compiled - first['resume_compile_s'], 0.0)
   return max(overhead, compiled)
