@@ -132,6 +132,26 @@ FEATURES = {
 
 
 SHARED = '_shared'
+ALL_SENSORS = '_all_sensors'
+# Suffixes of ours' programs, each an `Environment` argument.
+SUFFIXES = {
+    SHARED: dict(share_reset_forward=True),
+    ALL_SENSORS: dict(substep_sensors='all'),
+}
+
+
+def split_suffixes(name):
+  """(base, `Environment` kwargs) of a program name of ours."""
+  kwargs = {}
+  stripped = True
+  while stripped:
+    stripped = False
+    for suffix, suffix_kwargs in SUFFIXES.items():
+      if name.endswith(suffix):
+        name = name[: -len(suffix)]
+        kwargs.update(suffix_kwargs)
+        stripped = True
+  return name, kwargs
 
 
 def program_name(name):
@@ -139,19 +159,23 @@ def program_name(name):
 
   Ours' programs may end in `_shared`: the same environment with
   `share_reset_forward=True` (the restart of ended episodes fused into the
-  sub-step loop), e.g. `ours_on_shared`.
+  sub-step loop), e.g. `ours_on_shared`; and in `_all_sensors`: with
+  `substep_sensors='all'` (every sub-step computes the sensors, as
+  `mjx.step` does), e.g. `ours_off_all_sensors`.
   """
-  shared = name.endswith(SHARED) and not name.startswith(('playground', 'raw'))
-  if name == 'playground_trained':
-    return name
-  base = name[: -len(SHARED)] if shared else name
+  if name.startswith(('playground', 'raw')):
+    if name in ('playground', 'playground_trained', 'raw'):
+      return name
+    raise argparse.ArgumentTypeError(f'unknown program {name!r}')
+  base, kwargs = split_suffixes(name)
+  shared = bool(kwargs.get('share_reset_forward'))
   if shared and base.startswith('ours_on_chunk'):
     raise argparse.ArgumentTypeError(
         f'{name!r}: auto_reset_batch needs the separate restart'
     )
   features = base[len('only_') :].split('+')
   if (
-      base in ('ours_on', 'ours_off', 'playground', 'raw')
+      base in ('ours_on', 'ours_off')
       or (
           base.startswith('only_')
           and all(f in FEATURES or f == 'groups' for f in features)
@@ -166,7 +190,8 @@ def program_name(name):
       f'unknown program {name!r}: ours_on, ours_off, playground, '
       'playground_trained, raw, '
       "ours_on_chunk<K>, or only_ followed by features joined by '+' from "
-      f'{", ".join((*FEATURES, "groups"))}; ours\' may end in {SHARED}'
+      f'{", ".join((*FEATURES, "groups"))}; ours\' may end in '
+      f'{" and ".join(SUFFIXES)}'
   )
 
 
@@ -182,9 +207,9 @@ def env_variants(names, **env_kwargs):
   # pylint: enable=g-import-not-at-top
   envs = {}
   for name in names:
-    if name.endswith(SHARED):
-      base = name[: -len(SHARED)]
-      kwargs = dict(env_kwargs, share_reset_forward=True)
+    base, suffix_kwargs = split_suffixes(name)
+    if suffix_kwargs:
+      kwargs = dict(env_kwargs, **suffix_kwargs)
       envs[name] = env_variants([base], **kwargs)[base]
     elif name == 'ours_on':
       envs[name] = common.make_env(

@@ -634,7 +634,8 @@ def train_one(env_name, seed, config, source, args):
           segment_rows[0]['compile_s'],
       )
     else:
-      row.update(segment=0, resume_overhead_s=0.0)
+      # Every row has the same columns (the run's CSV has one header).
+      row.update(segment=0, resume_overhead_s=0.0, resume_compile_s=0.0)
     rows.append(row)
     train_ppo.append_csv(csv_path, row, header=len(rows) == 1)
     train_results.write_json(json_path, run)

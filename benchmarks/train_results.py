@@ -192,7 +192,9 @@ def summarize(runs, reference='playground', threshold=None):
   Returns:
     `{'threshold': float or None, 'threshold_from': str, 'envs': {env:
     {...}}}` where each environment has `seeds`, `final_return_mean`/`_std`
-    (over seeds, of each seed's last evaluation), `final_steps`, and per
+    (of each seed's last evaluation, over `final_return_seeds`: the seeds
+    that finished where some did, else all), `final_steps` (per seed, in
+    the order of `seeds`), and per
     seed (in `per_seed`): `final_return`, `time_to_threshold_s` and
     `steps_to_threshold` (None where never reached), `total_s` (the run's
     time in `ppo.train`, or its last evaluation's for a run still going),
@@ -201,7 +203,9 @@ def summarize(runs, reference='playground', threshold=None):
     `one_process_wall`'s clock: what the segments after the first spent
     resuming, `resume_s` seconds in all, is left out of
     `time_to_threshold_s` and `total_s` (an artefact of splitting the run
-    into device calls, not of the environment).
+    into device calls, not of the environment). The threshold, unless
+    given, is `reference`'s `final_return_mean`: a run stopped early does
+    not lower it where others finished.
   """
   by_env = {}
   for run in runs:
@@ -211,13 +215,16 @@ def summarize(runs, reference='playground', threshold=None):
   if threshold is None:
     ref = by_env.get(reference)
     if ref:
-      threshold = float(np.mean([r['rows'][-1]['eval_return'] for r in ref]))
+      threshold = float(
+          np.mean([r['rows'][-1]['eval_return'] for r in _final_runs(ref)])
+      )
       source = f"{reference}'s mean final return"
     else:
       source = f'no {reference} runs'
   envs = {}
   for env, env_runs in by_env.items():
-    finals = [r['rows'][-1]['eval_return'] for r in env_runs]
+    final_runs = _final_runs(env_runs)
+    finals = [r['rows'][-1]['eval_return'] for r in final_runs]
     per_seed = {}
     for r in env_runs:
       hit = time_to(r['rows'], threshold) if threshold is not None else None
@@ -239,14 +246,23 @@ def summarize(runs, reference='playground', threshold=None):
           'segments': n_segments,
           'resume_s': left_out,
       }
+    seeds = sorted(per_seed)
     envs[env] = {
-        'seeds': sorted(per_seed),
+        'seeds': seeds,
         'final_return_mean': float(np.mean(finals)),
         'final_return_std': float(np.std(finals)),
-        'final_steps': sorted({r['rows'][-1]['step'] for r in env_runs}),
+        'final_return_seeds': sorted(r['seed'] for r in final_runs),
+        'final_steps': [per_seed[k]['final_step'] for k in seeds],
         'per_seed': per_seed,
     }
   return {'threshold': threshold, 'threshold_from': source, 'envs': envs}
+
+
+def _final_runs(runs):
+  """The runs whose last evaluation is a final return: the finished ones
+  where some finished, else all."""
+  finished = [r for r in runs if r['status'] == 'finished']
+  return finished or runs
 
 
 def format_table(summary):
@@ -260,7 +276,8 @@ def format_table(summary):
   threshold = summary['threshold']
   label = 'n/a' if threshold is None else f'{threshold:.1f}'
   lines = [
-      f'| env | seeds | env steps | final return | time to {label} per seed '
+      f'| env | seeds | env steps per seed | final return (finished seeds) | '
+      f'time to {label} per seed '
       '[s] | total per seed [s] | training env steps/s per seed |',
       '|---|---|---|---|---|---|---|',
   ]
@@ -283,8 +300,15 @@ def format_table(summary):
     )
     steps = ', '.join(
         f'{x / 1e6:.1f} M' if x >= 100_000 else f'{x:,}'
-        for x in s['final_steps']
+        for x in (
+            s['final_steps'][:1]
+            if len(set(s['final_steps'])) == 1
+            else s['final_steps']
+        )
     )
+    final = f'{s["final_return_mean"]:.1f} ± {s["final_return_std"]:.1f}'
+    if s['final_return_seeds'] != s['seeds']:
+      final += f' (seeds {", ".join(map(str, s["final_return_seeds"]))})'
     rates = ', '.join(
         '–'
         if seeds[k]['env_steps_per_s'] is None
@@ -293,8 +317,7 @@ def format_table(summary):
     )
     lines.append(
         f'| {env} | {", ".join(map(str, s["seeds"]))} | {steps} | '
-        f'{s["final_return_mean"]:.1f} ± {s["final_return_std"]:.1f} | '
-        f'{hits} | {totals} | {rates} |'
+        f'{final} | {hits} | {totals} | {rates} |'
     )
   segmented = [
       f'{env} '
@@ -320,7 +343,8 @@ def format_table(summary):
 def plot(out, runs, summary, title):
   """Draws `out/returns.png` titled `title`; False without matplotlib.
 
-  Times are `one_process_wall`'s (the x label says so where a run was
+  Every run's curve, and each environment's mean over the seeds of its
+  `final_return_mean` (`summarize`). Times are `one_process_wall`'s (the x label says so where a run was
   segmented).
   """
   try:
@@ -349,7 +373,10 @@ def plot(out, runs, summary, title):
           alpha=0.35,
           linewidth=1,
       )
-    wall, ret = mean_curve(env_runs)
+    # The mean of the finished seeds (where some finished): a stopped run
+    # would cut every seed's mean curve at its last evaluation.
+    mean_runs = _final_runs(env_runs)
+    wall, ret = mean_curve(mean_runs)
     ax.plot(
         wall,
         ret,
@@ -357,7 +384,7 @@ def plot(out, runs, summary, title):
         linewidth=2.5,
         marker='o',
         markersize=3,
-        label=f'{env} (mean of {len(env_runs)} seeds)',
+        label=f'{env} (mean of {len(mean_runs)} seeds)',
     )
   if summary['threshold'] is not None:
     ax.axhline(

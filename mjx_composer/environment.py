@@ -161,6 +161,15 @@ class Environment:
       forward pass (`physics(state)` completes them). Observations,
       rewards and trajectories are the same as with 'full', which computes
       everything as composer's reset does.
+    substep_sensors: 'read' (default): where nothing between a control
+      step's sub-steps reads the sensors (the sub-step hooks, the
+      observables sampled at sub-steps), the sub-steps of the separate step
+      program (`share_reset_forward=False`, the GPU default) skip MuJoCo's
+      sensor stage and the control step computes the sensors once, after
+      its last sub-step, as its `mjx.step` would have
+      (`mjx_composer.substep_sensors`; `sensors_once_per_step` says
+      whether). 'all': every sub-step computes them, as `mjx.step` does.
+      The fused restart computes them at every sub-step either way.
     fixed_initial_state: composer's: every episode of a world starts as its
       first did. `reset(key)` starts a world from `key` as always; its
       auto-resets then reuse that key (kept in the world's persistent
@@ -198,6 +207,7 @@ class Environment:
       naconmax=None,
       njmax=None,
       reset_forward='observed',
+      substep_sensors='read',
       raise_exception_on_physics_error=None,
       recompile_mjcf_every_episode=None,
       fixed_initial_state=None,
@@ -215,6 +225,11 @@ class Environment:
           f"reset_forward must be 'observed' or 'full', got {reset_forward!r}."
       )
     self._reset_forward = reset_forward
+    if substep_sensors not in ('read', 'all'):
+      raise ValueError(
+          f"substep_sensors must be 'read' or 'all', got {substep_sensors!r}."
+      )
+    self._substep_sensors = substep_sensors
     # Jitted data completions of `physics`, by the state's batch rank.
     self._complete_data = {}
     _check_auto_reset_batch(auto_reset_batch, share_reset_forward, impl)
@@ -384,6 +399,7 @@ class Environment:
         reset_forward_mode=self._reset_forward,
         action_shape=tuple(task.action_spec(physics).shape),
         fixed_initial_state=self._fixed_initial_state,
+        substep_sensors=self._substep_sensors,
     )
     if self._impl == 'warp':
       # Hooks make fields per-world when reset is traced: trace it now.
@@ -463,6 +479,18 @@ class Environment:
     `mjx_composer.reset_forward`). Found by tracing the readers of a reset's
     state on first use."""
     return self._transitions.reset_forward.stage
+
+  @property
+  def sensors_once_per_step(self) -> bool:
+    """Whether `step` computes the sensors once per control step instead of
+    at every sub-step (`Environment(substep_sensors=...)`,
+    `mjx_composer.substep_sensors`; never with the fused restart). Found by
+    tracing what runs between the sub-steps on first use."""
+    return self._transitions.sensors_once_per_step and not self._fuses_restart()
+
+  def _fuses_restart(self) -> bool:
+    """Whether `step` runs the restart in the sub-step loop."""
+    return self._share_reset_forward and self._transitions.can_fuse_restart()
 
   @property
   def random_state(self):
@@ -559,7 +587,7 @@ class Environment:
     _check_one_world(state)
     action = self._check_action(action)
     transitions = self._transitions
-    fuse = self._share_reset_forward and transitions.can_fuse_restart()
+    fuse = self._fuses_restart()
     if self._auto_reset == 'next_step':
       if fuse:
         return transitions.reset_or_step(state, action)

@@ -25,6 +25,7 @@ from mjx_composer import kinematics as kinematics_lib
 from mjx_composer import physics as physics_lib
 from mjx_composer import reset_forward as reset_forward_lib
 from mjx_composer import state as state_lib
+from mjx_composer import substep_sensors as substep_sensors_lib
 
 
 def initial_physics(task, model, data, index) -> physics_lib.Physics:
@@ -81,6 +82,9 @@ class Transitions:
       first (`reset(key)`), kept in its persistent entries
       (`INITIAL_KEY`), and every initialization attempt uses that episode's
       key: composer's `fixed_initial_state`.
+    substep_sensors: 'read' (`step` computes the sensors once per control
+      step where nothing between its sub-steps reads them,
+      `sensors_once_per_step`) or 'all' (every sub-step, as `mjx.step`).
   """
 
   initial: physics_lib.Physics
@@ -93,6 +97,7 @@ class Transitions:
   reset_forward_mode: str = 'full'
   action_shape: tuple = ()
   fixed_initial_state: bool = False
+  substep_sensors: str = 'all'
 
   @functools.cached_property
   def _initial_kinematics(self) -> kinematics_lib.ReferenceKinematics:
@@ -164,6 +169,65 @@ class Transitions:
       return read, (first.data, diverged)
 
     return data_reads.reads(readers, carry.data, carry, failures, key, action)
+
+  @functools.cached_property
+  def sensors_once_per_step(self) -> bool:
+    """Whether `step`'s sub-steps leave the sensors to its end.
+
+    With `substep_sensors='read'`, on MJX's JAX implementation with the
+    Euler or implicitfast integrator, where nothing between two sub-steps'
+    physics reads what the sensor stages write (`_between_substeps`) and
+    the after-substep hooks write no data but the integration state:
+    `substep_sensors` explains why the control step is then the same.
+    """
+    model = self.initial.model
+    if (
+        self.substep_sensors == 'all'
+        or self.n_sub_steps == 1
+        or backend.is_warp(model)
+        or int(model.opt.integrator) not in _INTEGRATORS
+        or model.opt.disableflags & mjx.DisableBit.SENSOR
+    ):
+      return False
+    read, written = self._between_substeps()
+    allowed = set(substep_sensors_lib.ADVANCED)
+    return not (read.fields & substep_sensors_lib.OUTPUTS or written - allowed)
+
+  def _between_substeps(self) -> tuple[data_reads.Reads, set[str]]:
+    """What the work between two sub-steps' physics reads of `mjx.Data`,
+    and the data leaves the after-substep hooks write.
+
+    That work: a sub-step's after-substep hooks and observation update,
+    then the next sub-step's before-substep hooks. The data those hooks pass
+    on untouched to the physics is not read by them (see
+    `_read_after_reset`).
+    """
+    state = jax.eval_shape(self.reset, jax.random.key(0))
+    action = jax.ShapeDtypeStruct(self.action_shape, jnp.float32)
+    index = jax.ShapeDtypeStruct((), jnp.int32)
+    names = data_reads.leaf_names(state.data)
+    hooks_wrote = set()
+
+    def readers(data, state, key, action, i):
+      keys = _StepKeys.split(key)
+      fields = tuple(state.model_fields)
+      stepped = self.physics(state.replace(data=data))
+      carry, obs_state = self._after_substep(
+          stepped, state.obs_state, keys, i, fields
+      )
+      pairs = zip(names, jax.tree.leaves(carry.data), jax.tree.leaves(data))
+      hooks_wrote.update(name for name, new, old in pairs if new is not old)
+      after = self._before_substep(
+          self._restore(carry), action, keys, i + 1, fields
+      ).carry(fields)
+      pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
+      written = [new for new, old in pairs if new is not old]
+      return (after.replace(data=None), obs_state, written), after.data
+
+    read = data_reads.reads(
+        readers, state.data, state, jax.random.key(0), action, index
+    )
+    return read, hooks_wrote
 
   def physics(self, state: state_lib.State) -> physics_lib.Physics:
     """The `Physics` of a `State`."""
@@ -317,23 +381,39 @@ class Transitions:
     keys = _StepKeys.split(state.key)
     fields = tuple(state.model_fields)
     physics = self._before_step(state, action, keys)
+    sensors_once = self.sensors_once_per_step
 
     def substep(loop, i):
-      carry, obs_state = loop
+      carry, obs_state, started = loop
       physics = self._before_substep(
           self._restore(carry), action, keys, i, fields
       )
-      return (
-          self._after_substep(physics.step(), obs_state, keys, i, fields),
-          None,
+      if sensors_once:
+        started = substep_sensors_lib.IntegrationState.of(physics.data)
+        physics = physics.replace(
+            model=substep_sensors_lib.without_sensors(physics.model)
+        )
+      carry, obs_state = self._after_substep(
+          physics.step(), obs_state, keys, i, fields
       )
+      return (carry, obs_state, started), None
 
-    (carry, obs_state), _ = jax.lax.scan(
+    started = None
+    if sensors_once:
+      started = substep_sensors_lib.IntegrationState.of(physics.data)
+    (carry, obs_state, started), _ = jax.lax.scan(
         substep,
-        (physics.carry(fields), state.obs_state),
+        (physics.carry(fields), state.obs_state, started),
         jnp.arange(self.n_sub_steps, dtype=jnp.int32),
     )
-    return self._end_step(state, self._restore(carry), obs_state, keys)
+    physics = self._restore(carry)
+    if sensors_once:
+      physics = physics.replace(
+          data=substep_sensors_lib.sensors_of(
+              physics.model, physics.data, started
+          )
+      )
+    return self._end_step(state, physics, obs_state, keys)
 
   def can_fuse_restart(self) -> bool:
     """Whether `step_and_restart` applies (see there)."""

@@ -19,6 +19,8 @@ def test_ours_programs_take_the_shared_suffix():
       'ours_off_shared',
       'only_noise+randomize_shared',
       'ours_on_chunk512',
+      'ours_off_all_sensors',
+      'only_noise+randomize_all_sensors_shared',
       'playground',
       'playground_trained',
   ):
@@ -27,6 +29,7 @@ def test_ours_programs_take_the_shared_suffix():
       ('playground_shared', 'unknown program'),
       ('playground_trained_shared', 'unknown program'),
       ('raw_shared', 'unknown program'),
+      ('raw_all_sensors', 'unknown program'),
       ('ours_on_chunk512_shared', 'separate restart'),
       ('only_wings_shared', 'unknown program'),
   ):
@@ -41,3 +44,12 @@ def test_a_shared_program_fuses_the_restart_whatever_the_default():
   assert not envs['ours_off'].share_reset_forward
   assert envs['ours_off_shared'].share_reset_forward
   assert envs['ours_off_shared'].task is not envs['ours_off'].task
+
+
+def test_an_all_sensors_program_computes_them_at_every_substep():
+  envs = playground_compare.env_variants(
+      ['ours_off', 'ours_off_all_sensors'], share_reset_forward=False
+  )
+  assert envs['ours_off'].sensors_once_per_step
+  assert not envs['ours_off_all_sensors'].sensors_once_per_step
+  assert not envs['ours_off_all_sensors'].share_reset_forward

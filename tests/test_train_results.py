@@ -61,10 +61,15 @@ def test_time_to_playgrounds_final_return():
   runs = [
       # Playground's final returns 300 and 500: the threshold is 400.
       _run('playground', 0, [(10, 0, 5), (50, 10, 300)], total_s=55),
-      _run('playground', 1, [(12, 0, 5), (40, 10, 410), (60, 20, 500)], 61),
+      _run(
+          'playground',
+          1,
+          [(12, 0, 5), (40, 10, 410), (60, 20, 500)],
+          total_s=61,
+      ),
       # Ours reaches 400 at its third evaluation, exactly at the threshold
       # on seed 0; seed 1 never does and was stopped.
-      _run('ours', 0, [(20, 0, 5), (70, 10, 390), (90, 20, 400)], 95),
+      _run('ours', 0, [(20, 0, 5), (70, 10, 390), (90, 20, 400)], total_s=95),
       _run('ours', 1, [(21, 0, 5), (75, 10, 100)], 'stopped', 80),
   ]
   summary = train_results.summarize(runs)
@@ -79,10 +84,21 @@ def test_time_to_playgrounds_final_return():
   assert ours['per_seed'][0]['time_to_threshold_s'] == 90
   assert ours['per_seed'][1]['time_to_threshold_s'] is None
   assert ours['per_seed'][1]['status'] == 'stopped'
-  assert ours['final_steps'] == [10, 20]
+  # Per seed, in seed order; the stopped seed's return is not a final one.
+  assert ours['final_steps'] == [20, 10]
+  assert ours['final_return_seeds'] == [0]
+  assert ours['final_return_mean'] == pytest.approx(400.0)
   table = train_results.format_table(summary)
   assert 'time to 400.0' in table
   assert '80 (stopped)' in table
+  assert '| 20, 10 |' in table
+  assert '400.0 ± 0.0 (seeds 0)' in table
+  assert '400.0 ± 100.0 |' in table  # Playground's two finished seeds
+  # A stopped reference run does not lower the threshold.
+  stopped = _run('playground', 2, [(11, 0, 5), (30, 10, 20)], 'stopped', 33)
+  assert train_results.summarize(runs + [stopped])['threshold'] == (
+      pytest.approx(400.0)
+  )
   # An explicit threshold wins.
   assert (
       train_results.summarize(runs, threshold=5.0)['envs']['ours']['per_seed'][

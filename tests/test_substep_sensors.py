@@ -1,0 +1,306 @@
+"""Tests for `substep_sensors`: sensors computed once per control step.
+
+`sensors_of` is held to `mjx.step` and to MuJoCo's `mj_step` on a model
+with sensors of every stage (some read `qpos`, `qvel` and `time`, which the
+integrator advances); `Transitions.sensors_once_per_step` to what runs
+between the sub-steps; and environments that compute the sensors once to
+the same environments with `substep_sensors='all'`.
+"""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+import numpy as np
+import pytest
+
+import mjx_composer as composer
+from mjx_composer import data_reads
+from mjx_composer import substep_sensors
+from tests import conftest
+
+# A hinge chain and a free ball on a floor (contacts: constraint rows), with
+# sensors of the position, velocity and acceleration stages.
+_XML = """
+<mujoco>
+  <worldbody>
+    <geom type="plane" size="2 2 0.1"/>
+    <body name="a" pos="0 0 1">
+      <joint name="hinge" axis="0 1 0" damping="0.1"/>
+      <geom type="capsule" size="0.05" fromto="0 0 0 0.3 0 0" mass="1"/>
+      <site name="sa" pos="0.3 0 0" euler="0.2 0.4 0"/>
+      <body name="b" pos="0.3 0 0">
+        <joint name="hinge2" axis="1 0 0" damping="0.1"/>
+        <geom type="box" size="0.05 0.1 0.05" mass="0.5"/>
+        <site name="sb" pos="0.1 0.02 0"/>
+      </body>
+    </body>
+    <body name="ball" pos="0.5 0.5 0.1">
+      <freejoint/>
+      <geom type="sphere" size="0.1" mass="0.2"/>
+      <site name="sball" size="0.11"/>
+    </body>
+  </worldbody>
+  <actuator>
+    <motor name="m" joint="hinge" gear="2"/>
+    <position name="p" joint="hinge2" kp="5"/>
+  </actuator>
+  <sensor>
+    <jointpos joint="hinge"/>
+    <clock/>
+    <framepos objtype="site" objname="sb"/>
+    <subtreecom body="a"/>
+    <jointvel joint="hinge"/>
+    <velocimeter site="sb"/>
+    <gyro site="sb"/>
+    <subtreelinvel body="a"/>
+    <subtreeangmom body="a"/>
+    <accelerometer site="sa"/>
+    <force site="sb"/>
+    <torque site="sb"/>
+    <framelinacc objtype="site" objname="sa"/>
+    <touch site="sball"/>
+    <actuatorfrc actuator="m"/>
+  </sensor>
+</mujoco>
+"""
+
+
+@pytest.fixture(scope='module')
+def sensed():
+  """The host model, its device model and data away from rest."""
+  m = mujoco.MjModel.from_xml_string(_XML)
+  d = mujoco.MjData(m)
+  rng = np.random.default_rng(0)
+  d.qpos[:] = m.qpos0 + rng.uniform(-0.3, 0.3, m.nq)
+  d.qpos[m.jnt_qposadr[2] + 2] = 0.09  # the ball touches the floor
+  mujoco.mj_normalizeQuat(m, d.qpos)
+  d.qvel[:] = rng.uniform(-1, 1, m.nv)
+  d.ctrl[:] = rng.uniform(-1, 1, m.nu)
+  d.time = 0.25
+  return m, mjx.put_model(m), d
+
+
+def _step_without_sensors(model, data):
+  started = substep_sensors.IntegrationState.of(data)
+  stepped = mjx.step(substep_sensors.without_sensors(model), data)
+  return substep_sensors.sensors_of(model, stepped, started)
+
+
+def test_sensors_of_a_step_are_mjx_steps_and_mujocos(sensed):
+  m, model, d = sensed
+  data = mjx.put_data(m, d)
+  once = jax.jit(lambda x: _step_without_sensors(model, x))(data)
+  every = jax.jit(lambda x: mjx.step(model, x))(data)
+  assert int(np.asarray(data._impl.efc_J).shape[0])  # contacts: rows
+  for name, a, b in zip(
+      data_reads.leaf_names(data), jax.tree.leaves(once), jax.tree.leaves(every)
+  ):
+    np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5, err_msg=name)
+  # MuJoCo's own step, in double precision.
+  host = mujoco.MjData(m)
+  host.qpos[:], host.qvel[:], host.ctrl[:] = d.qpos, d.qvel, d.ctrl
+  host.time = d.time
+  mujoco.mj_step(m, host)
+  np.testing.assert_allclose(
+      once.sensordata, host.sensordata, rtol=2e-3, atol=2e-3
+  )
+  np.testing.assert_allclose(once.qpos, host.qpos, rtol=1e-4, atol=1e-5)
+  # The sensors that read the integration state see it before the step.
+  clock = m.sensor_adr[list(m.sensor_type).index(mujoco.mjtSensor.mjSENS_CLOCK)]
+  assert float(once.sensordata[clock]) == pytest.approx(0.25)
+  assert float(once.time) == pytest.approx(0.25 + m.opt.timestep)
+
+
+def test_outputs_are_what_the_sensor_stages_write(sensed):
+  m, model, d = sensed
+  data = mjx.put_data(m, d)
+  with_sensors = jax.jit(lambda x: mjx.step(model, x))(data)
+  without = jax.jit(
+      lambda x: mjx.step(substep_sensors.without_sensors(model), x)
+  )(data)
+  differ = {
+      name
+      for name, a, b in zip(
+          data_reads.leaf_names(data),
+          jax.tree.leaves(with_sensors),
+          jax.tree.leaves(without),
+      )
+      if not np.array_equal(a, b)
+  }
+  assert differ == substep_sensors.OUTPUTS
+
+
+def test_a_model_without_constraints_keeps_its_acceleration_sensors():
+  # `mjx.forward` skips the acceleration stage's sensors without
+  # constraint rows; so does `sensors_of`.
+  m = mujoco.MjModel.from_xml_string(
+      _XML.replace(
+          '<mujoco>', '<mujoco><option><flag contact="disable"/></option>'
+      )
+  )
+  model = mjx.put_model(m)
+  data = mjx.put_data(m, mujoco.MjData(m))
+  assert not np.asarray(data._impl.efc_J).size
+  once = jax.jit(lambda x: _step_without_sensors(model, x))(data)
+  every = jax.jit(lambda x: mjx.step(model, x))(data)
+  np.testing.assert_allclose(once.sensordata, every.sensordata, atol=1e-6)
+
+
+class _SensingTask(conftest.SwingTask):
+  """The swing task with sensors on the rod, observed at the control step:
+  an accelerometer in the model's acceleration stage, a clock.
+
+  `between`: what also runs between sub-steps: None; 'buffered' (the
+  accelerometer also observed with a buffer of every sub-step's sample);
+  'before_substep' (a hook that reads the accelerometer into a force);
+  'after_substep' (a hook that writes a force on the ball);
+  'after_substep_qvel' (a hook that damps the hinge's velocity); 'rk4'
+  (nothing, but the Runge-Kutta integrator).
+  """
+
+  def __init__(self, between=None):
+    super().__init__()
+    self.between = between
+    spec = self.pendulum.mjcf_model
+    spec.body('rod').add_site(name='imu', pos=[0, 0, -0.25])
+    self.accelerometer = spec.add_sensor(
+        name='accelerometer',
+        type=mujoco.mjtSensor.mjSENS_ACCELEROMETER,
+        objtype=mujoco.mjtObj.mjOBJ_SITE,
+        objname='imu',
+    )
+    self.clock = spec.add_sensor(
+        name='clock', type=mujoco.mjtSensor.mjSENS_CLOCK
+    )
+    if between == 'rk4':
+      self.arena.mjcf_model.option.integrator = mujoco.mjtIntegrator.mjINT_RK4
+
+  @property
+  def task_observables(self):
+    observables = dict(super().task_observables)
+    for name, sensor, buffered in (
+        ('accelerometer', self.accelerometer, False),
+        ('clock', self.clock, False),
+        ('accelerometer_buffered', self.accelerometer, True),
+    ):
+      if buffered and self.between != 'buffered':
+        continue
+      observable = composer.observation.observable.Generic(
+          lambda physics, sensor=sensor: physics.bind(sensor).sensordata
+      )
+      observable.enabled = True
+      if buffered:
+        observable.buffer_size = 2
+      observables[name] = observable
+    return observables
+
+  def before_substep(self, physics, action, key):
+    physics = super().before_substep(physics, action, key)
+    if self.between != 'before_substep':
+      return physics
+    read = jnp.sum(physics.bind(self.accelerometer).sensordata)
+    applied = physics.data.qfrc_applied.at[0].set(1e-3 * read)
+    return physics.replace(data=physics.data.replace(qfrc_applied=applied))
+
+  def after_substep(self, physics, key):
+    physics = super().after_substep(physics, key)
+    if self.between == 'after_substep':
+      applied = physics.data.xfrc_applied.at[-1, 0].set(0.01)
+      return physics.replace(data=physics.data.replace(xfrc_applied=applied))
+    if self.between == 'after_substep_qvel':
+      return physics.replace(
+          data=physics.data.replace(qvel=0.99 * physics.data.qvel)
+      )
+    return physics
+
+
+def _make_env(mode, between=None, **kwargs):
+  kwargs.setdefault('share_reset_forward', False)
+  return composer.Environment(
+      _SensingTask(between),
+      time_limit=0.1,
+      substep_sensors=mode,
+      **kwargs,
+  )
+
+
+def _rollout(env, steps=6):
+  states = [
+      jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(1), 3))
+  ]
+  step = jax.jit(jax.vmap(env.step))
+  actions = jax.random.uniform(jax.random.key(2), (steps, 3, 1), minval=-1)
+  for action in actions:
+    states.append(step(states[-1], action))
+  return states
+
+
+@pytest.mark.parametrize('between', [None, 'after_substep_qvel'])
+def test_sensors_once_per_step_make_the_same_episodes(between):
+  once_env = _make_env('read', between)
+  every_env = _make_env('all', between)
+  assert once_env.sensors_once_per_step
+  assert not every_env.sensors_once_per_step
+  once, every = _rollout(once_env), _rollout(every_env)
+  for a, b in zip(once, every):
+    for name in ('observation', 'reward', 'discount', 'metrics'):
+      jax.tree.map(
+          lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5),
+          getattr(a, name),
+          getattr(b, name),
+      )
+    for name, x, y in zip(
+        data_reads.leaf_names(a.data),
+        jax.tree.leaves(a.data),
+        jax.tree.leaves(b.data),
+    ):
+      np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5, err_msg=name)
+    np.testing.assert_array_equal(a.step_type, b.step_type)
+  # The observed sensors change over the episode: the test sees them.
+  final = np.asarray(once[-1].observation['accelerometer'])
+  assert (
+      np.abs(final - np.asarray(once[1].observation['accelerometer'])).max()
+      > 0.1
+  )
+  # The clock reads the time the control step's last sub-step started at.
+  dt = once_env.mj_model.opt.timestep
+  np.testing.assert_allclose(
+      once[2].observation['clock'][:, 0], 2 * 0.01 - dt, atol=1e-6
+  )
+
+
+@pytest.mark.parametrize(
+    'between', ['buffered', 'before_substep', 'after_substep', 'rk4']
+)
+def test_sensors_read_or_disturbed_between_substeps_stay_in_every_substep(
+    between,
+):
+  assert not _make_env('read', between).sensors_once_per_step
+
+
+def test_a_single_substep_keeps_mjx_step():
+  task = _SensingTask()
+  task.set_timesteps(control_timestep=0.005, physics_timestep=0.005)
+  env = composer.Environment(task, time_limit=0.1, share_reset_forward=False)
+  assert not env.sensors_once_per_step
+
+
+def test_the_fused_restart_keeps_mjx_step():
+  env = _make_env('read', share_reset_forward=True)
+  assert not env.sensors_once_per_step
+
+
+def test_the_walk_task_computes_its_sensors_once_per_step():
+  from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+
+  # Shipped (pushes, falls, noise, delay, history, the critic's
+  # accelerometer) and like Playground's HumanoidWalk.
+  for task in (walk.Walk(), walk.Walk(**walk.PLAYGROUND_EQUIVALENT)):
+    env = composer.Environment(task, time_limit=1.0, share_reset_forward=False)
+    assert env.sensors_once_per_step
+
+
+def test_substep_sensors_must_be_read_or_all():
+  with pytest.raises(ValueError, match="'read' or 'all'"):
+    _make_env('some')
