@@ -180,29 +180,47 @@ class Transitions:
     the after-substep hooks write no data but the integration state:
     `substep_sensors` explains why the control step is then the same.
     """
+    if not self._may_leave_sensors_to_the_end():
+      return False
+    return self._sensors_once(jax.eval_shape(self.reset, jax.random.key(0)))
+
+  def _may_leave_sensors_to_the_end(self) -> bool:
+    """`sensors_once_per_step`'s conditions that need no tracing."""
     model = self.initial.model
-    if (
+    return not (
         self.substep_sensors == 'all'
         or self.n_sub_steps == 1
         or backend.is_warp(model)
         or int(model.opt.integrator) not in _INTEGRATORS
         or model.opt.disableflags & mjx.DisableBit.SENSOR
-    ):
+    )
+
+  def _sensors_once(self, state) -> bool:
+    """`sensors_once_per_step`, from the shapes of a `State` (or its
+    tracers, in `step`: no second trace of the reset)."""
+    if 'sensors_once_per_step' not in self.__dict__:
+      # Where `cached_property` keeps its value (a frozen dataclass too).
+      self.__dict__['sensors_once_per_step'] = self._decide_sensors_once(
+          jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), state)
+      )
+    return self.__dict__['sensors_once_per_step']
+
+  def _decide_sensors_once(self, state) -> bool:
+    if not self._may_leave_sensors_to_the_end():
       return False
-    read, written = self._between_substeps()
+    read, written = self._between_substeps(state)
     allowed = set(substep_sensors_lib.ADVANCED)
     return not (read.fields & substep_sensors_lib.OUTPUTS or written - allowed)
 
-  def _between_substeps(self) -> tuple[data_reads.Reads, set[str]]:
+  def _between_substeps(self, state) -> tuple[data_reads.Reads, set[str]]:
     """What the work between two sub-steps' physics reads of `mjx.Data`,
     and the data leaves the after-substep hooks write.
 
     That work: a sub-step's after-substep hooks and observation update,
     then the next sub-step's before-substep hooks. The data those hooks pass
     on untouched to the physics is not read by them (see
-    `_read_after_reset`).
+    `_read_after_reset`). `state`: a `State`'s shapes.
     """
-    state = jax.eval_shape(self.reset, jax.random.key(0))
     action = jax.ShapeDtypeStruct(self.action_shape, jnp.float32)
     index = jax.ShapeDtypeStruct((), jnp.int32)
     names = data_reads.leaf_names(state.data)
@@ -381,7 +399,7 @@ class Transitions:
     keys = _StepKeys.split(state.key)
     fields = tuple(state.model_fields)
     physics = self._before_step(state, action, keys)
-    sensors_once = self.sensors_once_per_step
+    sensors_once = self._sensors_once(state)
 
     def substep(loop, i):
       carry, obs_state, started = loop

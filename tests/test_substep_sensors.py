@@ -240,9 +240,10 @@ def _rollout(env, steps=6):
 def test_sensors_once_per_step_make_the_same_episodes(between):
   once_env = _make_env('read', between)
   every_env = _make_env('all', between)
+  # Stepped first: the step decides from its own state, then reports it.
+  once, every = _rollout(once_env), _rollout(every_env)
   assert once_env.sensors_once_per_step
   assert not every_env.sensors_once_per_step
-  once, every = _rollout(once_env), _rollout(every_env)
   for a, b in zip(once, every):
     for name in ('observation', 'reward', 'discount', 'metrics'):
       jax.tree.map(
