@@ -292,12 +292,20 @@ def test_the_fused_restart_keeps_mjx_step():
   assert not env.sensors_once_per_step
 
 
-def test_the_walk_task_computes_its_sensors_once_per_step():
-  from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+def test_the_locomotion_tasks_compute_their_sensors_once_per_step():
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer.tasks import joystick
+  from mjx_composer.tasks import walk
 
-  # Shipped (pushes, falls, noise, delay, history, the critic's
-  # accelerometer) and like Playground's HumanoidWalk.
-  for task in (walk.Walk(), walk.Walk(**walk.PLAYGROUND_EQUIVALENT)):
+  # pylint: enable=g-import-not-at-top
+  # Walk shipped (pushes, falls, noise, delay, history, the critic's
+  # accelerometer) and like Playground's HumanoidWalk; the quadruped's
+  # joystick (foot contacts, feet air time).
+  for task in (
+      walk.Walk(),
+      walk.Walk(**walk.PLAYGROUND_EQUIVALENT),
+      joystick.Joystick(),
+  ):
     env = composer.Environment(task, time_limit=1.0, share_reset_forward=False)
     assert env.sensors_once_per_step
 
