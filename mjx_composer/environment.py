@@ -486,7 +486,7 @@ class Environment:
     at every sub-step (`Environment(substep_sensors=...)`,
     `mjx_composer.substep_sensors`; never with the fused restart). Found by
     tracing what runs between the sub-steps on first use."""
-    return self._transitions.sensors_once_per_step and not self._fuses_restart()
+    return not self._fuses_restart() and self._transitions.sensors_once_per_step
 
   def _fuses_restart(self) -> bool:
     """Whether `step` runs the restart in the sub-step loop."""
