@@ -18,66 +18,33 @@ import mjx_composer as composer
 from mjx_composer import data_reads
 from mjx_composer import substep_sensors
 from tests import conftest
+from tests import test_reset_forward
 
-# A hinge chain and a free ball on a floor (contacts: constraint rows), with
-# sensors of the position, velocity and acceleration stages.
-_XML = """
-<mujoco>
-  <worldbody>
-    <geom type="plane" size="2 2 0.1"/>
-    <body name="a" pos="0 0 1">
-      <joint name="hinge" axis="0 1 0" damping="0.1"/>
-      <geom type="capsule" size="0.05" fromto="0 0 0 0.3 0 0" mass="1"/>
-      <site name="sa" pos="0.3 0 0" euler="0.2 0.4 0"/>
-      <body name="b" pos="0.3 0 0">
-        <joint name="hinge2" axis="1 0 0" damping="0.1"/>
-        <geom type="box" size="0.05 0.1 0.05" mass="0.5"/>
-        <site name="sb" pos="0.1 0.02 0"/>
-      </body>
-    </body>
-    <body name="ball" pos="0.5 0.5 0.1">
-      <freejoint/>
-      <geom type="sphere" size="0.1" mass="0.2"/>
-      <site name="sball" size="0.11"/>
-    </body>
-  </worldbody>
-  <actuator>
-    <motor name="m" joint="hinge" gear="2"/>
-    <position name="p" joint="hinge2" kp="5"/>
-  </actuator>
-  <sensor>
-    <jointpos joint="hinge"/>
-    <clock/>
-    <framepos objtype="site" objname="sb"/>
-    <subtreecom body="a"/>
-    <jointvel joint="hinge"/>
-    <velocimeter site="sb"/>
-    <gyro site="sb"/>
-    <subtreelinvel body="a"/>
-    <subtreeangmom body="a"/>
+# `test_reset_forward`'s model (a hinge and a ball joint, a tendon, a free
+# ball on a floor, every position and velocity sensor type), its ball low
+# enough to touch the floor (contacts: constraint rows), and sensors of the
+# acceleration stage.
+_ACCELERATION_SENSORS = """
     <accelerometer site="sa"/>
     <force site="sb"/>
     <torque site="sb"/>
     <framelinacc objtype="site" objname="sa"/>
     <touch site="sball"/>
     <actuatorfrc actuator="m"/>
-  </sensor>
-</mujoco>
-"""
+  </sensor>"""
+_XML = test_reset_forward._SENSORS_XML.replace(
+    '<geom type="sphere" size="0.1" mass="0.2"/>',
+    '<geom type="sphere" size="0.1" mass="0.2"/><site name="sball" size="0.11"/>',
+).replace('  </sensor>', _ACCELERATION_SENSORS)
 
 
 @pytest.fixture(scope='module')
 def sensed():
   """The host model, its device model and data away from rest."""
   m = mujoco.MjModel.from_xml_string(_XML)
-  d = mujoco.MjData(m)
-  rng = np.random.default_rng(0)
-  d.qpos[:] = m.qpos0 + rng.uniform(-0.3, 0.3, m.nq)
-  d.qpos[m.jnt_qposadr[2] + 2] = 0.09  # the ball touches the floor
-  mujoco.mj_normalizeQuat(m, d.qpos)
-  d.qvel[:] = rng.uniform(-1, 1, m.nv)
-  d.ctrl[:] = rng.uniform(-1, 1, m.nu)
-  d.time = 0.25
+  d = test_reset_forward._moving_state(m)
+  free = m.jnt_qposadr[m.body('free').jntadr[0]]
+  d.qpos[free + 2] = 0.09  # the ball touches the floor
   return m, mjx.put_model(m), d
 
 
