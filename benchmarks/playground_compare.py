@@ -39,8 +39,18 @@ compiled rollout) over the number of worlds. On a GPU the device's peak
 bytes in use after each program are recorded too (a running maximum: JAX
 cannot reset it). Ratios: ours/raw and ours/playground per world count.
 
+The process compiles a trivial function before the first program, so that
+the backend's start-up is in no program's first call. Later programs can
+still profit from the earlier ones' compiles (XLA's autotuning results, JAX's
+caches), so with `--isolated` each program at each number of worlds runs in
+a fresh process of this script instead: first calls are then each program's
+own, and so is the peak memory; the ratios divide figures from different
+processes.
+
     python benchmarks/playground_compare.py --worlds 1024 8192 32768
     python benchmarks/playground_compare.py --worlds 4 --steps 2   # smoke
+    python benchmarks/playground_compare.py --worlds 8192 --isolated \
+        --programs ours_off playground raw
 
 Playground 0.2.0's imports need, besides this project's dependencies,
 `playground==0.2.0` and `lxml` (see the module's `PLAYGROUND_NEEDS`).
@@ -48,6 +58,11 @@ Playground 0.2.0's imports need, besides this project's dependencies,
 
 import argparse
 import importlib.metadata
+import json
+import os
+import subprocess
+import sys
+import tempfile
 import time
 
 import jax
@@ -288,6 +303,75 @@ def _scan_rollout(step, steps, batched=False):
   return rollout
 
 
+def _ratios(row, ours):
+  """Adds `<ours>/<other>` throughput ratios for what `row` holds."""
+  for name in ours:
+    for other in ('raw', 'playground', 'playground_trained'):
+      if name in row and other in row:
+        row[f'{name}/{other}'] = (
+            row[name]['control_steps_per_s'] / row[other]['control_steps_per_s']
+        )
+
+
+def _isolated_row(args, worlds, name):
+  """One program at `worlds` measured by this script in a fresh process."""
+  with tempfile.TemporaryDirectory() as tmp:
+    out = os.path.join(tmp, 'row.json')
+    cmd = [
+        sys.executable,
+        os.path.abspath(__file__),
+        '--worlds',
+        str(worlds),
+        '--programs',
+        name,
+        '--steps',
+        str(args.steps),
+        '--repeats',
+        str(args.repeats),
+        '--out',
+        out,
+    ]
+    if args.share_reset_forward is not None:
+      cmd += ['--share-reset-forward', args.share_reset_forward]
+    if subprocess.run(cmd, check=False).returncode:
+      return None, None
+    with open(out) as f:
+      payload = json.load(f)
+  return payload['results'][0].get(name), payload
+
+
+def _main_isolated(args, names):
+  """`--isolated`: every (worlds, program) in its own process.
+
+  This process never starts JAX's backend: on a GPU it would hold the
+  memory the workers need.
+  """
+  results, settings = [], {}
+  for worlds in args.worlds:
+    row = {'worlds': worlds}
+    results.append(row)
+    for name in names:
+      measured, payload = _isolated_row(args, worlds, name)
+      if measured is None:
+        print(f'{worlds:>6} worlds: {name} failed (its output says why)')
+        continue
+      row[name] = measured
+      settings = {k: v for k, v in payload.items() if k != 'results'}
+      _ratios(row, [n for n in names if n not in _OTHERS])
+      common.write_json(
+          args.out, {**settings, 'isolated': True, 'results': results}
+      )
+    print(
+        '        '
+        + ', '.join(f'{k} {v:.3f}' for k, v in row.items() if '/' in k)
+    )
+  print(f'Wrote {args.out}')
+
+
+# Programs that are not ours: the references ours' ratios divide by.
+_OTHERS = ('playground', 'playground_trained', 'raw')
+
+
 def main():
   parser = common.make_parser(
       __doc__,
@@ -307,12 +391,24 @@ def main():
       'raw); only_<feature>[+<feature>...] is ours_off with those features '
       'of ours_on: ' + ', '.join((*FEATURES, 'groups')),
   )
+  parser.add_argument(
+      '--isolated',
+      action='store_true',
+      help='measure each program at each number of worlds in a fresh '
+      'process (fair first calls: no program profits from compiles before '
+      'it; the ratios then divide numbers from different processes)',
+  )
   common.add_share_reset_forward_arg(parser)  # ours_on_chunk<K> needs off
   args = parser.parse_args()
+  names = args.programs or ('ours_on', 'ours_off', 'playground', 'raw')
+  if args.isolated:
+    return _main_isolated(args, names)
+
   cpu_linalg.enable()  # before compiling: see its module docstring
   device = common.print_device()
-
-  names = args.programs or ('ours_on', 'ours_off', 'playground', 'raw')
+  # The backend's one-time start-up, so the first program measured does not
+  # pay it in its first call.
+  jax.block_until_ready(jax.jit(lambda x: x + 1)(np.float32(0)))
   envs = env_variants(
       [*names, 'ours_off'],
       share_reset_forward=common.share_reset_forward(args),
@@ -366,13 +462,7 @@ def main():
           f'first call {row[name]["first_call_s"]:.1f} s',
           flush=True,
       )
-      for ours in envs:
-        for other in ('raw', 'playground', 'playground_trained'):
-          if ours in row and other in row:
-            row[f'{ours}/{other}'] = (
-                row[ours]['control_steps_per_s']
-                / row[other]['control_steps_per_s']
-            )
+      _ratios(row, envs)
       # Written after every program: a run cut short keeps what it measured
       # (each program compiles for tens of seconds on a GPU).
       common.write_results(

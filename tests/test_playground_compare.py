@@ -1,6 +1,8 @@
-"""benchmarks/playground_compare.py without measuring: program names, envs."""
+"""benchmarks/playground_compare.py: program names, envs, ratios, and one
+tiny measurement in a fresh process (raw MJX, one world, on the CPU)."""
 
 import argparse
+import json
 import os
 import sys
 
@@ -53,3 +55,37 @@ def test_an_all_sensors_program_computes_them_at_every_substep():
   assert envs['ours_off'].sensors_once_per_step
   assert not envs['ours_off_all_sensors'].sensors_once_per_step
   assert not envs['ours_off_all_sensors'].share_reset_forward
+
+
+def test_ratios_divide_ours_by_each_reference_present():
+  row = {
+      'worlds': 4,
+      'ours_off': {'control_steps_per_s': 300.0},
+      'raw': {'control_steps_per_s': 200.0},
+      'playground': {'control_steps_per_s': 250.0},
+  }
+  playground_compare._ratios(row, ['ours_off', 'ours_on'])
+  assert row['ours_off/raw'] == pytest.approx(1.5)
+  assert row['ours_off/playground'] == pytest.approx(1.2)
+  assert 'ours_off/playground_trained' not in row
+  assert not any(k.startswith('ours_on/') for k in row)
+
+
+def test_isolated_measures_each_program_in_its_own_process(tmp_path):
+  out = tmp_path / 'isolated.json'
+  args = argparse.Namespace(
+      worlds=[1],
+      steps=1,
+      repeats=1,
+      share_reset_forward=None,
+      out=str(out),
+  )
+  playground_compare._main_isolated(args, ['raw'])
+  with open(out) as f:
+    payload = json.load(f)
+  assert payload['isolated']
+  assert payload['task'] == 'walk' and payload['sub_steps'] == 5
+  (row,) = payload['results']
+  assert row['worlds'] == 1
+  assert row['raw']['control_steps_per_s'] > 0
+  assert row['raw']['first_call_s'] >= row['raw']['rollout_compile_s'] > 0
