@@ -163,13 +163,13 @@ class Environment:
       everything as composer's reset does.
     substep_sensors: 'read' (default): where nothing between a control
       step's sub-steps reads the sensors (the sub-step hooks, the
-      observables sampled at sub-steps), the sub-steps of the separate step
-      program (`share_reset_forward=False`, the GPU default) skip MuJoCo's
-      sensor stage and the control step computes the sensors once, after
-      its last sub-step, as its `mjx.step` would have
-      (`mjx_composer.substep_sensors`; `sensors_once_per_step` says
-      whether). 'all': every sub-step computes them, as `mjx.step` does.
-      The fused restart computes them at every sub-step either way.
+      observables sampled at sub-steps), the sub-steps skip MuJoCo's sensor
+      stage and the control step computes the sensors once, after its last
+      sub-step, as its `mjx.step` would have; a fused restart
+      (`share_reset_forward`) computes the sensors its reset's stage of the
+      forward pass computes once, too (`mjx_composer.substep_sensors`;
+      `sensors_once_per_step` says whether). 'all': every sub-step
+      computes them, as `mjx.step` does.
     fixed_initial_state: composer's: every episode of a world starts as its
       first did. `reset(key)` starts a world from `key` as always; its
       auto-resets then reuse that key (kept in the world's persistent
@@ -484,9 +484,9 @@ class Environment:
   def sensors_once_per_step(self) -> bool:
     """Whether `step` computes the sensors once per control step instead of
     at every sub-step (`Environment(substep_sensors=...)`,
-    `mjx_composer.substep_sensors`; never with the fused restart). Found by
-    tracing what runs between the sub-steps on first use."""
-    return not self._fuses_restart() and self._transitions.sensors_once_per_step
+    `mjx_composer.substep_sensors`). Found by tracing what runs between the
+    sub-steps on first use."""
+    return self._transitions.sensors_once_per_step
 
   def _fuses_restart(self) -> bool:
     """Whether `step` runs the restart in the sub-step loop."""

@@ -13,7 +13,10 @@ control step computes the sensors once, after its last sub-step
 (`sensors_of`), from that sub-step's integration state (`IntegrationState`),
 as its `mjx.step` would have. The control step's data, observations and
 rewards are those of `n` plain `mjx.step` calls (to float rounding:
-`tests/test_substep_sensors.py` compares them).
+`tests/test_substep_sensors.py` compares them). Where the restart is fused
+into the sub-step loop (`Environment(share_reset_forward=True)`), the
+restart's forward pass skips them too and the restart computes those its
+reset's stage computes (`Transitions._restart_sensors`).
 
 `mjx.step` computes the sensors after the forward pass and before the
 integrator advances `qpos`, `qvel`, `act` and `time`; every other field a

@@ -172,7 +172,8 @@ class Transitions:
 
   @functools.cached_property
   def sensors_once_per_step(self) -> bool:
-    """Whether `step`'s sub-steps leave the sensors to its end.
+    """Whether the sub-steps leave the sensors to the control step's end
+    (in `step` and in the fused restart's loop, `_step_in_one_loop`).
 
     With `substep_sensors='read'`, on MJX's JAX implementation with the
     Euler or implicitfast integrator, where nothing between two sub-steps'
@@ -504,6 +505,7 @@ class Transitions:
     physics = self._before_step(state, action, keys)
     n = self.n_sub_steps
     integrate = _INTEGRATORS[int(self.initial.model.opt.integrator)]
+    sensors_once = self._sensors_once(state)
 
     def reset_from(stepped, next_reset):
       """(key, previous state, whether it resets) of the reset iteration."""
@@ -526,10 +528,17 @@ class Transitions:
       init_key, _, _ = jax.random.split(reset_key, 3)
       return self._initialize(init_key, self._start(previous))
 
-    def end_step(state, keys, next_reset, loop):
+    def end_step(state, keys, next_reset, started, loop):
       """Ends the control step; prepares the restart where one is wanted."""
       carry, obs_state, stepped, failures = loop
-      stepped = self._end_step(state, self._restore(carry), obs_state, keys)
+      moved = self._restore(carry)
+      if sensors_once:
+        moved = moved.replace(
+            data=substep_sensors_lib.sensors_of(
+                moved.model, moved.data, started
+            )
+        )
+      stepped = self._end_step(state, moved, obs_state, keys)
       carry, failures = episode_lib.once_or_never(
           episode_lib.batch_any(reset_from(stepped, next_reset)[2]),
           lambda _: prepare_restart(stepped, next_reset),
@@ -540,6 +549,8 @@ class Transitions:
     def finish_restart(ready, forwarded, failures, stepped, next_reset):
       """The restarted state where the world resets, else `stepped`."""
       reset_key, _, resets = reset_from(stepped, next_reset)
+      if sensors_once:
+        forwarded = forwarded.replace(data=self._restart_sensors(forwarded))
       # What `mjx.forward` leaves with actuation disabled.
       data = forwarded.data.replace(
           act_dot=jnp.zeros_like(forwarded.data.act_dot),
@@ -565,11 +576,11 @@ class Transitions:
           self._restore(carry), action, keys, i, fields
       ).carry(fields)
       physics = self._restore(episode_lib.tree_select(i < n, hooked, carry))
-      physics = physics.replace(
-          data=mjx.forward(
-              _actuation_masked(physics.model, i == n), physics.data
-          )
-      )
+      started = substep_sensors_lib.IntegrationState.of(physics.data)
+      forward_model = _actuation_masked(physics.model, i == n)
+      if sensors_once:
+        forward_model = substep_sensors_lib.without_sensors(forward_model)
+      physics = physics.replace(data=mjx.forward(forward_model, physics.data))
       moved = physics.replace(data=integrate(physics.model, physics.data))
       moved, obs_state = self._after_substep(moved, obs_state, keys, i, fields)
       # The restart's end first: it is the last reader of `ready` and
@@ -585,7 +596,7 @@ class Transitions:
       carry = episode_lib.tree_select(i < n, moved, physics.carry(fields))
       carry, obs_state, stepped, failures = episode_lib.once_or_never(
           i == n - 1,
-          lambda loop: end_step(state, keys, next_reset, loop),
+          lambda loop: end_step(state, keys, next_reset, started, loop),
           (carry, obs_state, stepped, failures),
       )
       return carry, obs_state, stepped, failures
@@ -599,6 +610,29 @@ class Transitions:
         (state, action, keys, next_step_reset),
     )
     return stepped
+
+  def _restart_sensors(self, forwarded: physics_lib.Physics) -> mjx.Data:
+    """The sensors the restart's stage computes, for a fused restart whose
+    forward pass skipped them (`sensors_once_per_step`).
+
+    `forwarded`: the restart's data after the loop's forward pass (actuation
+    masked), with its model. `ResetForward.restrict` then keeps what the
+    stage computes, as of `mjx.forward`'s own sensors.
+    """
+    stage = self.reset_forward
+    data = forwarded.data
+    if stage.stage == 'full':
+      return substep_sensors_lib.sensors_of(
+          forwarded.model,
+          data,
+          substep_sensors_lib.IntegrationState.of(data),
+      )
+    if not stage.sensors:
+      return data  # `restrict` keeps the sensors from before the reset
+    data = mjx.sensor_pos(forwarded.model, data)
+    if stage.stage == 'velocity':
+      data = mjx.sensor_vel(forwarded.model, data)
+    return data
 
   # The pieces of a step, shared by `step` and `_step_in_one_loop`.
 

@@ -116,7 +116,8 @@ def test_a_model_without_constraints_keeps_its_acceleration_sensors():
 
 class _SensingTask(conftest.SwingTask):
   """The swing task with sensors on the rod, observed at the control step:
-  an accelerometer in the model's acceleration stage, a clock.
+  an accelerometer in the model's acceleration stage (or, with
+  `observed='velocity'`, a gyro in its velocity stage instead), a clock.
 
   `between`: what also runs between sub-steps: None; 'buffered' (the
   accelerometer also observed with a buffer of every sub-step's sample);
@@ -126,14 +127,21 @@ class _SensingTask(conftest.SwingTask):
   (nothing, but the Runge-Kutta integrator).
   """
 
-  def __init__(self, between=None):
+  def __init__(self, between=None, observed='acceleration'):
     super().__init__()
     self.between = between
+    self.observed = observed
     spec = self.pendulum.mjcf_model
     spec.body('rod').add_site(name='imu', pos=[0, 0, -0.25])
     self.accelerometer = spec.add_sensor(
         name='accelerometer',
         type=mujoco.mjtSensor.mjSENS_ACCELEROMETER,
+        objtype=mujoco.mjtObj.mjOBJ_SITE,
+        objname='imu',
+    )
+    self.gyro = spec.add_sensor(
+        name='gyro',
+        type=mujoco.mjtSensor.mjSENS_GYRO,
         objtype=mujoco.mjtObj.mjOBJ_SITE,
         objname='imu',
     )
@@ -146,8 +154,13 @@ class _SensingTask(conftest.SwingTask):
   @property
   def task_observables(self):
     observables = dict(super().task_observables)
+    rate = (
+        ('accelerometer', self.accelerometer)
+        if self.observed == 'acceleration'
+        else ('gyro', self.gyro)
+    )
     for name, sensor, buffered in (
-        ('accelerometer', self.accelerometer, False),
+        (*rate, False),
         ('clock', self.clock, False),
         ('accelerometer_buffered', self.accelerometer, True),
     ):
@@ -161,6 +174,16 @@ class _SensingTask(conftest.SwingTask):
         observable.buffer_size = 2
       observables[name] = observable
     return observables
+
+  def initialize_episode(self, physics, key):
+    physics = super().initialize_episode(physics, key)
+    if self.observed != 'velocity':
+      return physics
+    # A gyro at rest reads zero before and after any forward pass.
+    qvel = jax.random.uniform(
+        jax.random.fold_in(key, 1), physics.data.qvel.shape, minval=-2
+    )
+    return physics.replace(data=physics.data.replace(qvel=qvel))
 
   def before_substep(self, physics, action, key):
     physics = super().before_substep(physics, action, key)
@@ -182,10 +205,10 @@ class _SensingTask(conftest.SwingTask):
     return physics
 
 
-def _make_env(mode, between=None, **kwargs):
+def _make_env(mode, between=None, observed='acceleration', **kwargs):
   kwargs.setdefault('share_reset_forward', False)
   return composer.Environment(
-      _SensingTask(between),
+      _SensingTask(between, observed),
       time_limit=0.1,
       substep_sensors=mode,
       **kwargs,
@@ -203,12 +226,32 @@ def _rollout(env, steps=6):
   return states
 
 
-@pytest.mark.parametrize('between', [None, 'after_substep_qvel'])
-def test_sensors_once_per_step_make_the_same_episodes(between):
-  once_env = _make_env('read', between)
-  every_env = _make_env('all', between)
+@pytest.mark.parametrize(
+    'between, observed, share_reset_forward',
+    [
+        (None, 'acceleration', False),
+        ('after_substep_qvel', 'acceleration', False),
+        # The fused restart: its forward pass, the sub-steps' too, skips the
+        # sensors; the reset's stage ('full' for the accelerometer,
+        # 'velocity' for the gyro) computes its own once.
+        (None, 'acceleration', True),
+        (None, 'velocity', True),
+    ],
+)
+def test_sensors_once_per_step_make_the_same_episodes(
+    between, observed, share_reset_forward
+):
+  kwargs = dict(share_reset_forward=share_reset_forward)
+  once_env = _make_env('read', between, observed, **kwargs)
+  every_env = _make_env('all', between, observed, **kwargs)
   # Stepped first: the step decides from its own state, then reports it.
-  once, every = _rollout(once_env), _rollout(every_env)
+  # 12 steps of 10-step episodes: each world restarts once (same step).
+  once, every = _rollout(once_env, 12), _rollout(every_env, 12)
+  assert np.asarray(once[10].last()).all()
+  assert once_env._fuses_restart() == share_reset_forward  # pylint: disable=protected-access
+  assert once_env.reset_forward_stage == (
+      'full' if observed == 'acceleration' else 'velocity'
+  )
   assert once_env.sensors_once_per_step
   assert not every_env.sensors_once_per_step
   for a, b in zip(once, every):
@@ -226,11 +269,15 @@ def test_sensors_once_per_step_make_the_same_episodes(between):
       np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5, err_msg=name)
     np.testing.assert_array_equal(a.step_type, b.step_type)
   # The observed sensors change over the episode: the test sees them.
-  final = np.asarray(once[-1].observation['accelerometer'])
-  assert (
-      np.abs(final - np.asarray(once[1].observation['accelerometer'])).max()
-      > 0.1
-  )
+  rate = 'accelerometer' if observed == 'acceleration' else 'gyro'
+  final = np.asarray(once[9].observation[rate])
+  assert np.abs(final - np.asarray(once[1].observation[rate])).max() > 0.1
+  # The restarted worlds' first observation is the reset's, not the ended
+  # episode's (nor zero: the gyro's worlds start moving).
+  restarted = np.asarray(once[10].observation[rate]).reshape(3, -1)
+  final = final.reshape(3, -1)
+  assert np.abs(restarted - final).max(axis=1).min() > 1e-3
+  assert np.abs(restarted).max(axis=1).min() > 1e-3
   # The clock reads the time the control step's last sub-step started at.
   dt = once_env.mj_model.opt.timestep
   np.testing.assert_allclose(
@@ -251,11 +298,6 @@ def test_a_single_substep_keeps_mjx_step():
   task = _SensingTask()
   task.set_timesteps(control_timestep=0.005, physics_timestep=0.005)
   env = composer.Environment(task, time_limit=0.1, share_reset_forward=False)
-  assert not env.sensors_once_per_step
-
-
-def test_the_fused_restart_keeps_mjx_step():
-  env = _make_env('read', share_reset_forward=True)
   assert not env.sensors_once_per_step
 
 
