@@ -243,9 +243,10 @@ class Transitions:
       written = [new for new, old in pairs if new is not old]
       return (after.replace(data=None), obs_state, written), after.data
 
-    read = data_reads.reads(
-        readers, state.data, state, jax.random.key(0), action, index
-    )
+    # The key's shape, not a key: this runs inside the step's trace, where
+    # `jax.random.key(0)` would stage an equation into the step's program.
+    key = jax.eval_shape(lambda: jax.random.key(0))
+    read = data_reads.reads(readers, state.data, state, key, action, index)
     return read, hooks_wrote
 
   def physics(self, state: state_lib.State) -> physics_lib.Physics:
