@@ -51,6 +51,7 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer import data_reads
+from mjx_composer import substep_sensors
 
 STAGES = ('none', 'position', 'velocity', 'full')
 
@@ -301,6 +302,22 @@ class ResetForward:
             self.sensor_rows, computed.sensordata, before.sensordata
         )
     )
+
+  def sensors_of(self, model, data):
+    """`data`, through the full forward pass with its sensors skipped
+    (`mjDSBL_SENSOR`), with the sensors this stage computes.
+
+    For a restart fused into the sub-step loop that leaves the sensors to
+    the control step's end; `restrict` then keeps what the stage computes.
+    """
+    if self.stage == 'full':
+      return substep_sensors.sensors_of(
+          model, data, substep_sensors.IntegrationState.of(data)
+      )
+    if not self.sensors:
+      return data  # `restrict` keeps the sensors from before the forward pass
+    data = mjx.sensor_pos(model, data)
+    return mjx.sensor_vel(model, data) if self.stage == 'velocity' else data
 
   def restrict(self, computed, before):
     """A full forward pass's `computed` data, as this stage leaves it.

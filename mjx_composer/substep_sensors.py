@@ -16,7 +16,7 @@ rewards are those of `n` plain `mjx.step` calls (to float rounding:
 `tests/test_substep_sensors.py` compares them). Where the restart is fused
 into the sub-step loop (`Environment(share_reset_forward=True)`), the
 restart's forward pass skips them too and the restart computes those its
-reset's stage computes (`Transitions._restart_sensors`).
+reset's stage computes (`ResetForward.sensors_of`).
 
 `mjx.step` computes the sensors after the forward pass and before the
 integrator advances `qpos`, `qvel`, `act` and `time`; every other field a

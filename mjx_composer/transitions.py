@@ -550,8 +550,10 @@ class Transitions:
     def finish_restart(ready, forwarded, failures, stepped, next_reset):
       """The restarted state where the world resets, else `stepped`."""
       reset_key, _, resets = reset_from(stepped, next_reset)
-      if sensors_once:
-        forwarded = forwarded.replace(data=self._restart_sensors(forwarded))
+      if sensors_once:  # the loop's forward pass skipped them
+        forwarded = forwarded.replace(
+            data=self.reset_forward.sensors_of(forwarded.model, forwarded.data)
+        )
       # What `mjx.forward` leaves with actuation disabled.
       data = forwarded.data.replace(
           act_dot=jnp.zeros_like(forwarded.data.act_dot),
@@ -577,9 +579,10 @@ class Transitions:
           self._restore(carry), action, keys, i, fields
       ).carry(fields)
       physics = self._restore(episode_lib.tree_select(i < n, hooked, carry))
-      started = substep_sensors_lib.IntegrationState.of(physics.data)
       forward_model = _actuation_masked(physics.model, i == n)
+      started = None
       if sensors_once:
+        started = substep_sensors_lib.IntegrationState.of(physics.data)
         forward_model = substep_sensors_lib.without_sensors(forward_model)
       physics = physics.replace(data=mjx.forward(forward_model, physics.data))
       moved = physics.replace(data=integrate(physics.model, physics.data))
@@ -611,29 +614,6 @@ class Transitions:
         (state, action, keys, next_step_reset),
     )
     return stepped
-
-  def _restart_sensors(self, forwarded: physics_lib.Physics) -> mjx.Data:
-    """The sensors the restart's stage computes, for a fused restart whose
-    forward pass skipped them (`sensors_once_per_step`).
-
-    `forwarded`: the restart's data after the loop's forward pass (actuation
-    masked), with its model. `ResetForward.restrict` then keeps what the
-    stage computes, as of `mjx.forward`'s own sensors.
-    """
-    stage = self.reset_forward
-    data = forwarded.data
-    if stage.stage == 'full':
-      return substep_sensors_lib.sensors_of(
-          forwarded.model,
-          data,
-          substep_sensors_lib.IntegrationState.of(data),
-      )
-    if not stage.sensors:
-      return data  # `restrict` keeps the sensors from before the reset
-    data = mjx.sensor_pos(forwarded.model, data)
-    if stage.stage == 'velocity':
-      data = mjx.sensor_vel(forwarded.model, data)
-    return data
 
   # The pieces of a step, shared by `step` and `_step_in_one_loop`.
 

@@ -291,19 +291,24 @@ class _ReadsInBeforeStep(conftest.SwingTask):
     return physics.replace(data=physics.data.replace(qfrc_applied=applied))
 
 
+def rollout(env, steps):
+  """The states of 3 worlds over `steps` steps of random one-dim actions."""
+  states = [
+      jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(1), 3))
+  ]
+  step = jax.jit(jax.vmap(env.step))
+  actions = jax.random.uniform(jax.random.key(2), (steps, 3, 1), minval=-1)
+  for action in actions:
+    states.append(step(states[-1], action))
+  return states
+
+
 def _rollouts(make_env, steps=7):
   """States of `steps` steps of 3 worlds (episodes of 5) in both modes."""
   out = {}
   for mode in ('observed', 'full'):
     env = make_env(mode)
-    states = [
-        jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(1), 3))
-    ]
-    step = jax.jit(jax.vmap(env.step))
-    actions = jax.random.uniform(jax.random.key(2), (steps, 3, 1), minval=-1)
-    for action in actions:
-      states.append(step(states[-1], action))
-    out[mode] = (env, states)
+    out[mode] = (env, rollout(env, steps))
   return out
 
 

@@ -215,17 +215,6 @@ def _make_env(mode, between=None, observed='acceleration', **kwargs):
   )
 
 
-def _rollout(env, steps=6):
-  states = [
-      jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(1), 3))
-  ]
-  step = jax.jit(jax.vmap(env.step))
-  actions = jax.random.uniform(jax.random.key(2), (steps, 3, 1), minval=-1)
-  for action in actions:
-    states.append(step(states[-1], action))
-  return states
-
-
 @pytest.mark.parametrize(
     'between, observed, share_reset_forward',
     [
@@ -246,7 +235,9 @@ def test_sensors_once_per_step_make_the_same_episodes(
   every_env = _make_env('all', between, observed, **kwargs)
   # Stepped first: the step decides from its own state, then reports it.
   # 12 steps of 10-step episodes: each world restarts once (same step).
-  once, every = _rollout(once_env, 12), _rollout(every_env, 12)
+  once, every = test_reset_forward.rollout(
+      once_env, 12
+  ), test_reset_forward.rollout(every_env, 12)
   assert np.asarray(once[10].last()).all()
   assert once_env._fuses_restart() == share_reset_forward  # pylint: disable=protected-access
   assert once_env.reset_forward_stage == (
