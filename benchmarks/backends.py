@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 
 import common  # benchmarks/common.py
-from mjx_composer import backend
+from mjx_composer.platform import backend
 
 
 def _first_then_median(fn, args, repeats):

@@ -506,8 +506,8 @@ def run_one(
   import common
   # pylint: enable=g-import-not-at-top
 
-  from mjx_composer import cpu_linalg  # pylint: disable=g-import-not-at-top
-  from mjx_composer import prng_lowering  # pylint: disable=g-import-not-at-top
+  from mjx_composer.platform import cpu_linalg  # pylint: disable=g-import-not-at-top
+  from mjx_composer.platform import prng_lowering  # pylint: disable=g-import-not-at-top
 
   # As our scripts compile (MJX_COMPOSER_THREEFRY_KERNEL=0: without).
   threefry_kernel = prng_lowering.enable()

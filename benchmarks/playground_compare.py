@@ -68,7 +68,7 @@ import time
 import jax
 import numpy as np
 
-from mjx_composer import cpu_linalg
+from mjx_composer.platform import cpu_linalg
 
 import common  # benchmarks/common.py
 

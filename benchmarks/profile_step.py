@@ -44,7 +44,7 @@ import time
 
 import jax
 
-from mjx_composer import transitions
+from mjx_composer.runtime import transitions
 
 import common  # benchmarks/common.py
 

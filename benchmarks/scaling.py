@@ -2,7 +2,7 @@
 
 For `--worlds` worlds (default 65,536), first on one device and then on all
 N local devices, the world axis split over them with
-`mjx_composer.sharding` (each device steps its own worlds, with no
+`mjx_composer.platform.sharding` (each device steps its own worlds, with no
 communication between devices), it times:
 
 * raw:      raw MJX on the reach model: per control step, `ctrl` set and
@@ -26,7 +26,7 @@ communication between devices), it times:
             first (which compiles), median.
 
 On several GPUs the per-device programs and Brax's `pmap` compile with
-GSPMD (`mjx_composer.partitioner`: Shardy crashed compiling them on two
+GSPMD (`mjx_composer.platform.partitioner`: Shardy crashed compiling them on two
 H200s with JAX 0.11.2).
 
 It reports physics steps per second (raw, composed, gspmd: control steps x
@@ -53,11 +53,11 @@ import time
 import jax
 
 import common  # benchmarks/common.py
-from mjx_composer import compilation_cache
-from mjx_composer import partitioner
-from mjx_composer import cpu_linalg
-from mjx_composer import prng_lowering
-from mjx_composer import sharding
+from mjx_composer.platform import compilation_cache
+from mjx_composer.platform import partitioner
+from mjx_composer.platform import cpu_linalg
+from mjx_composer.platform import prng_lowering
+from mjx_composer.platform import sharding
 
 PARTS = ('raw', 'composed', 'ppo')
 _COLLECTIVES = (

@@ -543,7 +543,7 @@ def train_one(env_name, seed, config, source, args):
   import jax
   from brax.training.agents.ppo import train as ppo
 
-  from mjx_composer import partitioner
+  from mjx_composer.platform import partitioner
   # pylint: enable=g-import-not-at-top
 
   run_dir = os.path.join(args.out, 'runs')
@@ -819,9 +819,9 @@ def main(argv=None):
           flags + ' --xla_gpu_triton_gemm_any=True'
       ).strip()
   # pylint: disable=g-import-not-at-top
-  from mjx_composer import compilation_cache
-  from mjx_composer import cpu_linalg
-  from mjx_composer import prng_lowering
+  from mjx_composer.platform import compilation_cache
+  from mjx_composer.platform import cpu_linalg
+  from mjx_composer.platform import prng_lowering
   # pylint: enable=g-import-not-at-top
   cache = compilation_cache.enable(enabled=args.compilation_cache)
   prng_lowering.enable()

@@ -51,7 +51,7 @@ The last lines printed are a short table. Time to threshold is the wall-clock
 time from the start of `ppo.train` (compilation included) to the first
 evaluation whose mean return reaches `--threshold`.
 
-JAX's persistent compilation cache is on (`mjx_composer.compilation_cache`),
+JAX's persistent compilation cache is on (`mjx_composer.platform.compilation_cache`),
 so a rerun with the same settings loads its programs instead of compiling
 them and reaches the threshold sooner: for a cold-start time to threshold,
 pass `--no-compilation-cache` (or set `MJX_COMPOSER_COMPILATION_CACHE=0`).
@@ -494,7 +494,7 @@ def rollout_images(env, brax_env, policy, args, out):
   Returns:
     The paths written.
   """
-  from mjx_composer import rendering  # pylint: disable=g-import-not-at-top
+  from mjx_composer.host import rendering  # pylint: disable=g-import-not-at-top
   from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
 
   n = args.render_worlds
@@ -762,10 +762,10 @@ def main(argv=None):
   args = parse_args(argv)
   # pylint: disable=g-import-not-at-top
   from brax.training.agents.ppo import train as ppo
-  from mjx_composer import compilation_cache
-  from mjx_composer import partitioner
-  from mjx_composer import cpu_linalg
-  from mjx_composer import prng_lowering
+  from mjx_composer.platform import compilation_cache
+  from mjx_composer.platform import partitioner
+  from mjx_composer.platform import cpu_linalg
+  from mjx_composer.platform import prng_lowering
   # pylint: enable=g-import-not-at-top
   cache_dir = compilation_cache.enable(
       enabled=False if args.no_compilation_cache else None

@@ -15,7 +15,7 @@ with `auto_reset='same_step'` the state after the unroll already holds the
 next episode's first observation, so iterations just carry the state on.
 
 The compiled iteration is kept in JAX's persistent compilation cache
-(`mjx_composer.compilation_cache`; `MJX_COMPOSER_COMPILATION_CACHE=0` turns
+(`mjx_composer.platform.compilation_cache`; `MJX_COMPOSER_COMPILATION_CACHE=0` turns
 it off), so a second run starts training sooner.
 """
 
@@ -28,9 +28,9 @@ import jax.numpy as jnp
 import optax
 
 from mjx_composer import cli
-from mjx_composer import compilation_cache
-from mjx_composer import cpu_linalg
-from mjx_composer import prng_lowering
+from mjx_composer.platform import compilation_cache
+from mjx_composer.platform import cpu_linalg
+from mjx_composer.platform import prng_lowering
 
 
 class Policy(nn.Module):

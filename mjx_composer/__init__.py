@@ -53,7 +53,7 @@ from mjx_composer.environment import Environment
 from mjx_composer.environment import HOOK_NAMES
 from mjx_composer.environment import State
 from mjx_composer.environment import StepType
-from mjx_composer.host_environment import HostEnvironment
+from mjx_composer.host.host_environment import HostEnvironment
 from mjx_composer.initializer import Initializer
 from mjx_composer import initializers
 from mjx_composer import observation

@@ -6,7 +6,7 @@ is installed) with a random policy, shows progress, and prints throughput and
 episode statistics.
 
 Compiled programs are kept in JAX's persistent compilation cache
-(`mjx_composer.compilation_cache`), so a second run with the same options
+(`mjx_composer.platform.compilation_cache`), so a second run with the same options
 skips most of the compilation; `--no-compilation-cache` or
 `MJX_COMPOSER_COMPILATION_CACHE=0` turns that off.
 """
@@ -162,9 +162,9 @@ def demo_parser():
 
 def demo(argv=None):
   # pylint: disable=g-import-not-at-top
-  from mjx_composer import compilation_cache
-  from mjx_composer import cpu_linalg
-  from mjx_composer import prng_lowering
+  from mjx_composer.platform import compilation_cache
+  from mjx_composer.platform import cpu_linalg
+  from mjx_composer.platform import prng_lowering
 
   # pylint: enable=g-import-not-at-top
 

@@ -33,8 +33,8 @@ from typing import Iterator
 import jax.numpy as jnp
 import mujoco
 
-from mjx_composer import composition_checks
-from mjx_composer import element_index
+from mjx_composer.model import composition_checks
+from mjx_composer.model import element_index
 from mjx_composer.utils import transformations as tr
 
 _DEFAULT_SPEC_NAME = 'MuJoCo Model'

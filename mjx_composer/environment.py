@@ -55,15 +55,15 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import backend
-from mjx_composer import element_index
-from mjx_composer import episode as episode_lib
-from mjx_composer import hooks as hooks_lib
-from mjx_composer import model_checks
+from mjx_composer.platform import backend
+from mjx_composer.model import element_index
+from mjx_composer.runtime import episode as episode_lib
+from mjx_composer.runtime import hooks as hooks_lib
+from mjx_composer.model import model_checks
 from mjx_composer import physics as physics_lib
-from mjx_composer import reset_forward as reset_forward_lib
-from mjx_composer import state as state_lib
-from mjx_composer import transitions as transitions_lib
+from mjx_composer.runtime import reset_forward as reset_forward_lib
+from mjx_composer.runtime import state as state_lib
+from mjx_composer.runtime import transitions as transitions_lib
 from mjx_composer.observation import updater as updater_lib
 
 HOOK_NAMES = hooks_lib.HOOK_NAMES
@@ -155,7 +155,7 @@ class Environment:
       the next step's hooks before its physics; `mjx.step` recomputes the
       rest): 'none', 'position' (kinematics, centres of mass, position
       sensors, ...), 'velocity' (also velocities and velocity sensors) or
-      'full' (`mjx_composer.reset_forward`; `reset_forward_stage` says
+      'full' (`mjx_composer.runtime.reset_forward`; `reset_forward_stage` says
       which). The other derived fields of the reset's `State.data` (e.g.
       `contact`, `qacc`, `efc_*`) keep their values from before the
       forward pass (`physics(state)` completes them). Observations,
@@ -167,7 +167,7 @@ class Environment:
       stage and the control step computes the sensors once, after its last
       sub-step, as its `mjx.step` would have; a fused restart
       (`share_reset_forward`) computes the sensors its reset's stage of the
-      forward pass computes once, too (`mjx_composer.substep_sensors`;
+      forward pass computes once, too (`mjx_composer.runtime.substep_sensors`;
       `sensors_once_per_step` says whether). 'all': every sub-step
       computes them, as `mjx.step` does.
     fixed_initial_state: composer's: every episode of a world starts as its
@@ -476,7 +476,7 @@ class Environment:
   def reset_forward_stage(self) -> str:
     """The stage of the forward pass a reset runs: 'none', 'position',
     'velocity' or 'full' (`Environment(reset_forward=...)`,
-    `mjx_composer.reset_forward`). Found by tracing the readers of a reset's
+    `mjx_composer.runtime.reset_forward`). Found by tracing the readers of a reset's
     state on first use."""
     return self._transitions.reset_forward.stage
 
@@ -484,7 +484,7 @@ class Environment:
   def sensors_once_per_step(self) -> bool:
     """Whether `step` computes the sensors once per control step instead of
     at every sub-step (`Environment(substep_sensors=...)`,
-    `mjx_composer.substep_sensors`). Found by tracing what runs between the
+    `mjx_composer.runtime.substep_sensors`). Found by tracing what runs between the
     sub-steps on first use."""
     return self._transitions.sensors_once_per_step
 

@@ -36,7 +36,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 
 
 @struct.dataclass

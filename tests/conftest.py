@@ -22,9 +22,9 @@ import mujoco
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import compilation_cache
-from mjx_composer import cpu_linalg
-from mjx_composer import prng_lowering
+from mjx_composer.platform import compilation_cache
+from mjx_composer.platform import cpu_linalg
+from mjx_composer.platform import prng_lowering
 
 # Keep compiled programs on disk between test runs (~/.cache/mjx_composer/jax,
 # or $MJX_COMPOSER_CACHE_DIR); MJX_COMPOSER_COMPILATION_CACHE=0 turns it off.

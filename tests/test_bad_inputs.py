@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import model_checks
+from mjx_composer.model import model_checks
 from mjx_composer import task as task_lib
 from tests import conftest
 

@@ -16,7 +16,7 @@ from mujoco import mjx
 import numpy as np
 import pytest
 
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 from mjx_composer.compiler import attributes
 from mjx_composer.compiler import context
 from mjx_composer.compiler import effects

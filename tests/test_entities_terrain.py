@@ -160,7 +160,7 @@ def test_highest_point_near_a_spot(worlds):
 
 
 def test_each_world_is_rendered_with_its_own_terrain(worlds):
-  from mjx_composer import rendering  # pylint: disable=g-import-not-at-top
+  from mjx_composer.host import rendering  # pylint: disable=g-import-not-at-top
 
   env, states = worlds
   profiles = np.asarray(states.model_fields['hfield_data'])

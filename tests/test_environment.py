@@ -680,7 +680,7 @@ def test_auto_reset_batch_gives_the_same_trajectories():
   Episodes of 4 control steps whose worlds start at different points of
   them, so that some but not all worlds end at each step. Same-step
   auto-reset, the training loops' mode (next-step passes other operands to
-  the same `select_reset`, whose chunks tests/test_episode.py checks for
+  the same `select_reset`, whose chunks tests/runtime/test_episode.py checks for
   every kind of leaf; one mode here keeps CI's compile time down).
   """
   auto_reset = 'same_step'

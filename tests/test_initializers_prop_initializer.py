@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import backend
+from mjx_composer.platform import backend
 from mjx_composer import initializers
 from mjx_composer.entities import props
 from mjx_composer.variation import deterministic

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import rendering
+from mjx_composer.host import rendering
 from mjx_composer.observation import observable
 
 _H, _W = 24, 32

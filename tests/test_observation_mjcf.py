@@ -9,7 +9,7 @@ from mujoco import mjx
 import numpy as np
 import pytest
 
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 from mjx_composer import physics as physics_lib
 from mjx_composer.observation import updater as updater_lib
 from mjx_composer.observation.observable import base

@@ -14,7 +14,7 @@ import pytest
 from mjx_composer import cli
 from mjx_composer import environment
 from mjx_composer.entities import go1
-from mjx_composer.state import StepType
+from mjx_composer.runtime.state import StepType
 from mjx_composer.tasks import joystick
 
 _WORLDS = 2

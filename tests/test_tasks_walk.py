@@ -11,7 +11,7 @@ import pytest
 
 from mjx_composer import cli
 from mjx_composer import environment
-from mjx_composer.state import StepType
+from mjx_composer.runtime.state import StepType
 from mjx_composer.tasks import walk
 
 _WORLDS = 2

@@ -50,7 +50,7 @@ What a Brax `State` holds (per world; batched under vmap):
   ended episode's last observation where `done`, else `obs`);
 * `pipeline_state`: the composer `State` (with its key stored as raw key
   data, so Brax can strip weak types and donate it). `composer_state(state)`
-  gives it back, e.g. for `mjx_composer.rendering`.
+  gives it back, e.g. for `mjx_composer.host.rendering`.
 """
 
 from __future__ import annotations

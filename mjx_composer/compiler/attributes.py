@@ -21,7 +21,7 @@ from typing import Any, Callable, Optional
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 from mjx_composer.compiler import effects
 from mjx_composer.compiler import options
 from mjx_composer.compiler import structure

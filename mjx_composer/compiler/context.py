@@ -11,8 +11,8 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import backend
-from mjx_composer import kinematics
+from mjx_composer.platform import backend
+from mjx_composer.model import kinematics
 from mjx_composer.compiler import inertia
 
 

@@ -19,8 +19,8 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import backend
-from mjx_composer import cpu_linalg
+from mjx_composer.platform import backend
+from mjx_composer.platform import cpu_linalg
 from mjx_composer.compiler import frames
 from mjx_composer.compiler import inertia
 from mjx_composer.utils import transformations as tr

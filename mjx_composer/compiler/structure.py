@@ -19,7 +19,7 @@ from typing import Callable, Optional
 import mujoco
 import numpy as np
 
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 from mjx_composer.compiler import effects
 from mjx_composer.compiler import geoms
 from mjx_composer.compiler import inertia

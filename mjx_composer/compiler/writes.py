@@ -13,7 +13,7 @@ from typing import Any, Callable
 import jax.numpy as jnp
 import mujoco
 
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 from mjx_composer.compiler import frames
 from mjx_composer.compiler import geoms
 

@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 
 from mjx_composer import arena
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 from mjx_composer.variation import base as variation_base
 
 _GROUNDPLANE_QUAD_SIZE = 0.25

@@ -34,8 +34,8 @@ from mujoco.mjx._src import collision_driver
 from mujoco.mjx._src import math as mjx_math
 import numpy as np
 
-from mjx_composer import backend
-from mjx_composer import element_index
+from mjx_composer.platform import backend
+from mjx_composer.model import element_index
 
 
 def entity_geoms(index, entity) -> np.ndarray:

@@ -57,9 +57,9 @@ import jax.numpy as jnp
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import backend
+from mjx_composer.platform import backend
 from mjx_composer import initializer
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 from mjx_composer.initializers import contacts
 from mjx_composer.variation import base as variation_base
 from mjx_composer.variation import rotations

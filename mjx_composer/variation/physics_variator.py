@@ -37,7 +37,7 @@ import jax.numpy as jnp
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import element_index
+from mjx_composer.model import element_index
 from mjx_composer.compiler import attributes
 from mjx_composer.compiler import options
 from mjx_composer.variation import variator_base

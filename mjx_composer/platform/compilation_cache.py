@@ -1,0 +1,120 @@
+"""JAX's persistent compilation cache, as our scripts switch it on.
+
+A composed environment's reset and step programs take seconds (GPU) to
+minutes (CPU) to compile, and every new Python process compiles them again.
+JAX can keep compiled programs on disk and load them when the same program
+(same JAX, jaxlib, backend, device, flags and program text) is compiled again.
+`enable()` turns that on; the command line (`mjx-composer demo`), the
+examples, `benchmarks/train_ppo.py`, the notebooks and the test suite call it
+first thing:
+
+    from mjx_composer.platform import compilation_cache
+    compilation_cache.enable()
+
+Where: `$MJX_COMPOSER_CACHE_DIR` if set, else
+`$XDG_CACHE_HOME/mjx_composer/jax` (`~/.cache/mjx_composer/jax` when
+`XDG_CACHE_HOME` is unset). Nothing evicts entries: delete the folder to
+reclaim the space.
+
+Off: `MJX_COMPOSER_COMPILATION_CACHE=0` in the environment,
+`enable(enabled=False)`, or `mjx-composer demo --no-compilation-cache`.
+JAX's own settings win: if a cache folder is already configured
+(`JAX_COMPILATION_CACHE_DIR`, `jax.config.update('jax_compilation_cache_dir',
+...)`) or JAX's cache is disabled (`JAX_ENABLE_COMPILATION_CACHE=false`),
+`enable()` changes nothing.
+
+A library import never calls `enable()`: importing `mjx_composer` leaves the
+JAX configuration as it is.
+
+JAX trusts what it loads from the cache folder: keep it private to your user
+(`enable()` creates it with mode 0700); don't point it at a folder others can
+write.
+"""
+
+import os
+import warnings
+
+import jax
+
+# Environment variables.
+CACHE_DIR_ENV = 'MJX_COMPOSER_CACHE_DIR'
+SWITCH_ENV = 'MJX_COMPOSER_COMPILATION_CACHE'
+
+# Programs that compile faster than this are not written to the cache (JAX's
+# default is 1 s); below it, disk writes would cost about what they save.
+MIN_COMPILE_TIME_SECS = 0.1
+
+_OFF_VALUES = ('0', 'false', 'no', 'off')
+
+
+def default_cache_dir() -> str:
+  """`$MJX_COMPOSER_CACHE_DIR`, else the per-user cache folder."""
+  path = os.environ.get(CACHE_DIR_ENV)
+  if path:
+    return os.path.abspath(os.path.expanduser(path))
+  base = os.environ.get('XDG_CACHE_HOME') or os.path.join(
+      os.path.expanduser('~'), '.cache'
+  )
+  return os.path.join(base, 'mjx_composer', 'jax')
+
+
+def switched_off_by_environment() -> bool:
+  """Whether `MJX_COMPOSER_COMPILATION_CACHE` turns the cache off."""
+  value = os.environ.get(SWITCH_ENV, '').strip().lower()
+  return value in _OFF_VALUES
+
+
+def enable(
+    cache_dir: str | None = None,
+    *,
+    enabled: bool | None = None,
+    min_compile_time_secs: float = MIN_COMPILE_TIME_SECS,
+) -> str | None:
+  """Turns on JAX's persistent compilation cache, unless told otherwise.
+
+  Call it before the first compilation you want cached (usually at the top
+  of `main`); programs compiled before it are not written to the cache.
+
+  Args:
+    cache_dir: the folder; default: `default_cache_dir()`.
+    enabled: True or False to decide here; None (the default): on unless
+      `MJX_COMPOSER_COMPILATION_CACHE` is 0, false, no or off.
+    min_compile_time_secs: programs compiling faster are not cached.
+
+  Returns:
+    The cache folder JAX uses after the call (possibly one configured before
+    it, which is kept), or None if the persistent cache is off.
+  """
+  configured = jax.config.jax_compilation_cache_dir
+  if not jax.config.jax_enable_compilation_cache:
+    return None  # switched off in JAX itself: leave it off
+  if configured:
+    return configured  # the user's own cache settings win
+  if enabled is None:
+    enabled = not switched_off_by_environment()
+  if not enabled:
+    return None
+  path = cache_dir or default_cache_dir()
+  try:
+    os.makedirs(path, mode=0o700, exist_ok=True)
+  except OSError as e:
+    warnings.warn(f'No persistent compilation cache: cannot create {path}: {e}')
+    return None
+  if not os.access(path, os.W_OK | os.X_OK):
+    warnings.warn(f'No persistent compilation cache: {path} is not writable.')
+    return None
+  jax.config.update('jax_compilation_cache_dir', path)
+  jax.config.update(
+      'jax_persistent_cache_min_compile_time_secs', min_compile_time_secs
+  )
+  # -1: no minimum entry size, and no backend-chosen override of it.
+  jax.config.update('jax_persistent_cache_min_entry_size_bytes', -1)
+  return path
+
+
+def is_enabled() -> bool:
+  """Whether JAX will read and write a persistent compilation cache."""
+  return bool(
+      jax.config.jax_compilation_cache_dir
+      and jax.config.jax_enable_compilation_cache
+  )

@@ -1,0 +1,334 @@
+"""The part of a reset's forward pass that something reads.
+
+Composer's reset runs `mj_forward` (actuation disabled) after the
+`initialize_episode` hooks, so that the first observation and whatever reads
+the new state see consistent derived quantities. In a batched program that
+forward pass is a second copy of the physics beside the step's: collision
+detection, the constraint solver, the mass matrix. Yet `mjx.step` recomputes
+every derived quantity from the integration state (`qpos`, `qvel`, `act`,
+`ctrl`, `qacc_warmstart`, ...), so the reset's results matter only to what
+reads the FIRST state before the next step's physics: the observables
+sampled at reset, the episode's start metrics, and the next step's hooks
+that run before its physics.
+
+This module finds, at trace time, which `mjx.Data` fields those readers use
+(`data_reads.reads`: dead-code elimination of their jaxpr) and picks the
+cheapest stage of the forward pass that computes them (`choose_stage`):
+
+* `'none'`: nothing the forward pass writes is read (e.g. only joint
+  velocities and task state; MJX's kinematics rewrites `qpos`, its
+  quaternions normalized, so reading `qpos` takes the position stage);
+* `'position'`: kinematics, centres of mass, cameras and lights, tendon
+  lengths, actuator transmissions and position sensors;
+* `'velocity'`: the position stage, then body velocities, tendon and
+  actuator velocities and velocity sensors;
+* `'full'`: `mjx.forward`, everything.
+
+Sensors are computed by a reduced stage only where `sensordata` is read,
+and only where every sensor read is one the stage computes exactly
+(`POSITION_SENSORS`, `VELOCITY_SENSORS`), else the stage is `'full'`. Which
+fields and sensors are read comes from the readers' jaxpr
+(`data_reads.reads`): the elements its static slices and constant-index
+gathers take, or every sensor where `sensordata` reaches anything else. So
+a humanoid whose observations read its centre-of-mass velocity sensor takes
+the velocity stage although the model also has an accelerometer and force
+sensors; a reduced stage then computes every sensor
+it computes exactly, and the others keep their values from before the
+forward pass, as the fields the stage does not compute do.
+
+Every stage ends as `mjx.forward` with actuation disabled does
+(`mjx.fwd_actuation`: `act_dot` and `qfrc_actuator` zero). Fields the stage
+does not compute keep their values from before the forward pass.
+Environment(reset_forward='full') always runs `'full'`, as composer does.
+"""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+import numpy as np
+
+from mjx_composer.runtime import data_reads
+from mjx_composer.runtime import substep_sensors
+
+STAGES = ('none', 'position', 'velocity', 'full')
+
+# Sensor types whose values the reduced stages compute exactly as
+# `mjx.forward` does (tests/runtime/test_reset_forward.py checks each against it).
+# A model with any other sensor takes the full forward pass whenever
+# `sensordata` is read.
+_S = mujoco.mjtSensor
+POSITION_SENSORS = frozenset(
+    {
+        _S.mjSENS_JOINTPOS,
+        _S.mjSENS_TENDONPOS,
+        _S.mjSENS_ACTUATORPOS,
+        _S.mjSENS_BALLQUAT,
+        _S.mjSENS_FRAMEPOS,
+        _S.mjSENS_FRAMEQUAT,
+        _S.mjSENS_FRAMEXAXIS,
+        _S.mjSENS_FRAMEYAXIS,
+        _S.mjSENS_FRAMEZAXIS,
+        _S.mjSENS_SUBTREECOM,
+        _S.mjSENS_CLOCK,
+    }
+)
+VELOCITY_SENSORS = frozenset(
+    {
+        _S.mjSENS_VELOCIMETER,
+        _S.mjSENS_GYRO,
+        _S.mjSENS_JOINTVEL,
+        _S.mjSENS_TENDONVEL,
+        _S.mjSENS_ACTUATORVEL,
+        _S.mjSENS_BALLANGVEL,
+        _S.mjSENS_FRAMELINVEL,
+        _S.mjSENS_FRAMEANGVEL,
+        _S.mjSENS_SUBTREELINVEL,
+        _S.mjSENS_SUBTREEANGMOM,
+    }
+)
+
+
+def _without_actuation(model):
+  opt = model.opt
+  return model.replace(
+      opt=opt.replace(disableflags=opt.disableflags | mjx.DisableBit.ACTUATION)
+  )
+
+
+def _position(m, d, sensors):
+  d = mjx.kinematics(m, d)
+  d = mjx.com_pos(m, d)
+  d = mjx.camlight(m, d)
+  d = mjx.tendon(m, d)
+  d = mjx.transmission(m, d)
+  return mjx.sensor_pos(m, d) if sensors else d
+
+
+def _velocity(m, d, sensors):
+  d = _position(m, d, sensors)
+  # What `mjx.fwd_velocity` computes before its force terms.
+  d = d.tree_replace(
+      {
+          '_impl.actuator_velocity': d._impl.actuator_moment @ d.qvel,  # pylint: disable=protected-access
+          '_impl.ten_velocity': d._impl.ten_J @ d.qvel,  # pylint: disable=protected-access
+      }
+  )
+  d = mjx.com_vel(m, d)
+  return mjx.sensor_vel(m, d) if sensors else d
+
+
+_STAGE_FNS = {
+    'none': lambda m, d, sensors: d,
+    'position': _position,
+    'velocity': _velocity,
+}
+
+
+def forward(stage, model, data, sensors=True):
+  """`data` after `stage` of the forward pass, with actuation disabled.
+
+  With `sensors=False`, a reduced stage leaves `sensordata` as it was.
+  """
+  model = _without_actuation(model)
+  if stage == 'full':
+    return mjx.forward(model, data)
+  return mjx.fwd_actuation(model, _STAGE_FNS[stage](model, data, sensors))
+
+
+def written(stage, model, data, sensors=True) -> frozenset[str]:
+  """The leaves of `data` that `forward(stage, ...)` writes (by tracing)."""
+  out = {}
+
+  def run(data):
+    result = forward(stage, model, data, sensors)
+    before = jax.tree.leaves(data)
+    after = jax.tree.leaves(result)
+    out['names'] = frozenset(
+        name
+        for name, old, new in zip(data_reads.leaf_names(data), before, after)
+        if new is not old
+    )
+    return result
+
+  jax.eval_shape(run, data)
+  return out['names']
+
+
+# The sensor types each reduced stage computes exactly.
+_EXACT_SENSORS = {
+    'position': POSITION_SENSORS,
+    'velocity': POSITION_SENSORS | VELOCITY_SENSORS,
+}
+
+
+def _sensor_type(mj_model, i):
+  return mujoco.mjtSensor(int(mj_model.sensor_type[i]))
+
+
+def sensor_stage(mj_model, sensors=None) -> str:
+  """The least stage that computes `sensors` of `mj_model` exactly.
+
+  Args:
+    mj_model: the host `MjModel`.
+    sensors: sensor ids; None: every sensor of the model.
+  """
+  ids = range(mj_model.nsensor) if sensors is None else sensors
+  types = {_sensor_type(mj_model, i) for i in ids}
+  if not types:
+    return 'none'
+  for stage, exact in _EXACT_SENSORS.items():
+    if types <= exact:
+      return stage
+  return 'full'
+
+
+def sensors_of_elements(mj_model, elements) -> tuple[int, ...]:
+  """The ids of the sensors with any `sensordata` element in `elements`.
+
+  None (elements not known) gives every sensor.
+  """
+  if elements is None:
+    return tuple(range(mj_model.nsensor))
+  return tuple(
+      i
+      for i in range(mj_model.nsensor)
+      if any(
+          adr in elements
+          for adr in range(
+              mj_model.sensor_adr[i],
+              mj_model.sensor_adr[i] + mj_model.sensor_dim[i],
+          )
+      )
+  )
+
+
+def _exact_rows(mj_model, stage) -> np.ndarray:
+  """Mask of the `sensordata` elements `stage` computes exactly."""
+  mask = np.zeros(mj_model.nsensordata, bool)
+  for i in range(mj_model.nsensor):
+    if _sensor_type(mj_model, i) in _EXACT_SENSORS[stage]:
+      adr = mj_model.sensor_adr[i]
+      mask[adr : adr + mj_model.sensor_dim[i]] = True
+  return mask
+
+
+def choose_stage(needed, model, data, mj_model, sensordata=None):
+  """The cheapest stage that computes every field of `needed` as `'full'`.
+
+  Where `sensordata` is needed, a reduced stage is chosen only where it
+  computes every sensor read exactly (`sensor_stage`); it then computes
+  every sensor it computes exactly, and leaves the others as they were.
+  Elsewhere the reduced stages skip the sensors.
+
+  Args:
+    needed: the names (`leaf_names`) of the fields the readers use.
+    model: the `mjx.Model`.
+    data: an `mjx.Data` of the model (shapes suffice).
+    mj_model: the host `MjModel` (its sensor types).
+    sensordata: the `sensordata` elements read (`data_reads.reads`);
+      None: all.
+
+  Returns:
+    The `ResetForward` of the stage.
+  """
+  needed = frozenset(needed)
+  read = sensors_of_elements(mj_model, sensordata)
+  if 'sensordata' in needed and sensor_stage(mj_model, read) == 'full':
+    # Settled without tracing the full pass (about a second).
+    return ResetForward('full', True, frozenset(), frozenset())
+  derived = written('full', model, data)
+  needed &= derived
+  sensors = 'sensordata' in needed
+  floor = sensor_stage(mj_model, read) if sensors else 'none'
+  for stage in STAGES[STAGES.index(floor) : -1]:
+    writes = written(stage, model, data, sensors)
+    if needed <= writes:
+      rows = _exact_rows(mj_model, stage) if sensors else None
+      if rows is not None and rows.all():
+        rows = None  # Every sensor: nothing to keep from before.
+      return ResetForward(stage, sensors, writes, derived, rows)
+  return ResetForward('full', True, derived, derived)
+
+
+def keep_only(keep, derived, computed, before):
+  """`computed`, but `before`'s leaves where in `derived` and not in `keep`."""
+  names = data_reads.leaf_names(computed)
+  leaves = [
+      old if name in derived and name not in keep else new
+      for name, new, old in zip(
+          names, jax.tree.leaves(computed), jax.tree.leaves(before)
+      )
+  ]
+  return jax.tree.unflatten(jax.tree.structure(computed), leaves)
+
+
+@dataclasses.dataclass(frozen=True)
+class ResetForward:
+  """The stage of the forward pass a reset runs.
+
+  Attributes:
+    stage: one of `STAGES`.
+    sensors: whether a reduced stage computes `sensordata`.
+    writes: the fields the stage writes (`written`; for `'full'`, which
+      `restrict` leaves alone, may be left empty).
+    derived: every field `mjx.forward` writes (likewise).
+    sensor_rows: where a reduced stage computes `sensordata` but not all
+      of it exactly, the mask of the elements it does (the others keep
+      their values from before); else None.
+  """
+
+  stage: str
+  sensors: bool
+  writes: frozenset
+  derived: frozenset
+  sensor_rows: np.ndarray | None = dataclasses.field(
+      default=None, compare=False
+  )
+
+  def __call__(self, model, data):
+    """`data` after the stage (see the module docstring)."""
+    return self._keep_inexact_sensors(
+        forward(self.stage, model, data, self.sensors), data
+    )
+
+  def _keep_inexact_sensors(self, computed, before):
+    if self.sensor_rows is None:
+      return computed
+    return computed.replace(
+        sensordata=jnp.where(
+            self.sensor_rows, computed.sensordata, before.sensordata
+        )
+    )
+
+  def sensors_of(self, model, data):
+    """`data`, through the full forward pass with its sensors skipped
+    (`mjDSBL_SENSOR`), with the sensors this stage computes.
+
+    For a restart fused into the sub-step loop that leaves the sensors to
+    the control step's end; `restrict` then keeps what the stage computes.
+    """
+    if self.stage == 'full':
+      return substep_sensors.sensors_of(
+          model, data, substep_sensors.IntegrationState.of(data)
+      )
+    if not self.sensors:
+      return data  # `restrict` keeps the sensors from before the forward pass
+    data = mjx.sensor_pos(model, data)
+    return mjx.sensor_vel(model, data) if self.stage == 'velocity' else data
+
+  def restrict(self, computed, before):
+    """A full forward pass's `computed` data, as this stage leaves it.
+
+    The fields the stage writes are `computed`'s (the stage computes them
+    as the full pass does); the other derived fields are `before`'s. So a
+    same-step restart fused into the sub-step loop, whose forward pass is
+    the full one, leaves what `reset` leaves.
+    """
+    if self.stage == 'full':
+      return computed
+    return self._keep_inexact_sensors(
+        keep_only(self.writes, self.derived, computed, before), before
+    )

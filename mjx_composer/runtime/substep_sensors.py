@@ -1,0 +1,97 @@
+"""Sensors computed once per control step, where nothing reads them between.
+
+`mjx.step` computes every sensor of the model at every physics step: the
+position, velocity and acceleration stages of `mjx.forward` each end with
+their sensors, and force, torque and accelerometer sensors add a
+post-constraint pass over the kinematic tree (`cacc`, `cfrc_int`,
+`cfrc_ext`). A control step of `n` sub-steps thus computes the sensors `n`
+times, yet between two sub-steps only the sub-step hooks and the observables
+sampled at sub-steps see the data. Where none of them reads what the sensor
+stages write (`OUTPUTS`; `Transitions` finds that at trace time), the
+sub-steps run with MuJoCo's sensor flag disabled (`without_sensors`) and the
+control step computes the sensors once, after its last sub-step
+(`sensors_of`), from that sub-step's integration state (`IntegrationState`),
+as its `mjx.step` would have. The control step's data, observations and
+rewards are those of `n` plain `mjx.step` calls (to float rounding:
+`tests/runtime/test_substep_sensors.py` compares them). Where the restart is fused
+into the sub-step loop (`Environment(share_reset_forward=True)`), the
+restart's forward pass skips them too and the restart computes those its
+reset's stage computes (`ResetForward.sensors_of`).
+
+`mjx.step` computes the sensors after the forward pass and before the
+integrator advances `qpos`, `qvel`, `act` and `time`; every other field a
+sensor reads keeps its value through the integrator. So the sensors of the
+last sub-step are those of its end data with those four fields set back to
+the values the sub-step started from, provided nothing after the sub-step's
+physics wrote another field (the after-substep hooks; `Transitions` checks
+which data they write).
+"""
+
+import dataclasses
+
+import jax
+from mujoco import mjx
+
+# The `mjx.Data` leaves (`data_reads.leaf_names`) that the sensor stages of
+# `mjx.forward` write (`tests/runtime/test_substep_sensors.py` checks the list).
+OUTPUTS = frozenset(
+    {
+        'sensordata',
+        '_impl.subtree_linvel',
+        '_impl.subtree_angmom',
+        '_impl.cacc',
+        '_impl.cfrc_int',
+        '_impl.cfrc_ext',
+    }
+)
+
+# The leaves MJX's Euler and implicitfast integrators advance, and the
+# sensors read; `qacc_warmstart`, which they also write, no sensor reads.
+ADVANCED = ('qpos', 'qvel', 'act', 'time')
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class IntegrationState:
+  """What a physics step's integrator advances, as the step started."""
+
+  qpos: jax.Array
+  qvel: jax.Array
+  act: jax.Array
+  time: jax.Array
+
+  @classmethod
+  def of(cls, data: mjx.Data) -> 'IntegrationState':
+    return cls(*(getattr(data, name) for name in ADVANCED))
+
+
+def without_sensors(model: mjx.Model) -> mjx.Model:
+  """`model` with MuJoCo's sensor stage disabled (`mjDSBL_SENSOR`)."""
+  opt = model.opt
+  return model.replace(
+      opt=opt.replace(disableflags=opt.disableflags | mjx.DisableBit.SENSOR)
+  )
+
+
+def sensors_of(
+    model: mjx.Model, data: mjx.Data, started: IntegrationState
+) -> mjx.Data:
+  """`data` with the sensors its last physics step would have computed.
+
+  Args:
+    model: the model the step ran with, sensors enabled.
+    data: the data after a step run with `without_sensors(model)`.
+    started: the step's integration state before the step
+      (`IntegrationState.of` of the data it stepped).
+
+  Returns:
+    `data`, its `OUTPUTS` as `mjx.step(model, ...)` leaves them.
+  """
+  advanced = {name: getattr(data, name) for name in ADVANCED}
+  data = data.replace(**dataclasses.asdict(started))
+  data = mjx.sensor_vel(model, mjx.sensor_pos(model, data))
+  # `mjx.forward` skips the acceleration stage's sensors where the model has
+  # no constraint rows (its solver does not run).
+  if data._impl.efc_J.size:  # pylint: disable=protected-access
+    data = mjx.sensor_acc(model, data)
+  return data.replace(**advanced)

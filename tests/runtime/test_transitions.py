@@ -1,0 +1,359 @@
+"""Tests for `transitions`: the fused auto-reset.
+
+With `share_reset_forward`, `Environment.step` runs
+`Transitions.step_and_restart` (same-step auto-reset) or
+`Transitions.reset_or_step` (next-step), whose reset shares the sub-steps'
+forward pass. These tests hold both to the composition they replace (`step`,
+and `restart` where the episode ended or `reset` where the state is LAST,
+selected per world) and the masked forward pass to MuJoCo's forward pass
+with actuation disabled.
+"""
+
+import jax
+import jax.extend
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+import numpy as np
+import pytest
+
+import mjx_composer as composer
+from mjx_composer.runtime import episode as episode_lib
+from mjx_composer.runtime import transitions as transitions_lib
+from mjx_composer.variation import distributions
+from mjx_composer.variation import mjcf_variator
+from tests import conftest
+from tests import test_environment
+
+
+class _RandomizedSwing(conftest.SwingTask):
+  """The swing task with the ball's size and mass drawn per episode, so
+  that restarts write per-world model fields; it ends when the tip rises
+  above 0.6, so that worlds restart at different steps."""
+
+  def __init__(self):
+    super().__init__(terminate_above=0.6)
+    self.variator = mjcf_variator.MJCFVariator()
+    self.variator.bind_attributes(
+        self.ball.geom, size=distributions.Uniform([0.03, 0, 0], [0.08, 0, 0])
+    )
+
+  def initialize_episode(self, physics, key):
+    variation_key, key = jax.random.split(key)
+    physics = self.variator.apply_variations(physics, variation_key)
+    return super().initialize_episode(physics, key)
+
+
+@pytest.fixture(scope='module', params=['same_step', 'next_step'])
+def env(request):
+  return composer.Environment(
+      _RandomizedSwing(), time_limit=0.05, auto_reset=request.param
+  )
+
+
+@pytest.fixture(scope='module')
+def reset_states(env):
+  """Three worlds' first states, for the batched and single-world tests.
+
+  The single-world test starts from one of them instead of compiling an
+  unbatched reset: what it checks is the unbatched step.
+  """
+  keys = jax.random.split(jax.random.key(3), 3)
+  return jax.jit(jax.vmap(env.reset))(keys)
+
+
+def _step_then_restart(env):
+  """What the fused step replaces, for one world: `Environment.step` with
+  `share_reset_forward=False`."""
+  transitions = env._transitions  # pylint: disable=protected-access
+
+  def same_step(state, action):
+    stepped = transitions.step(state, action)
+    return episode_lib.select_reset(
+        stepped.last(), transitions.restart, (stepped,), stepped
+    )
+
+  def next_step(state, action):
+    reset_key, step_key = jax.random.split(state.key)
+    stepped = transitions.step(state.replace(key=step_key), action)
+    return episode_lib.select_reset(
+        state.last(), transitions.reset, (reset_key, state), stepped
+    )
+
+  return same_step if env.auto_reset == 'same_step' else next_step
+
+
+def test_the_fused_path_is_taken(env, monkeypatch):
+  assert env._transitions.can_fuse_restart()  # pylint: disable=protected-access
+  calls = []
+  loop = episode_lib.once_or_never
+  monkeypatch.setattr(
+      episode_lib,
+      'once_or_never',
+      lambda *args: calls.append(1) or loop(*args),
+  )
+  jax.eval_shape(
+      env.step, jax.eval_shape(env.reset, jax.random.key(0)), jnp.zeros(1)
+  )
+  assert calls
+  # share_reset_forward=False asks for the separate reset.
+  calls.clear()
+  separate = composer.Environment(
+      _RandomizedSwing(),
+      time_limit=0.05,
+      auto_reset=env.auto_reset,
+      share_reset_forward=False,
+  )
+  jax.eval_shape(
+      separate.step,
+      jax.eval_shape(separate.reset, jax.random.key(0)),
+      jnp.zeros(1),
+  )
+  assert not calls
+
+
+def test_fused_step_equals_step_then_restart(env, reset_states):
+  reference = jax.jit(jax.vmap(_step_then_restart(env)))
+  fused = jax.jit(jax.vmap(env.step))
+  actions = jax.random.uniform(
+      jax.random.key(4), (8, 3, 1), minval=-1, maxval=1
+  )
+  a = b = reset_states
+  reset_alone = False
+  for t in range(8):
+    a, b = fused(a, actions[t]), reference(b, actions[t])
+    # Bit for bit: the same computations, in one loop instead of two.
+    test_environment.assert_trees_equal(a, b)
+    first = np.asarray(a.first() if env.auto_reset == 'next_step' else a.last())
+    reset_alone |= bool(first.any() and not first.all())
+  assert reset_alone  # some world reset while others went on
+  sizes = np.asarray(a.model_fields['geom_size'])
+  assert len({float(s) for s in sizes[:, -1, 0]}) > 1  # drawn per world
+
+
+def test_fused_single_world_equals_step_then_restart(env, reset_states):
+  reference = jax.jit(_step_then_restart(env))
+  fused = jax.jit(env.step)
+  a = b = jax.tree.map(lambda x: x[1], reset_states)
+  resets = 0
+  for t in range(7):
+    action = jnp.full((1,), np.sin(t))
+    a, b = fused(a, action), reference(b, action)
+    test_environment.assert_trees_equal(a, b)
+    resets += bool(a.first() if env.auto_reset == 'next_step' else a.last())
+  assert resets  # the reset iteration ran
+
+
+def _flat_eqn_count(jaxpr):
+  count = 0
+  for eqn in jaxpr.eqns:
+    count += 1
+    for sub in jax.extend.core.jaxprs_in_params(eqn.params):
+      count += _flat_eqn_count(sub)
+  return count
+
+
+@pytest.mark.parametrize('reset_forward', ['full', 'observed'])
+def test_the_step_program_loses_one_copy_of_the_forward_pass(
+    env, reset_forward
+):
+  env = composer.Environment(
+      _RandomizedSwing(),
+      time_limit=0.05,
+      auto_reset=env.auto_reset,
+      reset_forward=reset_forward,
+  )
+  states = jax.eval_shape(
+      jax.vmap(env.reset), jax.random.split(jax.random.key(0), 2)
+  )
+  actions = jnp.zeros((2, 1))
+  size = lambda f, *args: _flat_eqn_count(jax.make_jaxpr(f)(*args).jaxpr)
+  fused = size(jax.vmap(env.step), states, actions)
+  reference = size(jax.vmap(_step_then_restart(env)), states, actions)
+  model = env.initial_physics().model
+  forward = size(mjx.forward, model, env.initial_physics().data)
+  if reset_forward == 'full':
+    # The separate restart's full forward pass is what the fusion saves.
+    assert reference - fused > 0.8 * forward
+  else:
+    # The task observes a position: the separate restart runs kinematics
+    # only, so neither program holds a second full forward pass.
+    assert env.reset_forward_stage == 'position'
+    assert abs(reference - fused) < 0.5 * forward
+
+
+_ACTUATED = """
+<mujoco>
+  <option gravity="0 0 -9.81"/>
+  <worldbody>
+    <body name="a" pos="0 0 1">
+      <joint name="j1" axis="0 1 0" damping="0.1"/>
+      <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.04"/>
+      <site name="s1" pos="0.3 0 0"/>
+      <body pos="0.3 0 0">
+        <joint name="j2" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0.3 0 0" size="0.03"/>
+        <site name="s2" pos="0.3 0 0"/>
+      </body>
+    </body>
+  </worldbody>
+  <tendon><spatial name="t"><site site="s1"/><site site="s2"/></spatial></tendon>
+  <actuator>
+    <motor name="m1" joint="j1" gear="2"/>
+    <position joint="j2" kp="30" kv="2"/>
+    <general tendon="t" dyntype="filter" dynprm="0.05" gaintype="affine"
+             gainprm="4 1 0.5" biastype="affine" biasprm="0.3 -2 -1"
+             forcelimited="true" forcerange="-3 5"/>
+  </actuator>
+  <sensor>
+    <actuatorfrc actuator="m1"/>
+    <jointactuatorfrc joint="j2"/>
+    <accelerometer site="s2"/>
+  </sensor>
+</mujoco>
+"""
+
+
+def test_masked_forward_is_forward_with_actuation_disabled():
+  m = mujoco.MjModel.from_xml_string(_ACTUATED)
+  model = mjx.put_model(m)
+  data = mjx.make_data(model).replace(
+      qpos=jnp.array([0.4, -0.7]),
+      qvel=jnp.array([1.0, -2.0]),
+      ctrl=jnp.array([0.5, 0.3, 0.8]),
+      act=jnp.array([0.6]),
+  )
+  disabled = model.replace(
+      opt=model.opt.replace(
+          disableflags=model.opt.disableflags | mjx.DisableBit.ACTUATION
+      )
+  )
+  forward = jax.jit(
+      lambda masked: mjx.forward(
+          transitions_lib._actuation_masked(model, masked),  # pylint: disable=protected-access
+          data,
+      )
+  )
+  want = jax.jit(mjx.forward)(disabled, data)
+  got = forward(True)
+  for name in ('qfrc_actuator', 'qacc', 'qfrc_constraint', 'sensordata'):
+    np.testing.assert_allclose(
+        getattr(got, name), getattr(want, name), atol=1e-5, err_msg=name
+    )
+  np.testing.assert_array_equal(got.qfrc_actuator, 0.0)
+  np.testing.assert_array_equal(got.actuator_force, 0.0)
+  # Unmasked, it is the ordinary forward pass, actuators and all.
+  unmasked = forward(False)
+  ordinary = jax.jit(mjx.forward)(model, data)
+  np.testing.assert_array_equal(unmasked.qfrc_actuator, ordinary.qfrc_actuator)
+  assert np.abs(np.asarray(ordinary.qfrc_actuator)).max() > 0.1
+  # And on the host: MuJoCo's own forward pass with actuation disabled.
+  d = mujoco.MjData(m)
+  d.qpos[:], d.qvel[:], d.ctrl[:], d.act[:] = (
+      [0.4, -0.7],
+      [1.0, -2.0],
+      [0.5, 0.3, 0.8],
+      [0.6],
+  )
+  m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_ACTUATION
+  mujoco.mj_forward(m, d)
+  np.testing.assert_allclose(got.qacc, d.qacc, rtol=1e-4, atol=1e-4)
+
+
+class _FromXml(composer.Task):
+
+  def __init__(self, xml):
+    self._root = composer.ModelWrapperEntity(xml)
+
+  @property
+  def root_entity(self):
+    return self._root
+
+  def get_reward(self, physics):
+    return jnp.zeros(())
+
+
+@pytest.mark.parametrize(
+    'xml, fuses',
+    [
+        (_ACTUATED, True),
+        (_ACTUATED.replace('<option ', '<option integrator="RK4" '), False),
+        (
+            _ACTUATED.replace(
+                '<general tendon="t"',
+                '<muscle tendon="t" lengthrange="0.1 0.5"/><general tendon="t"',
+            ),
+            False,
+        ),
+        (
+            _ACTUATED.replace(
+                '<body name="a" pos="0 0 1">', '<body name="a" gravcomp="1">'
+            ).replace(
+                'axis="0 1 0" damping',
+                'actuatorgravcomp="true" axis="0 1 0" damping',
+            ),
+            False,
+        ),
+    ],
+    ids=['euler', 'rk4', 'muscle', 'actuator_gravcomp'],
+)
+def test_fusion_applies_only_where_it_is_exact(xml, fuses):
+  env = composer.Environment(_FromXml(xml))
+  assert env._transitions.can_fuse_restart() == fuses  # pylint: disable=protected-access
+
+
+def _conditionals(jaxpr, enclosing=()):
+  """Each `cond` of a jaxpr, with the name stacks of the loops around it."""
+  found = []
+  for eqn in jaxpr.eqns:
+    if eqn.primitive.name == 'cond':
+      found.append(enclosing)
+    inner = enclosing
+    if eqn.primitive.name == 'while':
+      inner = enclosing + (str(eqn.source_info.name_stack),)
+    for param in eqn.params.values():
+      for sub in param if isinstance(param, (tuple, list)) else (param,):
+        sub = getattr(sub, 'jaxpr', sub)
+        if hasattr(sub, 'eqns'):
+          found.extend(_conditionals(sub, inner))
+  return found
+
+
+def _reset_loop(loops):
+  """Whether one of the loops is the auto-reset's (its body resets)."""
+  return any('reset' in loop or 'restart' in loop for loop in loops)
+
+
+@pytest.mark.parametrize(
+    'task_name, auto_reset',
+    [('reach', 'same_step'), ('reach', 'next_step'), ('walk', 'same_step')],
+)
+def test_the_separate_step_branches_only_inside_its_reset(
+    task_name, auto_reset
+):
+  """On a GPU each conditional costs a host round trip and copies of the
+  state every step (3% of reach's throughput at 8,192 worlds, README): the
+  batched step's only conditionals are inside the reset, which runs only
+  at steps where some world's episode ends."""
+  # pylint: disable=g-import-not-at-top
+  if task_name == 'reach':
+    from mjx_composer.tasks import reach
+
+    task = reach.Reach()
+  else:
+    from mjx_composer.tasks import walk
+
+    task = walk.Walk()
+  # pylint: enable=g-import-not-at-top
+  env = composer.Environment(
+      task, time_limit=1.0, auto_reset=auto_reset, share_reset_forward=False
+  )
+  states = jax.eval_shape(
+      jax.vmap(env.reset), jax.random.split(jax.random.key(0), 2)
+  )
+  actions = jnp.zeros((2,) + env.action_spec().shape)
+  jaxpr = jax.make_jaxpr(jax.vmap(env.step))(states, actions).jaxpr
+  conditionals = _conditionals(jaxpr)
+  assert all(_reset_loop(loops) for loops in conditionals), conditionals
+  # The reset loop is there, and the sub-step scan branches nowhere.
+  assert 'while' in str(jaxpr)
