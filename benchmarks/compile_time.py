@@ -506,12 +506,12 @@ def run_one(
   import common
   # pylint: enable=g-import-not-at-top
 
-  from mjx_composer.platform import cpu_linalg  # pylint: disable=g-import-not-at-top
+  from mjx_composer import platform  # pylint: disable=g-import-not-at-top
   from mjx_composer.platform import prng_lowering  # pylint: disable=g-import-not-at-top
 
   # As our scripts compile (MJX_COMPOSER_THREEFRY_KERNEL=0: without).
-  threefry_kernel = prng_lowering.enable()
-  cpu_linalg.enable()
+  platform.configure(compilation_cache=False)
+  threefry_kernel = prng_lowering.is_enabled()
   device = jax.devices()[0]
   if worlds is None:
     worlds = 8 if device.platform == 'cpu' else 1024

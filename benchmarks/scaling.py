@@ -53,10 +53,8 @@ import time
 import jax
 
 import common  # benchmarks/common.py
-from mjx_composer.platform import compilation_cache
+from mjx_composer import platform
 from mjx_composer.platform import partitioner
-from mjx_composer.platform import cpu_linalg
-from mjx_composer.platform import prng_lowering
 from mjx_composer.platform import sharding
 
 PARTS = ('raw', 'composed', 'ppo')
@@ -214,9 +212,7 @@ def main():
   if args.ppo_epochs < 2 and 'ppo' in args.parts:
     parser.error('--ppo-epochs must be at least 2 (the first compiles).')
 
-  cache_dir = compilation_cache.enable()
-  prng_lowering.enable()
-  cpu_linalg.enable()
+  cache_dir = platform.configure()
   device = common.print_device()
   local = jax.local_devices()
   counts = sorted({1, len(local)})

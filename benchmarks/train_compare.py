@@ -819,13 +819,9 @@ def main(argv=None):
           flags + ' --xla_gpu_triton_gemm_any=True'
       ).strip()
   # pylint: disable=g-import-not-at-top
-  from mjx_composer.platform import compilation_cache
-  from mjx_composer.platform import cpu_linalg
-  from mjx_composer.platform import prng_lowering
+  from mjx_composer import platform
   # pylint: enable=g-import-not-at-top
-  cache = compilation_cache.enable(enabled=args.compilation_cache)
-  prng_lowering.enable()
-  cpu_linalg.enable()
+  cache = platform.configure(compilation_cache=args.compilation_cache)
   config, source = hyperparameters(args)
   print(f'Hyper-parameters ({source}): {config}')
   print(

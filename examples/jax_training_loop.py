@@ -28,9 +28,7 @@ import jax.numpy as jnp
 import optax
 
 from mjx_composer import cli
-from mjx_composer.platform import compilation_cache
-from mjx_composer.platform import cpu_linalg
-from mjx_composer.platform import prng_lowering
+from mjx_composer import platform
 
 
 class Policy(nn.Module):
@@ -134,9 +132,7 @@ def main(argv=None):
   parser.add_argument('--learning-rate', type=float, default=3e-3)
   parser.add_argument('--seed', type=int, default=0)
   args = parser.parse_args(argv)
-  compilation_cache.enable()
-  prng_lowering.enable()
-  cpu_linalg.enable()
+  platform.configure()
 
   env = cli.make_environment(
       'reach', time_limit=args.time_limit, auto_reset='same_step'

@@ -762,16 +762,12 @@ def main(argv=None):
   args = parse_args(argv)
   # pylint: disable=g-import-not-at-top
   from brax.training.agents.ppo import train as ppo
-  from mjx_composer.platform import compilation_cache
   from mjx_composer.platform import partitioner
-  from mjx_composer.platform import cpu_linalg
-  from mjx_composer.platform import prng_lowering
+  from mjx_composer import platform
   # pylint: enable=g-import-not-at-top
-  cache_dir = compilation_cache.enable(
-      enabled=False if args.no_compilation_cache else None
+  cache_dir = platform.configure(
+      compilation_cache=False if args.no_compilation_cache else None
   )
-  prng_lowering.enable()
-  cpu_linalg.enable()
   os.makedirs(args.out, exist_ok=True)
   device = jax.devices()[0]
   local_devices = jax.local_device_count()

@@ -162,9 +162,7 @@ def demo_parser():
 
 def demo(argv=None):
   # pylint: disable=g-import-not-at-top
-  from mjx_composer.platform import compilation_cache
-  from mjx_composer.platform import cpu_linalg
-  from mjx_composer.platform import prng_lowering
+  from mjx_composer import platform
 
   # pylint: enable=g-import-not-at-top
 
@@ -172,11 +170,9 @@ def demo(argv=None):
   args = parser.parse_args(argv)
   if args.worlds < 1 or args.steps < 1 or args.chunk < 1:
     parser.error('--worlds, --steps and --chunk must be positive.')
-  cache_dir = compilation_cache.enable(
-      enabled=False if args.no_compilation_cache else None
+  cache_dir = platform.configure(
+      compilation_cache=False if args.no_compilation_cache else None
   )
-  prng_lowering.enable()
-  cpu_linalg.enable()
 
   print(
       f'JAX {jax.__version__} on {jax.devices()[0].platform}: '
