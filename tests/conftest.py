@@ -22,18 +22,14 @@ import mujoco
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.platform import compilation_cache
-from mjx_composer.platform import cpu_linalg
-from mjx_composer.platform import prng_lowering
+from mjx_composer import platform
 
-# Keep compiled programs on disk between test runs (~/.cache/mjx_composer/jax,
-# or $MJX_COMPOSER_CACHE_DIR); MJX_COMPOSER_COMPILATION_CACHE=0 turns it off.
-# Tests that build the same environment then load its programs instead of
-# compiling them again, within one run too.
-compilation_cache.enable()
-# Threefry as one GPU kernel per call (no effect on a CPU), as our scripts.
-prng_lowering.enable()
-cpu_linalg.enable()
+# As our scripts: keep compiled programs on disk between test runs
+# (~/.cache/mjx_composer/jax, or $MJX_COMPOSER_CACHE_DIR;
+# MJX_COMPOSER_COMPILATION_CACHE=0 turns it off), so that tests that build the
+# same environment load its programs instead of compiling them again, within
+# one run too; threefry as one GPU kernel per call; Cholesky in XLA on the CPU.
+platform.configure()
 
 jax.config.update(
     'jax_disable_most_optimizations',

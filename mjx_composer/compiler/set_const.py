@@ -19,24 +19,14 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer.platform import backend
-from mjx_composer.platform import cpu_linalg
 from mjx_composer.compiler import frames
 from mjx_composer.compiler import inertia
+from mjx_composer.platform import backend
+from mjx_composer.platform import cpu_linalg
+from mjx_composer.platform import internals
 from mjx_composer.utils import transformations as tr
 
 _Geom = mujoco.mjtGeom
-
-
-def _mjx_jax_data(d):
-  """MJX's implementation data (`mjx.Data._impl`, a `DataJAX`).
-
-  Only it holds the tendon Jacobian (`ten_J`) and the actuator moments
-  (`actuator_moment`): MJX 3.17 has no public accessor for them, and its
-  deprecation message for `Data.<field>` points here. The one place this
-  package reads MJX internals.
-  """
-  return d._impl  # pylint: disable=protected-access
 
 
 def _spd_inverse(a):
@@ -52,7 +42,7 @@ def _spd_inverse_in_xla(a):
   that splits the batch into tasks on XLA's thread pool and blocks until
   those finish. When two such calls run at once and
   hold every thread of the pool, no thread is left for their tasks and the
-  program deadlocks (jaxlib 0.10; `benchmarks/repro_cpu_hang.py`). A
+  program deadlocks (jaxlib 0.10; see `platform.cpu_linalg`). A
   randomized reset factorized `M(qpos0)` here while MJX's forward pass
   factorized its own mass matrix beside it, and hung on a 2-core machine.
   These loops are plain XLA: `cpu_linalg.cholesky`, then the inverse of
@@ -116,14 +106,14 @@ def update(host, plan, fields, auto_stat):
     out['body_invweight0'] = _body_invweight0(m, mx, d, minv)
     out['dof_invweight0'] = _dof_invweight0(m, mx, minv)
   if m.ntendon and (plan.mass_matrix or geometry):
-    ten_j = _mjx_jax_data(d).ten_J
+    ten_j = internals.data_impl(d).ten_J
     if nv:
       out['tendon_invweight0'] = jnp.einsum('ti,ij,tj->t', ten_j, minv, ten_j)
     if geometry:
       out['tendon_length0'] = d.ten_length
       _tendon_spring(host, mx, out)
   if m.nu and nv and (plan.mass_matrix or moments):
-    moment = _mjx_jax_data(d).actuator_moment
+    moment = internals.data_impl(d).actuator_moment
     out['actuator_acc0'] = jnp.linalg.norm(moment @ minv, axis=1)
   if plan.dampratio_actuators and nv and plan.dampratios:
     _dampratio(host, plan.dampratio_actuators, d, minv, fields)
@@ -243,7 +233,7 @@ def _dampratio(host, actuators, d, minv, fields):
   MuJoCo 3.17 uses the inertia reflected through the transmission,
   `1 / (moment . M^-1 . moment)` at qpos0 (checked against the compiler).
   """
-  moment = _mjx_jax_data(d).actuator_moment
+  moment = internals.data_impl(d).actuator_moment
   gainprm = fields.get('actuator_gainprm')
   biasprm = fields.get('actuator_biasprm')
   out = biasprm

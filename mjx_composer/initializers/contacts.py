@@ -15,8 +15,9 @@ code, restricted to the geom pairs that matter:
   body whose pose is known, so a candidate pose can be checked without a
   kinematics pass over the whole tree.
 
-These build on `mujoco.mjx._src.collision_driver` (the pair table and the
-function table of `mjx.collision`), pinned with mujoco 3.17.
+These build on MJX's private collision tables (the pair table and the
+function table of `mjx.collision`, through `platform.internals`), pinned
+with mujoco 3.17.
 
 A pose is judged by MJX's narrow phase, the one the batched simulation runs.
 Where MJX and MuJoCo's own collision code disagree, placement follows MJX:
@@ -30,12 +31,11 @@ import jax
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
-from mujoco.mjx._src import collision_driver
-from mujoco.mjx._src import math as mjx_math
 import numpy as np
 
-from mjx_composer.platform import backend
 from mjx_composer.model import element_index
+from mjx_composer.platform import backend
+from mjx_composer.platform import internals
 
 
 def entity_geoms(index, entity) -> np.ndarray:
@@ -69,7 +69,7 @@ def pair_groups(model: mujoco.MjModel, geoms, excluded=()):
   geoms = np.asarray(geoms, np.int32)
   excluded = np.asarray(excluded, np.int32)
   groups = []
-  all_groups = collision_driver._geom_groups(model)  # pylint: disable=protected-access
+  all_groups = internals.collision_pair_groups(model)
   for key, pairs in all_groups.items():
     pairs = np.asarray(pairs, np.int32)[:, :2]
     involved = np.isin(pairs, geoms).any(axis=1)
@@ -86,7 +86,7 @@ def group_distances(model: mjx.Model, data: mjx.Data, key, pairs):
   Functions that return several contact points per pair pad the unused
   ones with positive distances.
   """
-  fn = collision_driver._COLLISION_FUNC[key.types]  # pylint: disable=protected-access
+  fn = internals.collision_function(key)
   dist, _, _ = fn(model, data, key, jnp.asarray(pairs))
   return jnp.reshape(dist, (pairs.shape[0], -1))
 
@@ -167,20 +167,22 @@ def rigid_geom_poses(model: mjx.Model, position, quaternion, geom_ids, chains):
   Returns:
     `(geom_xpos (G, 3), geom_xmat (G, 3, 3))`.
   """
-  quaternion = mjx_math.normalize(quaternion)
+  quaternion = internals.quat_normalize(quaternion)
 
   def one_geom(geom, chain):
     pos, quat = position, quaternion
     for body in chain:  # D is static and small
       valid = body >= 0
       body = jnp.maximum(body, 0)
-      child_pos = pos + mjx_math.rotate(model.body_pos[body], quat)
-      child_quat = mjx_math.quat_mul(quat, model.body_quat[body])
+      child_pos = pos + internals.quat_rotate(model.body_pos[body], quat)
+      child_quat = internals.quat_mul(quat, model.body_quat[body])
       pos = jnp.where(valid, child_pos, pos)
       quat = jnp.where(valid, child_quat, quat)
     geom = jnp.minimum(geom, model.ngeom - 1)
-    xpos = pos + mjx_math.rotate(model.geom_pos[geom], quat)
-    xmat = mjx_math.quat_to_mat(mjx_math.quat_mul(quat, model.geom_quat[geom]))
+    xpos = pos + internals.quat_rotate(model.geom_pos[geom], quat)
+    xmat = internals.quat_to_mat(
+        internals.quat_mul(quat, model.geom_quat[geom])
+    )
     return xpos, xmat
 
   geom_ids = jnp.asarray(geom_ids)

@@ -37,6 +37,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer.platform import internals
 from mjx_composer.utils import transformations
 
 _TREE = ('qpos0', 'body_pos', 'body_quat', 'jnt_pos', 'jnt_axis')
@@ -156,9 +157,10 @@ def _set(data, values):
   data = data.replace(**{k: v for k, v in values.items() if k in public})
   # MJX 3.17 keeps `cinert` and `cdof` in its JAX-backend data (`_impl`),
   # with no public setter; `mjx.com_pos` writes them the same way.
-  return data.tree_replace(
-      {f'_impl.{k}': v for k, v in values.items() if k not in public}
-  )
+  internal = {k: v for k, v in values.items() if k not in public}
+  if not internal:
+    return data
+  return internals.replace_data_impl(data, **internal)
 
 
 def _to_global(body_pos, body_quat, local_pos, local_quat):

@@ -65,6 +65,8 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
+from mjx_composer.platform import internals
+
 IMPLS = ('jax', 'warp')
 INSTALL_HINT = "pip install 'mjx-composer[warp]'"
 
@@ -239,12 +241,10 @@ def put(mj_model, impl: str, device, naconmax=None, njmax=None):
   # `warn_overflow` is raised. Keep the buffer overflows (lost contacts or
   # constraints); drop the solver's iteration limits, which models reach
   # by design (e.g. Playground's iterations=1) and 'jax' reaches silently.
-  opt_impl = model.opt._impl  # pylint: disable=protected-access
+  warn_overflow = int(internals.option_impl(model.opt).warn_overflow)
   model = model.replace(
-      opt=model.opt.replace(
-          _impl=opt_impl.replace(
-              warn_overflow=int(opt_impl.warn_overflow) & ~_solver_limits()
-          )
+      opt=internals.replace_option_impl(
+          model.opt, warn_overflow=warn_overflow & ~_solver_limits()
       )
   )
   return model, data
@@ -263,11 +263,9 @@ def default_njmax(mj_model) -> int:
   count is 122. Where the estimate is larger (reach: 64 against 32), it
   stays, so nothing that ran within Warp's default gets less room.
   """
-  from mujoco.mjx.third_party.mujoco_warp._src import io as warp_io  # pylint: disable=g-import-not-at-top
-
   jax_data = jax.eval_shape(lambda: mjx.make_data(mj_model, impl='jax'))
-  jax_rows = jax_data._impl.efc_J.shape[0]  # pylint: disable=protected-access
-  return max(int(warp_io._default_njmax(mj_model)), int(jax_rows))  # pylint: disable=protected-access
+  jax_rows = internals.data_impl(jax_data).efc_J.shape[0]
+  return max(internals.warp_default_njmax(mj_model), int(jax_rows))
 
 
 def _overflow_type():
@@ -285,12 +283,6 @@ def _solver_limits() -> int:
 # -- per-world model fields ---------------------------------------------------
 
 
-def _model_batch_dims() -> dict[str, bool]:
-  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
-
-  return warp_types._BATCH_DIM['Model']  # pylint: disable=protected-access
-
-
 def unbatchable_fields(names) -> list[str]:
   """The model fields of `names` that cannot differ between Warp's worlds.
 
@@ -299,7 +291,7 @@ def unbatchable_fields(names) -> list[str]:
   every option MJX's `Option` carries is batchable or unread by Warp, and
   Warp never reads the statistics.
   """
-  batch = _model_batch_dims()
+  batch = internals.warp_model_batch_dims()
   return sorted(n for n in names if batch.get(n) is False)
 
 
@@ -501,7 +493,7 @@ def overflow(data) -> jax.Array:
   """
   if data.impl != mjx.Impl.WARP:
     return jnp.zeros(jnp.shape(data.time), jnp.int32)
-  flags = data._impl.overflow  # pylint: disable=protected-access
+  flags = internals.data_impl(data).overflow
   return flags & ~jnp.asarray(_solver_limits(), flags.dtype)
 
 
@@ -512,18 +504,18 @@ def contacts_in_use(data) -> jax.Array:
   """
   if data.impl != mjx.Impl.WARP:
     return jnp.zeros((), jnp.int32)
-  return data._impl.nacon[0]  # pylint: disable=protected-access
+  return internals.data_impl(data).nacon[0]
 
 
 def naconmax(data) -> int:
   """The contact buffer's size ('warp'); 0 for 'jax' data."""
   if data.impl != mjx.Impl.WARP:
     return 0
-  return int(data._impl.naconmax)  # pylint: disable=protected-access
+  return int(internals.data_impl(data).naconmax)
 
 
 def njmax(data) -> int:
   """Constraint rows per world ('warp'); 0 for 'jax' data."""
   if data.impl != mjx.Impl.WARP:
     return 0
-  return int(data._impl.njmax)  # pylint: disable=protected-access
+  return int(internals.data_impl(data).njmax)

@@ -1,15 +1,15 @@
-"""JAX's persistent compilation cache, as our scripts switch it on.
+"""JAX's persistent compilation cache.
 
 A composed environment's reset and step programs take seconds (GPU) to
 minutes (CPU) to compile, and every new Python process compiles them again.
 JAX can keep compiled programs on disk and load them when the same program
 (same JAX, jaxlib, backend, device, flags and program text) is compiled again.
-`enable()` turns that on; the command line (`mjx-composer demo`), the
-examples, `benchmarks/train_ppo.py`, the notebooks and the test suite call it
-first thing:
+`enable()` turns that on; `platform.configure()` calls it, as the command
+line (`mjx-composer demo`), the examples, the benchmarks, the notebooks and
+the test suite do, first thing:
 
-    from mjx_composer.platform import compilation_cache
-    compilation_cache.enable()
+    from mjx_composer import platform
+    platform.configure()
 
 Where: `$MJX_COMPOSER_CACHE_DIR` if set, else
 `$XDG_CACHE_HOME/mjx_composer/jax` (`~/.cache/mjx_composer/jax` when

@@ -1,4 +1,4 @@
-"""Cholesky factorization in plain XLA on the CPU, as our scripts switch it on.
+"""Cholesky factorization in plain XLA on the CPU.
 
 On the CPU, JAX lowers a batched Cholesky factorization (MJX's Newton solver
 factorizes with `jax.scipy.linalg.cho_factor` in every forward pass) to a
@@ -6,26 +6,25 @@ LAPACK kernel of jaxlib that splits the batch into tasks on XLA's CPU thread
 pool and blocks until they finish. When as many such factorizations run at
 once as the pool has threads, every thread waits for tasks that no thread is
 left to run, and the program never finishes (jaxlib 0.10; on a 2-core
-machine two are enough). That hung the walk task's randomized reset in 3 of
-3 runs of `benchmarks/repro_cpu_hang.py`, a 64-world rollout at stop 32 and
-a test of this suite at stop 34 (`benchmarks/results/stop34_cpu/`).
+machine two are enough: e.g. a randomized reset that factorizes the mass
+matrix at `qpos0` beside the forward pass's own factorization).
 
 `enable()` lowers the factorization on the CPU to `cholesky` below instead:
 plain XLA loops, no LAPACK call, no thread pool, the same factor to float
-rounding (`tests/platform/test_cpu_linalg.py`). GPU programs are unchanged. Cost on
-the CPU (`python benchmarks/playground_compare.py --worlds 64 --steps 20
---programs ours_off only_noise+delay+history+randomize+groups`, 2 cores,
-`MJX_COMPOSER_XLA_CHOLESKY=0|1`): the walk task's step ran at 0.91-0.92 of
-its rate with LAPACK (1,502 against 1,643 control steps/s); XLA's own
-`cholesky` instruction, tried first, at 0.27. The command line, the
-examples, the benchmarks, the notebooks and the test suite call it next to
-`prng_lowering.enable()`; call it yourself before compiling on a CPU.
+rounding (`tests/platform/test_cpu_linalg.py`). GPU programs are unchanged.
+On the CPU, a composed walk task's step runs at about 0.9 of its rate with
+LAPACK's lowering; XLA's own `cholesky` instruction, the obvious
+alternative, ran at about a quarter of it.
 
-Off: `MJX_COMPOSER_XLA_CHOLESKY=0` in the environment, or
-`enable(enabled=False)` (which restores JAX's LAPACK lowering).
+Importing `mjx_composer` calls `enable()` (`platform.safe_defaults`): a
+process that imports the package compiles Cholesky this way on the CPU,
+its own programs too, unless switched off. `platform.configure()` calls
+it again, as the command line, the examples, the benchmarks, the notebooks
+and the test suite do.
 
-A library import never calls `enable()`: importing `mjx_composer` leaves
-JAX's lowering rules as they are.
+Off: `MJX_COMPOSER_XLA_CHOLESKY=0` in the environment (before the import),
+or `enable(enabled=False)` (which restores JAX's LAPACK lowering for
+programs lowered afterwards).
 """
 
 import os
@@ -33,11 +32,7 @@ import os
 import jax
 import jax.numpy as jnp
 
-# JAX has no public switch for this: its lowering rules are registered in
-# jax._src, and `enable` registers `cholesky` as the CPU rule of JAX's
-# Cholesky primitive (or puts JAX's LAPACK rule back).
-from jax._src.interpreters import mlir
-from jax._src.lax import linalg
+from mjx_composer.platform import internals
 
 SWITCH_ENV = 'MJX_COMPOSER_XLA_CHOLESKY'
 
@@ -70,7 +65,7 @@ def cholesky(a):
   return jax.lax.fori_loop(0, n, column, jnp.zeros_like(a))
 
 
-_cholesky_loops = mlir.lower_fun(cholesky, multiple_results=False)
+_cholesky_loops = internals.lower_fun(cholesky, multiple_results=False)
 
 
 def enable(*, enabled: bool | None = None) -> bool:
@@ -90,10 +85,6 @@ def enable(*, enabled: bool | None = None) -> bool:
   if enabled is None:
     value = os.environ.get(SWITCH_ENV, '').strip().lower()
     enabled = value not in _OFF_VALUES
-  rule = (
-      _cholesky_loops
-      if enabled
-      else linalg._cholesky_cpu_lowering  # pylint: disable=protected-access
-  )
-  mlir.register_lowering(linalg.cholesky_p, rule, platform='cpu')
+  rule = _cholesky_loops if enabled else internals.lapack_cholesky_cpu_lowering
+  internals.register_cpu_lowering(internals.cholesky_p, rule)
   return bool(enabled)

@@ -2,12 +2,12 @@
 
 JAX compiles a program over several devices (`jax.shard_map`, `jax.pmap`,
 `jax.jit` with shardings) through a partitioner: Shardy, JAX's default, or
-GSPMD, the one before it. On two H200s with JAX 0.11.2, compiling MJX's step
+GSPMD, the one before it. With JAX 0.11.2 on two GPUs, compiling MJX's step
 under `shard_map` (this package's `sharding.per_device`) or under Brax's
 `pmap` crashed the process: a segmentation fault in Shardy's canonicalizer
 (`ManualComputationUnusedInputsPattern`), while trivial `shard_map` programs
 compiled. The same programs compiled and ran with GSPMD (JAX's
-`jax_use_shardy_partitioner=False`); `benchmarks/results/` keeps the logs.
+`jax_use_shardy_partitioner=False`).
 
 So programs that this package compiles for a mesh of several GPUs are
 compiled with GSPMD: `scope(devices)` selects it for what is traced and
@@ -19,7 +19,7 @@ no longer has GSPMD, the scope changes nothing.
 `MJX_COMPOSER_PARTITIONER` overrides the choice: `shardy` or `gspmd` for
 every mesh, `auto` (or unset) as above. GSPMD prints a deprecation warning
 when it runs; the workaround goes once Shardy compiles these programs
-(`benchmarks/shardy_probe.py` checks on a machine with two GPUs).
+(`MJX_COMPOSER_PARTITIONER=shardy` tries it).
 """
 
 from __future__ import annotations
@@ -30,19 +30,10 @@ from typing import Iterable, Iterator
 
 import jax
 
+from mjx_composer.platform import internals
+
 PARTITIONER_ENV = 'MJX_COMPOSER_PARTITIONER'
 _CHOICES = ('auto', 'shardy', 'gspmd')
-
-
-def _shardy_state():
-  """JAX's `jax_use_shardy_partitioner` setting, or None where it is gone."""
-  # pylint: disable=g-import-not-at-top
-  try:
-    from jax._src import config
-  except ImportError:
-    return None
-  # pylint: enable=g-import-not-at-top
-  return getattr(config, 'use_shardy_partitioner', None)
 
 
 def requested() -> str:
@@ -65,7 +56,7 @@ def name_for(devices: Iterable[jax.Device]) -> str:
         d.platform == 'gpu' for d in devices
     )
     choice = 'gspmd' if several_gpus else 'shardy'
-  if choice == 'gspmd' and _shardy_state() is None:
+  if choice == 'gspmd' and internals.shardy_partitioner_state() is None:
     return 'shardy'  # This JAX has no other partitioner.
   return choice
 
@@ -82,7 +73,7 @@ def scope(devices: Iterable[jax.Device]) -> Iterator[str]:
     The partitioner's name, 'gspmd' or 'shardy'.
   """
   name = name_for(devices)
-  state = _shardy_state()
+  state = internals.shardy_partitioner_state()
   if state is None:
     yield name
     return

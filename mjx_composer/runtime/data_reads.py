@@ -23,10 +23,7 @@ import dataclasses
 import jax
 import numpy as np
 
-try:  # JAX's dead-code elimination of a jaxpr: not a public API.
-  from jax._src.interpreters import partial_eval as pe  # pylint: disable=g-import-not-at-top
-except ImportError:  # A JAX without it: every field counts as read.
-  pe = None
+from mjx_composer.platform import internals
 
 
 def leaf_names(data) -> list[str]:
@@ -66,7 +63,7 @@ def reads(fn, data, *args) -> Reads:
   has no dead-code elimination to call, everything counts as read.
   """
   names = leaf_names(data)
-  if pe is None or not hasattr(pe, 'dce_jaxpr'):
+  if internals.dce_jaxpr is None:
     return Reads(frozenset(names), None)
   closed, (outputs, ignored) = jax.make_jaxpr(fn, return_shape=True)(
       data, *args
@@ -74,7 +71,7 @@ def reads(fn, data, *args) -> Reads:
   used_outputs = [True] * len(jax.tree.leaves(outputs)) + [False] * len(
       jax.tree.leaves(ignored)
   )
-  jaxpr, used_inputs = pe.dce_jaxpr(
+  jaxpr, used_inputs = internals.dce_jaxpr(
       closed.jaxpr, used_outputs, instantiate=False
   )
   used = [n for n, u in zip(names, used_inputs) if u]

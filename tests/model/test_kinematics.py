@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from mjx_composer.model import kinematics
+from mjx_composer.platform import internals
 
 _XML = """
 <mujoco>
@@ -68,7 +69,9 @@ def _assert_same(got, want):
         getattr(got, name), getattr(want, name), atol=2e-6, err_msg=name
     )
   np.testing.assert_allclose(
-      got._impl.cinert, want._impl.cinert, atol=2e-6  # pylint: disable=protected-access
+      internals.data_impl(got).cinert,
+      internals.data_impl(want).cinert,
+      atol=2e-6,
   )
 
 

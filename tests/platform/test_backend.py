@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from mjx_composer.platform import backend
+from mjx_composer.platform import internals
 from mjx_composer import environment
 from mjx_composer.tasks import joystick
 from mjx_composer.tasks import push
@@ -175,7 +176,7 @@ def test_warp_keeps_the_contact_buffer_shared_by_the_batch(warp_rollout):
   """Warp's contacts are one buffer per batch, never copied per world."""
   data = warp_rollout[-1].data
   assert data.qpos.shape[0] == WORLDS
-  contact_dist = data._impl.contact__dist  # pylint: disable=protected-access
+  contact_dist = internals.data_impl(data).contact__dist
   assert jnp.shape(contact_dist) == (backend.naconmax(data),)
   assert jax.tree.leaves(backend.shared_leaves(data)).count(True) > 10
 
@@ -190,10 +191,10 @@ def test_warp_overflow_is_reported_until_the_episode_ends(warp_env, warp_fns):
   flags = np.zeros(WORLDS, np.int32)
   flags[2] = int(kind.NEFC)
   flags[5] = int(kind.ITERATIONS)
-  impl = states.data._impl  # pylint: disable=protected-access
+  dtype = internals.data_impl(states.data).overflow.dtype
   states = states.replace(
-      data=states.data.replace(
-          _impl=impl.replace(overflow=jnp.asarray(flags, impl.overflow.dtype))
+      data=internals.replace_data_impl(
+          states.data, overflow=jnp.asarray(flags, dtype)
       )
   )
   expected = (np.arange(WORLDS) == 2).astype(np.float32)
@@ -208,21 +209,20 @@ def test_warp_overflow_is_reported_until_the_episode_ends(warp_env, warp_fns):
 
 def test_default_njmax_holds_the_jax_implementations_rows():
   """Warp's estimate, raised to MJX's JAX allocation where that is larger."""
-  from mujoco.mjx.third_party.mujoco_warp._src import io as warp_io  # pylint: disable=g-import-not-at-top
 
   def jax_rows(mj_model):
     data = mjx.make_data(mj_model, impl='jax')
-    return data._impl.efc_J.shape[0]  # pylint: disable=protected-access
+    return internals.data_impl(data).efc_J.shape[0]
 
   arm = reach.Reach().root_entity.compose()[0].compile()
   boxes = push.Push().root_entity.compose()[0].compile()
   # Push's boxes can touch the floor, the arm and each other at once: more
   # rows than Warp's estimate (which 194 of 8,192 worlds overflowed).
-  assert jax_rows(boxes) > warp_io._default_njmax(boxes)  # pylint: disable=protected-access
+  assert jax_rows(boxes) > internals.warp_default_njmax(boxes)
   assert backend.default_njmax(boxes) == jax_rows(boxes)
   # The arm needs fewer than Warp's estimate, which stays.
-  assert jax_rows(arm) < warp_io._default_njmax(arm)  # pylint: disable=protected-access
-  assert backend.default_njmax(arm) == warp_io._default_njmax(arm)  # pylint: disable=protected-access
+  assert jax_rows(arm) < internals.warp_default_njmax(arm)
+  assert backend.default_njmax(arm) == internals.warp_default_njmax(arm)
 
 
 # -- refusals -------------------------------------------------------------------

@@ -1,0 +1,178 @@
+"""Every use of JAX's, MJX's and MuJoCo Warp's private internals.
+
+The package needs a few things that JAX, MJX and MuJoCo Warp do not export:
+a lowering rule of JAX's Cholesky primitive, JAX's dead-code elimination of
+a jaxpr, JAX's partitioner setting, MJX's implementation data
+(`mjx.Data._impl`, `mjx.Option._impl`), MJX's collision tables and
+quaternion math, and MuJoCo Warp's default constraint rows. This module is
+the only one that imports a private module (`jax._src`, `mujoco.mjx._src`,
+`mujoco.mjx.third_party.mujoco_warp._src`) or reads an `_impl` field; every
+other module calls the names below. When JAX, MuJoCo or MuJoCo Warp is
+upgraded, this file is the one to revisit (`tests/test_layers.py` keeps
+private imports out of the rest of the package).
+
+Each name says what private thing it wraps and why the package needs it.
+Written against jax 0.10 and mujoco (MJX) 3.17.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+# pylint: disable=protected-access
+from jax._src.interpreters import mlir as _mlir
+from jax._src.lax import linalg as _linalg
+from mujoco.mjx._src import collision_driver as _collision_driver
+from mujoco.mjx._src import math as _mjx_math
+
+try:  # JAX's own configuration objects, beside the public `jax.config`.
+  from jax._src import config as _jax_config
+except ImportError:  # pragma: no cover - a JAX that moved it
+  _jax_config = None
+
+try:  # JAX's dead-code elimination of a jaxpr: not a public API.
+  from jax._src.interpreters import partial_eval as _partial_eval
+except ImportError:  # pragma: no cover - a JAX that moved it
+  _partial_eval = None
+
+
+# -- JAX ----------------------------------------------------------------------
+
+# `jax._src.interpreters.mlir.lower_fun`: turns a JAX function into a
+# lowering rule. `cpu_linalg` lowers Cholesky to plain XLA loops with it;
+# JAX has no public way to replace a primitive's lowering.
+lower_fun = _mlir.lower_fun
+
+# `jax._src.lax.linalg.cholesky_p`: JAX's Cholesky primitive, whose CPU
+# lowering `cpu_linalg` replaces.
+cholesky_p = _linalg.cholesky_p
+
+# `jax._src.lax.linalg._cholesky_cpu_lowering`: JAX's own CPU lowering of
+# Cholesky (a LAPACK call), which `cpu_linalg.enable(enabled=False)` puts
+# back.
+lapack_cholesky_cpu_lowering = _linalg._cholesky_cpu_lowering
+
+
+def register_cpu_lowering(primitive, rule) -> None:
+  """`jax._src.interpreters.mlir.register_lowering(..., platform='cpu')`.
+
+  Makes `rule` the CPU lowering of `primitive` for programs lowered from
+  now on (`cpu_linalg`).
+  """
+  _mlir.register_lowering(primitive, rule, platform='cpu')
+
+
+def shardy_partitioner_state():
+  """JAX's `jax_use_shardy_partitioner` state, or None where it is gone.
+
+  `jax._src.config.use_shardy_partitioner`: a context manager that selects
+  Shardy (True) or GSPMD (False) for what is traced and compiled inside it.
+  `jax.config.update` sets it for the whole process; `partitioner.scope`
+  needs it for one block only, which only the private object offers. None
+  on a JAX without the setting (GSPMD removed).
+  """
+  if _jax_config is None:
+    return None
+  return getattr(_jax_config, 'use_shardy_partitioner', None)
+
+
+# `jax._src.interpreters.partial_eval.dce_jaxpr`, or None on a JAX without
+# it: dead-code elimination of a jaxpr given which outputs are used, what
+# `runtime.data_reads` uses to tell which `mjx.Data` fields a traced function
+# reads (without it, every field counts as read).
+dce_jaxpr: Callable[..., Any] | None = getattr(_partial_eval, 'dce_jaxpr', None)
+
+
+# -- MJX ------------------------------------------------------------------------
+
+
+def data_impl(data):
+  """`data._impl`: the implementation data of an `mjx.Data`.
+
+  A `DataJAX` ('jax') or `DataWarp` ('warp'). MJX 3.17 keeps some fields
+  only there and has no public accessor for them: the tendon Jacobian
+  (`ten_J`), the actuator moments (`actuator_moment`), the constraint
+  Jacobian (`efc_J`); on 'warp', the buffer sizes and overflow flags
+  (`naconmax`, `njmax`, `nacon`, `overflow`). MJX's deprecation message for
+  `Data.<field>` points there.
+  """
+  return data._impl
+
+
+def replace_data_impl(data, **fields):
+  """`data` with `fields` of its implementation data (`data._impl`) replaced."""
+  return data.replace(_impl=data._impl.replace(**fields))
+
+
+def option_impl(option):
+  """`option._impl`: the implementation options of an `mjx.Option`.
+
+  On 'warp', MuJoCo Warp's options, among them `warn_overflow` (which
+  overflows its kernels print a warning for); MJX has no public accessor.
+  """
+  return option._impl
+
+
+def replace_option_impl(option, **fields):
+  """`option` with `fields` of its implementation options replaced."""
+  return option.replace(_impl=option._impl.replace(**fields))
+
+
+def collision_pair_groups(mj_model) -> dict:
+  """`mujoco.mjx._src.collision_driver._geom_groups(mj_model)`.
+
+  MJX's static collision pairs grouped by narrow-phase function: the pairs
+  `mjx.collision` tests (contype/conaffinity, exclusions, `<pair>`s and
+  parent filtering as MuJoCo's), keyed by the function's key. The contact
+  queries of `initializers.contacts` test a subset of them with MJX's own
+  functions; MJX exports neither the table nor the functions.
+  """
+  return _collision_driver._geom_groups(mj_model)
+
+
+def collision_function(key):
+  """`mujoco.mjx._src.collision_driver._COLLISION_FUNC[key.types]`.
+
+  The narrow-phase function MJX runs on the pairs of `key`'s group
+  (`collision_pair_groups`): `fn(model, data, key, pairs)` returns the
+  signed distances, positions and frames of their contacts.
+  """
+  return _collision_driver._COLLISION_FUNC[key.types]
+
+
+# `mujoco.mjx._src.math`: MJX's quaternion functions, so that poses composed
+# outside `mjx.kinematics` (`initializers.contacts.rigid_geom_poses`) round
+# as MJX's own kinematics do.
+quat_normalize = _mjx_math.normalize
+quat_rotate = _mjx_math.rotate
+quat_mul = _mjx_math.quat_mul
+quat_to_mat = _mjx_math.quat_to_mat
+
+
+# -- MuJoCo Warp ----------------------------------------------------------------
+
+
+def warp_default_njmax(mj_model) -> int:
+  """MuJoCo Warp's own estimate of the constraint rows per world.
+
+  `mujoco.mjx.third_party.mujoco_warp._src.io._default_njmax(mj_model)`:
+  what `make_data` allocates unless told; `backend.default_njmax` takes the
+  larger of it and MJX's JAX count. Imported here, not at the top: MuJoCo
+  Warp imports only where `warp-lang` is installed.
+  """
+  from mujoco.mjx.third_party.mujoco_warp._src import io as warp_io  # pylint: disable=g-import-not-at-top
+
+  return int(warp_io._default_njmax(mj_model))
+
+
+def warp_model_batch_dims() -> dict[str, bool]:
+  """`mujoco.mjx.warp.types._BATCH_DIM['Model']`: which fields vary per world.
+
+  `{model field: whether it has a batch dimension}` for the fields MuJoCo
+  Warp reads: `backend.check_per_world_fields` refuses per-world values of
+  the others. MJX keeps the table private. Imported here, not at the top,
+  as `warp_default_njmax`.
+  """
+  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
+
+  return warp_types._BATCH_DIM['Model']
