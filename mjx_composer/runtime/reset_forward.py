@@ -50,6 +50,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer.platform import internals
 from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import substep_sensors
 
@@ -110,11 +111,11 @@ def _position(m, d, sensors):
 def _velocity(m, d, sensors):
   d = _position(m, d, sensors)
   # What `mjx.fwd_velocity` computes before its force terms.
-  d = d.tree_replace(
-      {
-          '_impl.actuator_velocity': d._impl.actuator_moment @ d.qvel,  # pylint: disable=protected-access
-          '_impl.ten_velocity': d._impl.ten_J @ d.qvel,  # pylint: disable=protected-access
-      }
+  impl = internals.data_impl(d)
+  d = internals.replace_data_impl(
+      d,
+      actuator_velocity=impl.actuator_moment @ d.qvel,
+      ten_velocity=impl.ten_J @ d.qvel,
   )
   d = mjx.com_vel(m, d)
   return mjx.sensor_vel(m, d) if sensors else d

@@ -32,6 +32,8 @@ import dataclasses
 import jax
 from mujoco import mjx
 
+from mjx_composer.platform import internals
+
 # The `mjx.Data` leaves (`data_reads.leaf_names`) that the sensor stages of
 # `mjx.forward` write (`tests/runtime/test_substep_sensors.py` checks the list).
 OUTPUTS = frozenset(
@@ -92,6 +94,6 @@ def sensors_of(
   data = mjx.sensor_vel(model, mjx.sensor_pos(model, data))
   # `mjx.forward` skips the acceleration stage's sensors where the model has
   # no constraint rows (its solver does not run).
-  if data._impl.efc_J.size:  # pylint: disable=protected-access
+  if internals.data_impl(data).efc_J.size:
     data = mjx.sensor_acc(model, data)
   return data.replace(**advanced)
