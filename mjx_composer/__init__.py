@@ -50,6 +50,7 @@ from mjx_composer.entity import Entity
 from mjx_composer.entity import ModelWrapperEntity
 from mjx_composer.environment import EpisodeInitializationError
 from mjx_composer.environment import Environment
+from mjx_composer.environment import ExecutionOptions
 from mjx_composer.environment import HOOK_NAMES
 from mjx_composer.environment import State
 from mjx_composer.environment import StepType

@@ -24,7 +24,8 @@ follow composer's order of events:
   reward, discount and termination (`episode.EpisodeRules`).
 
 Hooks run in composer's order (`hooks.EnvironmentHooks`); episode ends and
-auto-reset follow `episode`; what a world carries is `state.State`.
+auto-reset follow `episode` and `auto_reset`; what a world carries is
+`state.State`.
 
 Initialization failures: an `initialize_episode` hook that cannot set up the
 episode (e.g. `PropPlacer` finding no collision-free pose) marks it with
@@ -38,15 +39,20 @@ Keys: `reset(key)` derives every random draw of the episode, and of the
 episodes that auto-reset after it, from `key` alone: the same key gives the
 same trajectory, run to run.
 
-Physics backend: `Environment(impl='warp')` runs the physics on MuJoCo Warp
-through MJX instead of MJX's JAX implementation; `backend` says what runs
-where and what Warp refuses at build.
+Execution: `ExecutionOptions` (`Environment(task, options=...)`) chooses how
+the worlds run (auto-reset mode, physics implementation, fused restarts,
+...) without changing what they compute; e.g.
+`ExecutionOptions(impl='warp')` runs the physics on MuJoCo Warp through MJX
+instead of MJX's JAX implementation (`backend` says what runs where and what
+Warp refuses at build).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from typing import Callable
+import warnings
 
 from dm_env import specs
 import jax
@@ -55,21 +61,42 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer.platform import backend
+from mjx_composer import physics as physics_lib
 from mjx_composer.model import element_index
+from mjx_composer.model import model_checks
+from mjx_composer.observation import updater as updater_lib
+from mjx_composer.platform import backend
+from mjx_composer.runtime import auto_reset as auto_reset_lib
 from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import hooks as hooks_lib
-from mjx_composer.model import model_checks
-from mjx_composer import physics as physics_lib
+from mjx_composer.runtime import options as options_lib
 from mjx_composer.runtime import reset_forward as reset_forward_lib
 from mjx_composer.runtime import state as state_lib
 from mjx_composer.runtime import transitions as transitions_lib
-from mjx_composer.observation import updater as updater_lib
 
+ExecutionOptions = options_lib.ExecutionOptions
 HOOK_NAMES = hooks_lib.HOOK_NAMES
 ObservationPadding = updater_lib.ObservationPadding
 State = state_lib.State
 StepType = state_lib.StepType
+
+# The `ExecutionOptions` fields, once `Environment` keyword arguments.
+_OPTION_FIELDS = tuple(f.name for f in dataclasses.fields(ExecutionOptions))
+# `Environment`'s arguments: composer's, in composer's order, and `options`.
+_ARGUMENTS = (
+    'task',
+    'time_limit',
+    'random_state',
+    'n_sub_steps',
+    'raise_exception_on_physics_error',
+    'strip_singleton_obs_buffer_dim',
+    'max_reset_attempts',
+    'recompile_mjcf_every_episode',
+    'fixed_initial_state',
+    'delayed_observation_padding',
+    'legacy_step',
+    'options',
+)
 
 
 class EpisodeInitializationError(RuntimeError):
@@ -83,6 +110,9 @@ class EpisodeInitializationError(RuntimeError):
 class Environment:
   """A composed task, compiled once, with pure single-world reset and step.
 
+  The arguments up to `legacy_step` are composer's, in composer's order;
+  how the worlds run is `options`.
+
   Args:
     task: the `Task`.
     time_limit: episode length in seconds (truncation); `inf` for none.
@@ -90,86 +120,12 @@ class Environment:
       build-time host hooks (`initialize_episode_mjcf`, `after_compile`).
     n_sub_steps: overrides `task.physics_steps_per_control_step` (deprecated
       in composer; here the observation updater follows it too).
+    raise_exception_on_physics_error: composer's; see below.
     strip_singleton_obs_buffer_dim: drop the buffer axis of size-1 buffers.
-    delayed_observation_padding: `ObservationPadding.ZERO` or `INITIAL_VALUE`.
-    auto_reset: 'next_step' (composer) or 'same_step' (see `episode`).
-    per_world_model_fields: model field names (e.g. 'geom_rgba', 'opt') that
-      step hooks may write per world, in addition to those that
-      `initialize_episode` hooks write (which are found automatically).
-    observation_groups: groups for the observation updater (e.g.
-      `{'policy': ..., 'critic': ...}`, see `observation.updater`); defaults
-      to `task.observation_groups()`.
     max_reset_attempts: how many times `reset` may run the
       `initialize_episode` hooks when they report a failed initialization
       (`Physics.fail_initialization`), each time with a fresh key.
-    share_reset_forward: reset worlds (an ended episode's restart with
-      same-step auto-reset, a LAST state's reset with next-step) in one more
-      iteration of the sub-step loop, so that the step program holds one
-      copy of the forward pass (`Transitions.step_and_restart`,
-      `Transitions.reset_or_step`).
-      Measured (README): on one H100 (stop 28) reach's step program
-      compiled in about half the time; on one H100 (stop 33) the walk
-      task's first call took 12-20 s less and it ran at 0.962-0.965 of the
-      separate restart's throughput. False runs the sub-steps as a
-      `lax.scan` of `mjx.step` and the restart separately.
-      Results are bit-identical either way. Default (None): True on a CPU
-      with impl='jax', where runs are short and compiling dominates; False
-      elsewhere (and with `auto_reset_batch`). impl='warp' refuses True
-      (`backend`).
-    auto_reset_batch: under `jax.vmap`, how many worlds' auto-resets are
-      computed together. None (default): at a step in which any world's
-      episode ends, the reset of the whole batch is computed and selected
-      per world. An integer K: the worlds that end are gathered into
-      batches of K, reset and scattered back (`episode.select_reset`), so
-      a step in which a few of many worlds end pays for K resets, not for
-      all: for tasks whose episodes end often (falls) on large batches.
-      The results are the same to float rounding. Needs impl='jax' (None
-      then resolves to 'jax') and refuses `share_reset_forward=True`,
-      which runs the reset inside the sub-step loop.
-    impl: which MJX implementation runs the physics: 'jax' (MJX's XLA
-      implementation), 'warp' (MuJoCo Warp kernels through JAX's FFI, on a
-      CUDA GPU or the CPU; `pip install 'mjx-composer[warp]'`), or None:
-      'warp' on a CUDA GPU where MuJoCo Warp is installed (unless
-      `share_reset_forward=True`), falling back to 'jax' with a logged
-      warning when Warp refuses the environment; 'jax' everywhere else
-      (`backend.default_impls`). On 'warp', a model feature or a per-world
-      model field that MuJoCo Warp cannot run is refused here, with what to
-      do (`backend`); building then traces `reset` once to find the
-      per-world fields.
-    naconmax: impl='warp' or None (ignored where None builds on 'jax'): the
-      contacts MuJoCo Warp holds for all the worlds of one batch (one buffer
-      shared by the batch). Default:
-      `backend.DEFAULT_CONTACTS_PER_WORLD` (64) per world for
-      `backend.DEFAULT_WORLDS` (8,192) worlds. Contacts beyond it are
-      dropped and flagged in `backend.overflow(state.data)` and
-      `metrics['overflow']`.
-    njmax: impl='warp' or None (ignored where None builds on 'jax'):
-      constraint rows per world. Default: `backend.default_njmax`, the
-      larger of MuJoCo Warp's estimate and the rows MJX's JAX
-      implementation allocates. Rows beyond it are dropped and flagged in
-      `backend.overflow(state.data)` and `metrics['overflow']`.
-
-    reset_forward: 'observed' (default): a reset runs only the stage of
-      the forward pass whose results something reads before the next
-      physics step (the observables sampled at reset, the start metrics,
-      the next step's hooks before its physics; `mjx.step` recomputes the
-      rest): 'none', 'position' (kinematics, centres of mass, position
-      sensors, ...), 'velocity' (also velocities and velocity sensors) or
-      'full' (`mjx_composer.runtime.reset_forward`; `reset_forward_stage` says
-      which). The other derived fields of the reset's `State.data` (e.g.
-      `contact`, `qacc`, `efc_*`) keep their values from before the
-      forward pass (`physics(state)` completes them). Observations,
-      rewards and trajectories are the same as with 'full', which computes
-      everything as composer's reset does.
-    substep_sensors: 'read' (default): where nothing between a control
-      step's sub-steps reads the sensors (the sub-step hooks, the
-      observables sampled at sub-steps), the sub-steps skip MuJoCo's sensor
-      stage and the control step computes the sensors once, after its last
-      sub-step, as its `mjx.step` would have; a fused restart
-      (`share_reset_forward`) computes the sensors its reset's stage of the
-      forward pass computes once, too (`mjx_composer.runtime.substep_sensors`;
-      `sensors_once_per_step` says whether). 'all': every sub-step
-      computes them, as `mjx.step` does.
+    recompile_mjcf_every_episode: composer's; see below.
     fixed_initial_state: composer's: every episode of a world starts as its
       first did. `reset(key)` starts a world from `key` as always; its
       auto-resets then reuse that key (kept in the world's persistent
@@ -178,13 +134,24 @@ class Environment:
       Every initialization attempt uses the same key, so a failure that
       only randomness causes repeats (composer's behaviour).
       `HostEnvironment` resets with its first key every time.
-    raise_exception_on_physics_error, recompile_mjcf_every_episode,
-      legacy_step: composer's options, accepted so that composer code ports.
-      Each may be left out or set to the one value this batched environment
-      implements, False; True raises a ValueError that says what happens
-      instead (`COMPOSER_OPTIONS`).
+    delayed_observation_padding: `ObservationPadding.ZERO` or
+      `INITIAL_VALUE`.
+    legacy_step: composer's; see below.
+    options: the `ExecutionOptions` (None: the defaults).
+    **deprecated: the execution options as keyword arguments (`auto_reset`,
+      `impl`, ...: `ExecutionOptions`' fields), and `observation_groups`
+      (override `Task.observation_groups()` instead). They still work, with
+      a `DeprecationWarning`; they cannot be combined with `options`.
+
+  `raise_exception_on_physics_error`, `recompile_mjcf_every_episode` and
+  `legacy_step` are accepted so that composer code ports. Each may be left
+  out or set to the one value this batched environment implements, False;
+  True raises a ValueError that says what happens instead
+  (`COMPOSER_OPTIONS`).
 
   Raises:
+    TypeError: for an unknown keyword argument, or a deprecated one together
+      with `options`.
     ValueError, NotImplementedError, ImportError: for arguments, models or
       per-world fields the chosen implementation cannot run (`backend`).
   """
@@ -195,55 +162,33 @@ class Environment:
       time_limit=float('inf'),
       random_state=None,
       n_sub_steps=None,
-      strip_singleton_obs_buffer_dim=False,
-      delayed_observation_padding=ObservationPadding.ZERO,
-      auto_reset='next_step',
-      per_world_model_fields=(),
-      observation_groups=None,
-      max_reset_attempts=1,
-      share_reset_forward=None,
-      auto_reset_batch=None,
-      impl=None,
-      naconmax=None,
-      njmax=None,
-      reset_forward='observed',
-      substep_sensors='read',
       raise_exception_on_physics_error=None,
+      strip_singleton_obs_buffer_dim=False,
+      max_reset_attempts=1,
       recompile_mjcf_every_episode=None,
       fixed_initial_state=None,
+      delayed_observation_padding=ObservationPadding.ZERO,
       legacy_step=None,
+      *,
+      options: ExecutionOptions | None = None,
+      **deprecated,
   ):
+    options, observation_groups = _options_from(options, deprecated)
     _check_composer_options(
         raise_exception_on_physics_error=raise_exception_on_physics_error,
         recompile_mjcf_every_episode=recompile_mjcf_every_episode,
         fixed_initial_state=fixed_initial_state,
         legacy_step=legacy_step,
     )
+    _check_arguments(
+        delayed_observation_padding, max_reset_attempts, time_limit
+    )
+    self._requested_options = options
     self._fixed_initial_state = bool(fixed_initial_state)
-    if reset_forward not in ('observed', 'full'):
-      raise ValueError(
-          f"reset_forward must be 'observed' or 'full', got {reset_forward!r}."
-      )
-    self._reset_forward = reset_forward
-    if substep_sensors not in ('read', 'all'):
-      raise ValueError(
-          f"substep_sensors must be 'read' or 'all', got {substep_sensors!r}."
-      )
-    self._substep_sensors = substep_sensors
     # Jitted data completions of `physics`, by the state's batch rank.
     self._complete_data = {}
-    _check_auto_reset_batch(auto_reset_batch, share_reset_forward, impl)
-    self._auto_reset_batch = auto_reset_batch
-    _check_arguments(
-        delayed_observation_padding,
-        auto_reset,
-        max_reset_attempts,
-        time_limit,
-        per_world_model_fields,
-    )
     self._task = task
     self._time_limit = time_limit
-    self._auto_reset = auto_reset
     if not isinstance(random_state, np.random.RandomState):
       random_state = np.random.RandomState(random_state)
     self._random_state = random_state
@@ -268,28 +213,26 @@ class Environment:
     device = jax.local_devices()[0]
     # The fused restart and the chunked reset run on 'jax' only.
     candidates = backend.resolve_impl(
-        impl,
+        options.impl,
         device,
-        share_reset_forward=share_reset_forward or auto_reset_batch is not None,
+        share_reset_forward=(
+            options.share_reset_forward or options.auto_reset_batch is not None
+        ),
     )
     random_state = self._random_state.get_state()
     for i, candidate in enumerate(candidates):
       try:
         self._build_physics(
             candidate,
-            impl,
+            options,
             device,
             index,
             time_limit=time_limit,
             n_sub_steps=n_sub_steps,
             strip_singleton_obs_buffer_dim=strip_singleton_obs_buffer_dim,
             delayed_observation_padding=delayed_observation_padding,
-            per_world_model_fields=per_world_model_fields,
             observation_groups=observation_groups,
             max_reset_attempts=max_reset_attempts,
-            share_reset_forward=share_reset_forward,
-            naconmax=naconmax,
-            njmax=njmax,
         )
         break
       except backend.WarpUnsupportedError as e:
@@ -309,7 +252,7 @@ class Environment:
   def _build_physics(
       self,
       impl,
-      requested_impl,
+      options,
       device,
       index,
       *,
@@ -317,20 +260,17 @@ class Environment:
       n_sub_steps,
       strip_singleton_obs_buffer_dim,
       delayed_observation_padding,
-      per_world_model_fields,
       observation_groups,
       max_reset_attempts,
-      share_reset_forward,
-      naconmax,
-      njmax,
   ):
     """Puts the compiled model on `device` with `impl` and plans the steps.
 
-    `requested_impl` is the `impl` argument of `__init__` (None for the
-    default), which decides whether Warp's buffer sizes may be ignored.
+    `options.impl` is the requested implementation (None for the default),
+    which decides whether Warp's buffer sizes may be ignored.
 
     Runs the `after_compile` hooks on the device model, then builds the
-    episode rules, the observation updater and the transitions.
+    episode rules, the observation updater, the transitions and the step
+    program.
 
     Raises:
       backend.WarpUnsupportedError: on 'warp', a model feature or per-world
@@ -339,23 +279,36 @@ class Environment:
     task = self._task
     self._impl = impl
     backend.check_buffer_arguments(
-        self._impl, naconmax, njmax, requested=requested_impl
+        impl, options.naconmax, options.njmax, requested=options.impl
     )
-    backend.check_share_reset_forward(self._impl, share_reset_forward)
+    backend.check_share_reset_forward(impl, options.share_reset_forward)
     backend.check_per_world_fields(
-        self._impl,
+        impl,
         {
-            name: ('Environment(per_world_model_fields=...)',)
-            for name in per_world_model_fields
+            name: ('ExecutionOptions(per_world_model_fields=...)',)
+            for name in options.per_world_model_fields
         },
     )
+    share_reset_forward = options.share_reset_forward
     if share_reset_forward is None:
-      share_reset_forward = self._auto_reset_batch is None and (
-          backend.default_share_reset_forward(self._impl, device)
+      share_reset_forward = options.auto_reset_batch is None and (
+          backend.default_share_reset_forward(impl, device)
       )
-    self._share_reset_forward = bool(share_reset_forward)
+    on_warp = impl == 'warp'
+    self._options = dataclasses.replace(
+        options,
+        impl=impl,
+        share_reset_forward=bool(share_reset_forward),
+        # Ignored where the default builds on 'jax'.
+        naconmax=options.naconmax if on_warp else None,
+        njmax=options.njmax if on_warp else None,
+    )
     mjx_model, data0 = backend.put(
-        self._mj_model, self._impl, device, naconmax=naconmax, njmax=njmax
+        self._mj_model,
+        impl,
+        device,
+        naconmax=options.naconmax,
+        njmax=options.njmax,
     )
     compiled = self._hooks.after_compile(
         physics_lib.Physics(mjx_model, data0, index=index), self._random_state
@@ -395,22 +348,42 @@ class Environment:
         episode=self._episode,
         n_sub_steps=n_sub_steps,
         max_reset_attempts=int(max_reset_attempts),
-        declared_model_fields=tuple(per_world_model_fields),
-        reset_forward_mode=self._reset_forward,
+        declared_model_fields=options.per_world_model_fields,
+        reset_forward_mode=options.reset_forward,
         action_shape=tuple(task.action_spec(physics).shape),
         fixed_initial_state=self._fixed_initial_state,
-        substep_sensors=self._substep_sensors,
+        substep_sensors=options.substep_sensors,
     )
-    if self._impl == 'warp':
+    # `can_fuse_restart` is a fact of the host model: decide here, once.
+    self._fuses = (
+        self._options.share_reset_forward
+        and self._transitions.can_fuse_restart()
+    )
+    self._advance = auto_reset_lib.step_program(
+        self._transitions,
+        auto_reset=options.auto_reset,
+        fuse=self._fuses,
+        chunk=options.auto_reset_batch,
+    )
+    if impl == 'warp':
       # Hooks make fields per-world when reset is traced: trace it now.
       jax.eval_shape(self.reset, jax.random.key(0))
-      backend.check_per_world_fields(self._impl, self.per_world_model_fields)
+      backend.check_per_world_fields(impl, self.per_world_model_fields)
 
   # -- properties ----------------------------------------------------------
 
   @property
   def task(self):
     return self._task
+
+  @property
+  def options(self) -> ExecutionOptions:
+    """The `ExecutionOptions` as resolved for this environment's device.
+
+    `impl` and `share_reset_forward` are the ones chosen (never None);
+    `naconmax` and `njmax` are None where they are ignored (on 'jax').
+    """
+    return self._options
 
   @property
   def fixed_initial_state(self) -> bool:
@@ -455,42 +428,42 @@ class Environment:
 
   @property
   def auto_reset(self) -> str:
-    """'next_step' or 'same_step' (see `episode`)."""
-    return self._auto_reset
+    """'next_step' or 'same_step' (`ExecutionOptions.auto_reset`)."""
+    return self._options.auto_reset
 
   @property
   def share_reset_forward(self) -> bool:
     """Whether restarts run as an extra iteration of the sub-step loop.
 
-    As resolved from the constructor's argument (None: the device's
-    default, `backend.default_share_reset_forward`).
+    As resolved from `ExecutionOptions.share_reset_forward` (None: the
+    device's default, `backend.default_share_reset_forward`).
     """
-    return self._share_reset_forward
+    return self._options.share_reset_forward
 
   @property
   def auto_reset_batch(self) -> int | None:
     """How many ended worlds reset together under `jax.vmap` (None: all)."""
-    return self._auto_reset_batch
+    return self._options.auto_reset_batch
 
   @property
   def reset_forward_stage(self) -> str:
     """The stage of the forward pass a reset runs: 'none', 'position',
-    'velocity' or 'full' (`Environment(reset_forward=...)`,
-    `mjx_composer.runtime.reset_forward`). Found by tracing the readers of a reset's
-    state on first use."""
+    'velocity' or 'full' (`ExecutionOptions.reset_forward`,
+    `mjx_composer.runtime.reset_forward`). Found by tracing the readers of a
+    reset's state on first use."""
     return self._transitions.reset_forward.stage
 
   @property
   def sensors_once_per_step(self) -> bool:
     """Whether `step` computes the sensors once per control step instead of
-    at every sub-step (`Environment(substep_sensors=...)`,
-    `mjx_composer.runtime.substep_sensors`). Found by tracing what runs between the
-    sub-steps on first use."""
+    at every sub-step (`ExecutionOptions.substep_sensors`,
+    `mjx_composer.runtime.substep_sensors`). Found by tracing what runs
+    between the sub-steps on first use."""
     return self._transitions.sensors_once_per_step
 
   def _fuses_restart(self) -> bool:
     """Whether `step` runs the restart in the sub-step loop."""
-    return self._share_reset_forward and self._transitions.can_fuse_restart()
+    return self._fuses
 
   @property
   def random_state(self):
@@ -505,7 +478,7 @@ class Environment:
     """`{model field: the hooks that made it per-world}`.
 
     Filled in as `reset` and `step` are traced; fields declared with
-    `Environment(per_world_model_fields=...)` are listed as declared.
+    `ExecutionOptions(per_world_model_fields=...)` are listed as declared.
     """
     return self._transitions.per_world_model_fields()
 
@@ -571,7 +544,7 @@ class Environment:
     """One world's data, its forward pass completed if it is a reset's."""
     physics = self._transitions.physics(state)
     reset = state.first()
-    if self._auto_reset == 'same_step':
+    if self._options.auto_reset == 'same_step':
       reset = jnp.logical_or(reset, state.last())
     full = reset_forward_lib.forward('full', physics.model, physics.data)
     return episode_lib.tree_select(reset, full, physics.data)
@@ -583,33 +556,14 @@ class Environment:
     return self._transitions.reset(_as_key(key))
 
   def step(self, state: State, action) -> State:
-    """Advances one world by one control step. Pure; jit and vmap it."""
+    """Advances one world by one control step. Pure; jit and vmap it.
+
+    Where the world's episode ended, the step also starts the next one, as
+    `ExecutionOptions.auto_reset` says (`runtime.auto_reset`: the program
+    was chosen when the environment was built).
+    """
     _check_one_world(state)
-    action = self._check_action(action)
-    transitions = self._transitions
-    fuse = self._fuses_restart()
-    if self._auto_reset == 'next_step':
-      if fuse:
-        return transitions.reset_or_step(state, action)
-      reset_key, step_key = jax.random.split(state.key)
-      stepped = transitions.step(state.replace(key=step_key), action)
-      return episode_lib.select_reset(
-          state.last(),
-          transitions.reset,
-          (reset_key, state),
-          stepped,
-          chunk=self._auto_reset_batch,
-      )
-    if fuse:
-      return transitions.step_and_restart(state, action)
-    stepped = transitions.step(state, action)
-    return episode_lib.select_reset(
-        stepped.last(),
-        transitions.restart,
-        (stepped,),
-        stepped,
-        chunk=self._auto_reset_batch,
-    )
+    return self._advance(state, self._check_action(action))
 
   def _check_action(self, action):
     action = jnp.asarray(action)
@@ -660,17 +614,11 @@ def _check_composer_options(**options):
       )
 
 
-def _check_arguments(
-    padding, auto_reset, max_reset_attempts, time_limit, model_fields
-):
+def _check_arguments(padding, max_reset_attempts, time_limit):
   if not isinstance(padding, ObservationPadding):
     raise ValueError(
         'delayed_observation_padding must be an '
         f'ObservationPadding, got {padding!r}.'
-    )
-  if auto_reset not in episode_lib.AUTO_RESET_MODES:
-    raise ValueError(
-        f"auto_reset must be 'next_step' or 'same_step', got {auto_reset!r}."
     )
   if int(max_reset_attempts) != max_reset_attempts or max_reset_attempts < 1:
     raise ValueError(
@@ -679,33 +627,53 @@ def _check_arguments(
     )
   if time_limit <= 0:
     raise ValueError(f'time_limit must be positive, got {time_limit}.')
-  unknown = set(model_fields) - element_index.MODEL_FIELDS
+
+
+def _options_from(options, deprecated):
+  """`(ExecutionOptions, observation_groups)` from `Environment`'s arguments.
+
+  `deprecated` holds the keyword arguments that `ExecutionOptions` and
+  `Task.observation_groups` replace; each still works, with a warning.
+  """
+  if options is not None and not isinstance(options, ExecutionOptions):
+    raise TypeError(
+        'Environment(options=...) takes an ExecutionOptions, got '
+        f'{type(options).__name__} {options!r}.'
+    )
+  unknown = sorted(
+      set(deprecated) - set(_OPTION_FIELDS) - {'observation_groups'}
+  )
   if unknown:
-    raise ValueError(
-        f'Unknown mjx.Model fields {sorted(unknown)} in per_world_model_fields.'
+    raise TypeError(
+        f'Environment() got unexpected keyword arguments {unknown}. Its '
+        f'arguments: {", ".join(_ARGUMENTS)}; options=ExecutionOptions(...) '
+        f'takes {", ".join(_OPTION_FIELDS)}.'
     )
-
-
-def _check_auto_reset_batch(batch, share_reset_forward, impl):
-  if batch is None:
-    return
-  if isinstance(batch, bool) or int(batch) != batch or batch < 1:
-    raise ValueError(
-        f'auto_reset_batch must be a positive integer or None, got {batch!r}.'
+  observation_groups = deprecated.pop('observation_groups', None)
+  if observation_groups is not None:
+    warnings.warn(
+        'Environment(observation_groups=...) is deprecated: override '
+        "Task.observation_groups() instead (the environment uses the task's "
+        'groups when given none).',
+        DeprecationWarning,
+        stacklevel=3,
     )
-  if share_reset_forward:
-    raise ValueError(
-        'auto_reset_batch gathers the worlds that end into a separate, '
-        'smaller reset; share_reset_forward=True runs the reset of the whole '
-        'batch inside the sub-step loop instead. Set one of them.'
+  if options is not None and deprecated:
+    names = ', '.join(f'{name}=...' for name in deprecated)
+    raise TypeError(
+        f'Environment({names}) and options=... were both given: pass '
+        f'{", ".join(deprecated)} in options=ExecutionOptions(...) only.'
     )
-  if impl == 'warp':
-    raise ValueError(
-        "auto_reset_batch needs impl='jax': MuJoCo Warp's contact buffer is "
-        'shared by the whole batch, so a subset of worlds cannot be gathered '
-        "and reset on its own. Use impl='jax' (or leave auto_reset_batch "
-        'unset).'
+  for name, value in deprecated.items():
+    warnings.warn(
+        f'Environment({name}={value!r}) is deprecated: pass '
+        f'options=ExecutionOptions({name}={value!r}).',
+        DeprecationWarning,
+        stacklevel=3,
     )
+  if options is None:
+    options = ExecutionOptions(**deprecated)
+  return options, observation_groups
 
 
 def _check_one_world(state):

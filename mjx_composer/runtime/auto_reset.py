@@ -1,0 +1,87 @@
+"""The control step with auto-reset: one program, chosen when it is built.
+
+An `Environment`'s `step` advances one world and, where its episode ended,
+starts the next. Which program does that depends on facts known on the host
+before anything is traced:
+
+* the auto-reset mode (`ExecutionOptions.auto_reset`): 'next_step'
+  (composer's: a LAST state's next step is the new episode's reset) or
+  'same_step' (the step that ends an episode returns the restarted world);
+* whether the restart runs as one more iteration of the sub-step loop
+  (`ExecutionOptions.share_reset_forward`, where the model allows it:
+  `Transitions.can_fuse_restart`), or separately, selected per world by
+  `episode.select_reset` (`ExecutionOptions.auto_reset_batch` worlds at a
+  time under `jax.vmap`, or the whole batch).
+
+`step_program` makes that choice once; every program it returns is a pure
+function `(state, action) -> State` of one world with the same results (to
+float rounding with `auto_reset_batch`).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Callable
+
+import jax
+
+from mjx_composer.runtime import episode as episode_lib
+from mjx_composer.runtime import state as state_lib
+
+StepProgram = Callable[[state_lib.State, jax.Array], state_lib.State]
+
+
+def step_program(
+    transitions, *, auto_reset: str, fuse: bool, chunk: int | None
+) -> StepProgram:
+  """The step of one world with `auto_reset`'s restart of ended episodes.
+
+  Args:
+    transitions: the environment's `Transitions`.
+    auto_reset: 'next_step' or 'same_step'.
+    fuse: whether the restart runs in the sub-step loop
+      (`Transitions.reset_or_step`, `Transitions.step_and_restart`); the
+      caller checks `Transitions.can_fuse_restart`.
+    chunk: for the separate restart, how many ended worlds reset together
+      under `jax.vmap` (`episode.select_reset`); None for the whole batch.
+
+  Returns:
+    `(state, action) -> State`, pure; the action already checked.
+  """
+  if auto_reset == 'next_step':
+    if fuse:
+      return transitions.reset_or_step
+    return functools.partial(_step_or_reset, transitions, chunk)
+  if fuse:
+    return transitions.step_and_restart
+  return functools.partial(_step_then_restart, transitions, chunk)
+
+
+def _step_or_reset(transitions, chunk, state, action):
+  """Next-step auto-reset: a LAST state's world resets instead of stepping.
+
+  The step is computed for every world and discarded where the state is
+  LAST (a select, not a branch); the reset is computed only when some world
+  needs it.
+  """
+  reset_key, step_key = jax.random.split(state.key)
+  stepped = transitions.step(state.replace(key=step_key), action)
+  return episode_lib.select_reset(
+      state.last(),
+      transitions.reset,
+      (reset_key, state),
+      stepped,
+      chunk=chunk,
+  )
+
+
+def _step_then_restart(transitions, chunk, state, action):
+  """Same-step auto-reset: a world whose episode just ended restarts."""
+  stepped = transitions.step(state, action)
+  return episode_lib.select_reset(
+      stepped.last(),
+      transitions.restart,
+      (stepped,),
+      stepped,
+      chunk=chunk,
+  )

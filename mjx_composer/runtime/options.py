@@ -1,0 +1,193 @@
+"""`ExecutionOptions`: how an `Environment` runs, apart from what it computes.
+
+    options = composer.ExecutionOptions(auto_reset='same_step', impl='jax')
+    env = composer.Environment(task, time_limit=10.0, options=options)
+
+Every option chooses between programs that compute the same episodes (to
+float rounding where a field says so): when an ended episode restarts, which
+MJX implementation runs the physics, how a restart shares the step's forward
+pass, what a reset's forward pass computes, how often the sensors are
+computed. The task and `Environment`'s composer arguments say what the
+episodes are. The options are checked when they are made, except for what
+depends on the device (whether MuJoCo Warp runs there), which `Environment`
+checks when it is built. Numbers for the choices are in docs/performance.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+from mjx_composer.model import element_index
+from mjx_composer.platform import backend
+from mjx_composer.runtime import episode as episode_lib
+
+AutoReset = Literal['next_step', 'same_step']
+Impl = Literal['jax', 'warp']
+ResetForward = Literal['observed', 'full']
+SubstepSensors = Literal['read', 'all']
+
+
+@dataclasses.dataclass(frozen=True)
+class ExecutionOptions:
+  """How an `Environment` runs its worlds (`Environment(options=...)`).
+
+  Frozen: derive a variant with `dataclasses.replace(options, impl='jax')`.
+  `Environment.options` holds the options as resolved for its device.
+
+  Attributes:
+    auto_reset: when a world whose episode ended starts the next one.
+      'next_step' (composer's): `step` returns the LAST state, and the next
+      `step` of that world returns the new episode's FIRST state instead of
+      stepping (see `runtime.episode`). 'same_step': the step that ends an
+      episode returns the new episode's first state, marked LAST, with the
+      ended episode's reward, discount and metrics (what Brax and
+      Playground's training loops expect).
+    per_world_model_fields: model field names (e.g. 'geom_rgba', 'opt')
+      that step hooks may write per world, in addition to those that
+      `initialize_episode` hooks write (which are found automatically).
+    impl: which MJX implementation runs the physics: 'jax' (MJX's XLA
+      implementation), 'warp' (MuJoCo Warp kernels through JAX's FFI, on a
+      CUDA GPU or the CPU; `pip install 'mjx-composer[warp]'`), or None:
+      'warp' on a CUDA GPU where MuJoCo Warp is installed (unless
+      `share_reset_forward=True`), falling back to 'jax' with a logged
+      warning when Warp refuses the environment; 'jax' everywhere else
+      (`backend.default_impls`). On 'warp', a model feature or a per-world
+      model field that MuJoCo Warp cannot run is refused when the
+      environment is built, with what to do (`backend`); building then
+      traces `reset` once to find the per-world fields.
+    naconmax: impl='warp' or None (ignored where None builds on 'jax'): the
+      contacts MuJoCo Warp holds for all the worlds of one batch (one
+      buffer shared by the batch). Default:
+      `backend.DEFAULT_CONTACTS_PER_WORLD` per world for
+      `backend.DEFAULT_WORLDS` worlds. Contacts beyond it are dropped and
+      flagged in `backend.overflow(state.data)` and `metrics['overflow']`.
+    njmax: impl='warp' or None (ignored where None builds on 'jax'):
+      constraint rows per world. Default: `backend.default_njmax`, the
+      larger of MuJoCo Warp's estimate and the rows MJX's JAX implementation
+      allocates. Rows beyond it are dropped and flagged in
+      `backend.overflow(state.data)` and `metrics['overflow']`.
+    share_reset_forward: restart worlds (an ended episode's restart with
+      same-step auto-reset, a LAST state's reset with next-step) in one more
+      iteration of the sub-step loop, so that the step program holds one
+      copy of the forward pass (`Transitions.step_and_restart`,
+      `Transitions.reset_or_step`): it compiles faster, and on a GPU runs
+      slightly slower than the separate restart. False runs the sub-steps as
+      a `lax.scan` of `mjx.step` and the restart separately. Results are
+      bit-identical either way. Models the fused loop cannot run exactly
+      (RK4, muscles, actuator gravity compensation) always take the
+      separate restart. None (default): True on a CPU with impl='jax', where
+      runs are short and compiling dominates; False elsewhere (and with
+      `auto_reset_batch`). impl='warp' refuses True (`backend`).
+    auto_reset_batch: under `jax.vmap`, how many worlds' auto-resets are
+      computed together. None (default): at a step in which any world's
+      episode ends, the reset of the whole batch is computed and selected
+      per world. An integer K: the worlds that end are gathered into
+      batches of K, reset and scattered back (`episode.select_reset`), so a
+      step in which a few of many worlds end pays for K resets, not for
+      all: for tasks whose episodes end often (falls) on large batches. The
+      results are the same to float rounding. Needs impl='jax' (None then
+      resolves to 'jax') and refuses `share_reset_forward=True`, which runs
+      the reset inside the sub-step loop.
+    reset_forward: 'observed' (default): a reset runs only the stage of the
+      forward pass whose results something reads before the next physics
+      step (the observables sampled at reset, the start metrics, the next
+      step's hooks before its physics; `mjx.step` recomputes the rest):
+      'none', 'position' (kinematics, centres of mass, position sensors,
+      ...), 'velocity' (also velocities and velocity sensors) or 'full'
+      (`runtime.reset_forward`; `Environment.reset_forward_stage` says
+      which). The other derived fields of the reset's `State.data` (e.g.
+      `contact`, `qacc`, `efc_*`) keep their values from before the forward
+      pass (`Environment.physics(state)` completes them). Observations,
+      rewards and trajectories are the same as with 'full', which computes
+      everything as composer's reset does.
+    substep_sensors: 'read' (default): where nothing between a control
+      step's sub-steps reads the sensors (the sub-step hooks, the
+      observables sampled at sub-steps), the sub-steps skip MuJoCo's sensor
+      stage and the control step computes the sensors once, after its last
+      sub-step, as its `mjx.step` would have; a fused restart
+      (`share_reset_forward`) computes the sensors its reset's stage of the
+      forward pass computes once, too (`runtime.substep_sensors`;
+      `Environment.sensors_once_per_step` says whether). 'all': every
+      sub-step computes them, as `mjx.step` does.
+
+  Raises:
+    ValueError: for a value outside a field's choices, or options that
+      contradict each other (`auto_reset_batch` with
+      `share_reset_forward=True` or impl='warp'; Warp's buffer sizes with
+      impl='jax').
+  """
+
+  auto_reset: AutoReset = 'next_step'
+  per_world_model_fields: tuple[str, ...] = ()
+  impl: Impl | None = None
+  naconmax: int | None = None
+  njmax: int | None = None
+  share_reset_forward: bool | None = None
+  auto_reset_batch: int | None = None
+  reset_forward: ResetForward = 'observed'
+  substep_sensors: SubstepSensors = 'read'
+
+  def __post_init__(self):
+    if isinstance(self.per_world_model_fields, str):
+      raise ValueError(
+          'ExecutionOptions(per_world_model_fields=...) takes a sequence of '
+          f'field names, got the string {self.per_world_model_fields!r}.'
+      )
+    # A tuple, so that the options stay hashable whatever sequence was given.
+    object.__setattr__(
+        self, 'per_world_model_fields', tuple(self.per_world_model_fields)
+    )
+    _check_choice('auto_reset', self.auto_reset, episode_lib.AUTO_RESET_MODES)
+    _check_choice('reset_forward', self.reset_forward, ('observed', 'full'))
+    _check_choice('substep_sensors', self.substep_sensors, ('read', 'all'))
+    if self.impl not in (None, 'jax', 'warp'):
+      raise ValueError(
+          "ExecutionOptions(impl=...): impl must be 'jax', 'warp' or None, "
+          f'got {self.impl!r}.'
+      )
+    backend.check_buffer_arguments(
+        self.impl, self.naconmax, self.njmax, requested=self.impl
+    )
+    unknown = set(self.per_world_model_fields) - element_index.MODEL_FIELDS
+    if unknown:
+      raise ValueError(
+          f'Unknown mjx.Model fields {sorted(unknown)} in '
+          'ExecutionOptions(per_world_model_fields=...).'
+      )
+    _check_auto_reset_batch(
+        self.auto_reset_batch, self.share_reset_forward, self.impl
+    )
+
+
+def _check_choice(name, value, choices):
+  if value not in choices:
+    listed = ' or '.join(repr(choice) for choice in choices)
+    raise ValueError(
+        f'ExecutionOptions({name}=...): {name} must be {listed}, got '
+        f'{value!r}.'
+    )
+
+
+def _check_auto_reset_batch(batch, share_reset_forward, impl):
+  if batch is None:
+    return
+  if isinstance(batch, bool) or int(batch) != batch or batch < 1:
+    raise ValueError(
+        'ExecutionOptions(auto_reset_batch=...): auto_reset_batch must be a '
+        f'positive integer or None, got {batch!r}.'
+    )
+  if share_reset_forward:
+    raise ValueError(
+        'ExecutionOptions(auto_reset_batch=...) gathers the worlds that end '
+        'into a separate, smaller reset; share_reset_forward=True runs the '
+        'reset of the whole batch inside the sub-step loop instead. Set one '
+        'of them.'
+    )
+  if impl == 'warp':
+    raise ValueError(
+        "ExecutionOptions(auto_reset_batch=...) needs impl='jax': MuJoCo "
+        "Warp's contact buffer is shared by the whole batch, so a subset of "
+        "worlds cannot be gathered and reset on its own. Use impl='jax' (or "
+        'leave auto_reset_batch unset).'
+    )
