@@ -13,7 +13,7 @@ import sys
 
 from mjx_composer.platform import compilation_cache
 
-_REPO = pathlib.Path(__file__).resolve().parent.parent
+_REPO = pathlib.Path(__file__).resolve().parents[2]
 
 # Enables the cache (writing every program, however fast it compiled), jits
 # one small function and prints what happened as JSON.

@@ -50,7 +50,7 @@ from mjx_composer.variation import distributions
 from mjx_composer.variation import noises
 from tests import conftest
 
-_REPO = pathlib.Path(__file__).resolve().parent.parent
+_REPO = pathlib.Path(__file__).resolve().parents[2]
 _WORLDS = 8
 _STEPS = 3
 # Episodes of 2 control steps: the third step auto-resets every world.
