@@ -20,11 +20,11 @@ Environments (`--envs`):
   too), trained the way Playground's `learning/train_jax_ppo.py` does: its
   PPO config as `ppo.train`'s arguments, Brax's default PPO networks, a
   second instance as `eval_env`, `wrap_env_fn=wrapper.wrap_for_brax_training`;
-* ours: `--task walk` as `train_ppo.py` builds it (`train_ppo.make_brax_env`,
-  its networks and `ppo.train` arguments), through `mjx_composer.adapters.
-  brax`: the walk task as shipped (policy noise, latency and history,
-  per-episode randomization, pushes, falls end episodes), the policy and
-  critic both seeing the 'policy' group;
+* ours: `--task walk` as `examples/train_ppo.py` builds it
+  (`train_ppo.make_brax_env`, its networks and `ppo.train` arguments),
+  through `mjx_composer.adapters.brax`: the walk task as shipped (policy
+  noise, latency and history, per-episode randomization, pushes, falls end
+  episodes), the policy and critic both seeing the 'policy' group;
 * ours_off: the walk task with those additions off
   (`walk.PLAYGROUND_EQUIVALENT`, the 'policy' group only: HumanoidWalk's
   observation, reward and episodes), otherwise as `ours`;
@@ -67,7 +67,8 @@ Outputs, in `--out` (runs of several invocations merge there; a run of an
 * `results.json` and `results.csv`: every run of `runs/`, regenerated after
   every evaluation;
 * `runs/<env>_seed<seed>_policy.pkl`: the policy of the latest evaluation
-  (for ours, `train_ppo.py --task walk --render-from` renders it).
+  (for ours, `examples/train_ppo.py --task walk --render-from` renders
+  it).
 
 `--gpus 0,1,...` runs each (env, seed) in its own process pinned to one GPU
 (`CUDA_VISIBLE_DEVICES`), as many at a time as GPUs are listed, with logs in
@@ -75,20 +76,34 @@ Outputs, in `--out` (runs of several invocations merge there; a run of an
 trains on two GPUs (Brax's `pmap`, the world batch split between them),
 two runs at a time.
 
-`--resume` continues each (env, seed) whose run in `--out` was stopped (by
-`--max-wall-s`) for the evaluations it has left, from its saved policy,
-value and normalizer parameters, in a new segment; `benchmarks/segments.py`
-says what carries over and what does not (not Adam's moments). That is how
-Playground's full schedule (about 1,150 s in one process on one GPU)
-trains through 10-minute device calls: one call per segment, each carrying
-the runs' files from the one before (with `carry`: a device call's working
-copy keeps no ignored folder of the call before, even on a machine still
-held). The
-table and plot then time a run as if it had trained in one process
-(`train_results.one_process_wall`). `--max-wall-s` stops a run after the
-evaluation from which the next one would end past that many seconds (for a
-command time limit); its status is then 'stopped' (a run whose last
-evaluation is done is 'finished', whatever the time).
+`--max-wall-s` stops a run after the evaluation from which the next one
+would end past that many seconds (for a job's time limit); its status is
+then 'stopped' (a run whose last evaluation is done is 'finished', whatever
+the time). `--resume` continues each (env, seed) whose run in `--out` was
+stopped for the evaluations it has left, in a new process (a segment):
+
+* the policy, value and observation-normalizer parameters carry over
+  (Brax's `ppo.train(restore_params=..., restore_value_fn=True)`), from
+  `runs/<env>_seed<seed>_policy.pkl`;
+* so does the schedule: the next segment trains the evaluation intervals
+  left, each of the same training steps, so the evaluations fall on the
+  same env steps as in one run (`remaining_schedule`);
+* the optimizer's state does not: Brax restores parameters only, so Adam's
+  moment estimates start again from zero at each segment;
+* the environments' states do not either; with `num_resets_per_eval > 0`
+  (Playground's settings) Brax resets every world after each training step
+  anyway;
+* segment k trains with Brax seed `segment_seed(seed, k)`, so no segment
+  replays another's keys.
+
+Each segment compiles its programs again and evaluates the restored policy
+once before training; the run's rows record that time as
+`resume_overhead_s` (and the compile seconds within it as
+`resume_compile_s`), and the table and plot time a run as if it had trained
+in one process (`train_results.one_process_wall`). The run's
+`segment_starts` keep that evaluation's return beside the one the policy
+earned when it was saved (equal but for the evaluation's own randomness,
+when the restore took).
 
 `--plot` trains nothing: it reads `runs/` and draws `returns.png` (return
 against wall-clock time: a colour per environment, a thin line per seed,
@@ -99,17 +114,10 @@ at or above it) and its total time. The reference return is the mean over
 seeds of `--reference`'s (default playground) final returns, or
 `--threshold`.
 
-On the GPU machine of `../shared/gpu/README.md` (JAX, flax, optax, numpy
-and scipy installed, no registry), these wheels made both environments train
-at stop 26: `bash ../shared/gpu/wheels.sh brax==0.14.2 playground==0.2.0
-lxml jaxopt==0.8.5 ml_collections==1.1.0 tqdm==4.70.1 dm-env==1.6
-pillow==13.0.0` (about 54 MB; `dm-env` is imported by `mjx_composer`
-itself). A cold run of the reduced schedule in the README (7.9 M env steps)
-took 310-550 s on an H100 and 266-415 s on an H200, about one 10-minute
-device call. That machine brings back at most 8 files per call, and a run
-writes 9 (with `results.*`, `returns.png`, `table.md` and `summary.json`,
-which `--plot` regenerates from `runs/`): delete those four at the end of
-the command, or the policy is left behind.
+Dependencies: `pip install -e '.[brax]'` and `pip install playground`
+(the runs in `benchmarks/results/` used Brax 0.14.2 and Playground 0.2.0).
+Playground's full schedule takes about 20 minutes per run on one
+data-centre GPU (`docs/performance.md`).
 
 A CPU smoke run (a few minutes for two environments):
 
@@ -120,16 +128,24 @@ A CPU smoke run (a few minutes for two environments):
 """
 
 import argparse
+import json
 import math
 import os
+import pickle
 import subprocess
 import sys
 import time
 import traceback
 
-import segments  # benchmarks/segments.py
-import train_ppo  # benchmarks/train_ppo.py
-import train_results  # benchmarks/train_results.py
+# examples/train_ppo.py builds ours' environments and PPO arguments.
+sys.path.insert(
+    0,
+    os.path.join(
+        os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'examples'
+    ),
+)
+import train_ppo  # pylint: disable=g-import-not-at-top,wrong-import-position
+import train_results  # pylint: disable=g-import-not-at-top,wrong-import-position
 
 ENVS = ('playground', 'ours', 'ours_off')
 PLAYGROUND_ENV = 'HumanoidWalk'
@@ -267,8 +283,8 @@ def parse_args(argv=None):
       '--resume',
       action='store_true',
       help="continue each (env, seed)'s run stopped earlier in --out (by "
-      '--max-wall-s) from its saved parameters, for the evaluations left; '
-      'see benchmarks/segments.py',
+      '--max-wall-s) from its saved parameters, for the evaluations left '
+      '(not the optimizer state: see the module docstring)',
   )
   parser.add_argument(
       '--plot', action='store_true', help='only plot and tabulate --out'
@@ -343,19 +359,29 @@ def hyperparameters(args):
   return config, source
 
 
-def brax_env_steps(config):
-  """The env steps `ppo.train` runs for `config` (see the module docstring)."""
-  per_step = (
+def _env_steps_per_training_step(config):
+  return (
       config['batch_size']
       * config['unroll_length']
       * config['num_minibatches']
       * config.get('action_repeat', 1)
   )
-  epochs = max(config['num_evals'] - 1, 1) * max(
-      config.get('num_resets_per_eval', 0), 1
+
+
+def interval_steps(config):
+  """Env steps between two evaluations of `ppo.train` under `config`."""
+  per_step = _env_steps_per_training_step(config)
+  resets = max(config.get('num_resets_per_eval', 0), 1)
+  intervals = max(config['num_evals'] - 1, 1)
+  steps_per_epoch = math.ceil(
+      config['num_timesteps'] / (intervals * resets * per_step)
   )
-  steps_per_epoch = math.ceil(config['num_timesteps'] / (epochs * per_step))
-  return epochs * steps_per_epoch * per_step
+  return steps_per_epoch * resets * per_step
+
+
+def brax_env_steps(config):
+  """The env steps `ppo.train` runs for `config` (see the module docstring)."""
+  return max(config['num_evals'] - 1, 1) * interval_steps(config)
 
 
 # -- environments ----------------------------------------------------------------
@@ -482,6 +508,93 @@ def _new_run(env_name, seed, config, source, args):
   }
 
 
+# -- resuming a stopped run -------------------------------------------------------
+
+# Brax seeds of later segments: far from any seed a user passes.
+_SEGMENT_SEED_STRIDE = 1_000_003
+
+
+def remaining_schedule(config, steps_done):
+  """`(num_timesteps, num_evals)` that train what is left after `steps_done`.
+
+  Args:
+    config: the whole run's `ppo.train` hyper-parameters.
+    steps_done: env steps at the evaluation the run stopped after.
+
+  Returns:
+    The overrides for the next segment, or None when nothing is left.
+
+  Raises:
+    ValueError: `steps_done` is not at an evaluation of `config`'s schedule.
+  """
+  interval = interval_steps(config)
+  intervals = max(config['num_evals'] - 1, 1)
+  done, rest = divmod(int(steps_done), interval)
+  if rest:
+    raise ValueError(
+        f'{steps_done:,} env steps is not at an evaluation of this schedule '
+        f'(every {interval:,}): was the run trained with other settings?'
+    )
+  left = intervals - done
+  if left <= 0:
+    return None
+  return left * interval, left + 1
+
+
+def segment_seed(seed, segment):
+  """Brax's seed for segment `segment` (0 is the first) of seed `seed`."""
+  return seed + _SEGMENT_SEED_STRIDE * segment
+
+
+def continued_row(row, previous_rows, segment, overhead_s, overhead_compile_s):
+  """`row` of a resumed segment, placed after the run's `previous_rows`.
+
+  Steps, wall-clock, compile seconds and Brax's training time continue from
+  the last previous row; `segment`, `resume_overhead_s` (the seconds this
+  segment spent before its first training step: building, compiling and
+  the restored policy's evaluation) and `resume_compile_s` (the compile
+  seconds of those) are recorded with it.
+  """
+  last = previous_rows[-1]
+  out = dict(row)
+  out['step'] = last['step'] + row['step']
+  out['wall_s'] = last['wall_s'] + row['wall_s']
+  out['compile_s'] = last.get('compile_s', 0.0) + row['compile_s']
+  out['train_walltime_s'] = last['train_walltime_s'] + row['train_walltime_s']
+  out['eval_walltime_s'] = last['eval_walltime_s'] + row['eval_walltime_s']
+  out['segment'] = segment
+  out['resume_overhead_s'] = overhead_s
+  out['resume_compile_s'] = overhead_compile_s
+  return out
+
+
+def load_stopped_run(json_path, policy_path):
+  """`(run record, saved params)` of a run to continue, or None.
+
+  None when there is no record, or it has no evaluation after training (a
+  run stopped at its first evaluation trained nothing: start it again).
+
+  Raises:
+    FileNotFoundError: the record has trained evaluations but the
+      parameters file is missing.
+  """
+  if not os.path.exists(json_path):
+    return None
+  with open(json_path) as f:
+    run = json.load(f)
+  if not run.get('rows') or run['rows'][-1]['step'] == 0:
+    return None
+  if not os.path.exists(policy_path):
+    raise FileNotFoundError(
+        f'{json_path} records {run["rows"][-1]["step"]:,} env steps but '
+        f'{policy_path}, their parameters, is missing: bring it with the '
+        'record, or leave out --resume to start the run again.'
+    )
+  with open(policy_path, 'rb') as f:
+    params = pickle.load(f)['params']
+  return run, params
+
+
 def _segment_to_train(run, config, name):
   """`(segment index, its config)` to continue `run`, or None if done.
 
@@ -497,7 +610,7 @@ def _segment_to_train(run, config, name):
   left = (
       None
       if run['status'] == 'finished'
-      else segments.remaining_schedule(config, run['rows'][-1]['step'])
+      else remaining_schedule(config, run['rows'][-1]['step'])
   )
   if left is None:
     return None
@@ -510,8 +623,8 @@ def _check_something_to_resume(args):
   """Refuses `--resume` where `--out` holds none of the requested runs.
 
   A run without a record starts from its first step, so `--resume` over
-  an empty `--out` (say, a device call whose command did not bring the
-  previous call's runs) would quietly train every run's first segment
+  an empty `--out` (say, a job on a fresh machine that did not bring the
+  previous job's runs) would quietly train every run's first segment
   again.
 
   Raises:
@@ -537,7 +650,7 @@ def train_one(env_name, seed, config, source, args):
   """Trains one (environment, seed); returns its run record.
 
   With `--resume` and a stopped run of it in `--out`, trains what is left
-  of that run instead (`segments`).
+  of that run instead (`--resume` in the module docstring).
   """
   # pylint: disable=g-import-not-at-top
   import jax
@@ -552,7 +665,7 @@ def train_one(env_name, seed, config, source, args):
   json_path = os.path.join(run_dir, name + '.json')
   csv_path = os.path.join(run_dir, name + '.csv')
   policy_path = os.path.join(run_dir, name + '_policy.pkl')
-  resumed = segments.load(json_path, policy_path) if args.resume else None
+  resumed = load_stopped_run(json_path, policy_path) if args.resume else None
   restore = None
   if resumed is None:
     for path in (json_path, csv_path, policy_path):
@@ -577,7 +690,7 @@ def train_one(env_name, seed, config, source, args):
     env, kwargs, policy_config = _ours_setup(env_name, train_config, args)
   run['build_s'] = time.perf_counter() - t0
   kwargs.update(
-      seed=segments.segment_seed(seed, segment),
+      seed=segment_seed(seed, segment),
       num_eval_envs=args.eval_envs,
       deterministic_eval=args.deterministic_eval,
       max_devices_per_host=args.devices,
@@ -626,7 +739,7 @@ def train_one(env_name, seed, config, source, args):
         )
         train_results.write_json(json_path, run)
         return
-      row = segments.continued_row(
+      row = continued_row(
           row,
           earlier_rows,
           segment,

@@ -3,7 +3,7 @@
 A run is one (environment, seed) of Brax PPO: a record in
 `OUT/runs/<env>_seed<seed>.json` holding its settings and one row per
 evaluation (see `train_ppo.eval_row`; rows of a resumed run also carry
-`segment` and `resume_overhead_s`, `segments.py`). This module reads and
+`segment` and `resume_overhead_s`, `train_compare.continued_row`). This module reads and
 merges those records, and turns them into what `train_compare.py --plot`
 prints and draws.
 
@@ -12,8 +12,8 @@ continued with `--resume` pays, in each segment after the first, a resume
 overhead (compiling again, evaluating the restored policy again, then
 compiling the training program again) that the same run in one process
 would not; its rows' `wall_s` include them. That
-overhead is an artefact of the 10-minute device calls the run was split
-into, not of either environment (both are segmented alike), so times to the
+overhead is an artefact of the time limit the run was split by, not of
+either environment (both are segmented alike), so times to the
 threshold, totals and the plot leave it out, and the table says how much
 was left out.
 """
@@ -102,7 +102,7 @@ def one_process_wall(rows):
   first evaluation, which one process pays too, stay.
 
   The second part is the segment's compile seconds up to its first row
-  (`compile_s` counts on, `segments.continued_row`) less those of the
+  (`compile_s` counts on, `train_compare.continued_row`) less those of the
   overhead (`resume_compile_s`). Rows written before the overhead's own
   compile seconds were recorded lack `resume_compile_s`; for them the
   larger of the overhead and the segment's compile seconds is left out,
@@ -203,7 +203,7 @@ def summarize(runs, reference='playground', threshold=None):
     `one_process_wall`'s clock: what the segments after the first spent
     resuming, `resume_s` seconds in all, is left out of
     `time_to_threshold_s` and `total_s` (an artefact of splitting the run
-    into device calls, not of the environment). The threshold, unless
+    into several processes, not of the environment). The threshold, unless
     given, is `reference`'s `final_return_mean`: a run stopped early does
     not lower it where others finished.
   """

@@ -1,4 +1,4 @@
-"""benchmarks/train_ppo.py's rollout metrics, on a small composed task."""
+"""examples/train_ppo.py's rollout metrics, on a small composed task."""
 
 import argparse
 import json
@@ -10,11 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import mjx_composer as composer
 from mjx_composer.adapters import brax as brax_adapter
 from tests import conftest
 
 sys.path.insert(
-    0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'benchmarks')
+    0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'examples')
 )
 import train_ppo  # pylint: disable=g-import-not-at-top,wrong-import-position
 
@@ -25,7 +26,10 @@ _SEED = 4
 
 @pytest.fixture(scope='module')
 def brax_env():
-  env = conftest.make_swing_env(time_limit=0.05, auto_reset='same_step')
+  env = conftest.make_swing_env(
+      time_limit=0.05,
+      options=composer.ExecutionOptions(auto_reset='same_step'),
+  )
   return brax_adapter.BraxEnv(env, obs_key='tip')
 
 
@@ -112,7 +116,7 @@ def test_auto_reset_batch_reaches_the_environment():
 def test_like_playground_builds_train_compares_ours_off():
   args = train_ppo.parse_args(['--task', 'walk', '--like-playground'])
   env, brax_env = train_ppo.make_brax_env(args)
-  # HumanoidWalk's observation alone, and none of issue 14's additions.
+  # HumanoidWalk's observation alone, none of the shipped task's additions.
   assert set(brax_env.observation_size) == {'policy'}
   # HumanoidWalk's 67 values: no history stacked onto them.
   assert brax_env.observation_size['policy'] == (67,)

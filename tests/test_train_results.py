@@ -39,7 +39,7 @@ def _segmented_run(env, seed, segments, status='finished', total_s=None):
   """A run trained in `segments`, each `(resume_overhead_s, points)`.
 
   The points are `_run`'s (wall_s, step, return), on the run's continued
-  clock (as `segments.continued_row` writes them).
+  clock (as `train_compare.continued_row` writes them).
   """
   run = _run(env, seed, [p for _, points in segments for p in points])
   run.update(status=status, total_s=total_s, segments=len(segments))
@@ -194,7 +194,7 @@ def test_one_process_wall_leaves_out_compiling_the_training_program_again():
   assert train_results.one_process_wall(rows) == pytest.approx(
       [20, 70, 150 - 30 - 12, 200 - 30 - 12]
   )
-  # Rows without the overhead's compile seconds (before stop 36): the
+  # Rows without the overhead's compile seconds (older records): the
   # larger of the overhead (30) and the segment's compiling (32).
   del rows[2]['resume_compile_s']
   assert train_results.one_process_wall(rows) == pytest.approx(
@@ -272,3 +272,20 @@ def test_no_footnote_for_unsegmented_runs():
   table = train_results.format_table(summary)
   assert 'one-process' not in table
   assert len(table.splitlines()) == 4
+
+
+def test_the_training_rate_leaves_out_each_segments_first_interval():
+  def row(step, walltime, segment):
+    return dict(step=step, train_walltime_s=walltime, segment=segment)
+
+  rows = [
+      row(0, 0.0, 0),
+      row(100, 50.0, 0),  # compiled in this interval
+      row(200, 51.0, 0),
+      row(300, 80.0, 1),  # resumed: compiled again
+      row(400, 81.0, 1),
+      row(500, 82.0, 1),
+  ]
+  assert train_results.training_rate(rows) == 300 / 3.0
+  assert train_results.training_rate(rows[:3]) == 100.0
+  assert train_results.training_rate(rows[:2]) is None
