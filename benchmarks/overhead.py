@@ -23,10 +23,7 @@ its sub-steps (domain randomization off):
                restart's forward pass separate; the default on a GPU);
 * ends_shared, no_ends_shared: the same with `share_reset_forward=True`
                (the restart is an extra iteration of the sub-step loop; the
-               default on a CPU);
-* raw_fast:    `raw` on the same model with the solver's iterations capped
-               (iterations 4, line-search 8), to show what the default solver
-               settings (100 / 50, tolerance 1e-8) cost this contact model.
+               default on a CPU).
 
 Physics steps per second (control steps x sub-steps), median of `--repeats`
 calls of `--steps` control steps, and each ratio to `raw` of the same run.
@@ -34,11 +31,9 @@ calls of `--steps` control steps, and each ratio to `raw` of the same run.
     python benchmarks/overhead.py --worlds 8192 32768
 """
 
-import copy
 import functools
 
 import jax
-from mujoco import mjx
 
 import common  # benchmarks/common.py
 
@@ -80,10 +75,6 @@ def main():
   }
   base = envs['ends']
   n = base.n_sub_steps
-  fast_model = copy.copy(base.mj_model)
-  fast_model.opt.iterations = 4
-  fast_model.opt.ls_iterations = 8
-  fast = mjx.put_model(fast_model)
   results = []
   for worlds in args.worlds:
     row = {'worlds': worlds}
@@ -120,11 +111,6 @@ def main():
             )
             for name, env in envs.items()
         },
-        'raw_fast': lambda: common.time_fn(
-            common.raw_rollout(fast, n, args.steps),
-            (common.raw_data(fast, worlds), actions),
-            args.repeats,
-        ),
     }
     if args.programs:
       programs = {

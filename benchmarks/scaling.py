@@ -17,8 +17,8 @@ communication between devices), it times:
             `jax.jit` and `NamedSharding` inputs and outputs instead, so XLA
             partitions one batched program: its loop predicates (MJX's
             solver, auto-reset) become all-reduces across the devices;
-* ppo:      Brax's `ppo.train` on the same task (as `train_ppo.py`: policy
-            group for policy and critic, 64x64 / 256x256 networks),
+* ppo:      Brax's `ppo.train` on the same task (as `examples/train_ppo.py`:
+            policy group for policy and critic, 64x64 / 256x256 networks),
             `max_devices_per_host=1` against N: Brax `pmap`s the training
             over its devices, each with worlds / N worlds. One unroll of
             `--ppo-unroll` steps per world per training step, no
@@ -26,8 +26,7 @@ communication between devices), it times:
             first (which compiles), median.
 
 On several GPUs the per-device programs and Brax's `pmap` compile with
-GSPMD (`mjx_composer.platform.partitioner`: Shardy crashed compiling them on two
-H200s with JAX 0.11.2).
+GSPMD (`mjx_composer.platform.partitioner` says why).
 
 It reports physics steps per second (raw, composed, gspmd: control steps x
 n sub-steps; ppo: Brax's env steps x n sub-steps), the median of

@@ -143,5 +143,5 @@ def test_the_cpus_inverse_matches_numpy_and_calls_no_lapack(n):
       atol=2e-6 * np.abs(expected).max(),
   )
   # Batched LAPACK calls can deadlock XLA's CPU thread pool when two run
-  # at once (benchmarks/repro_cpu_hang.py): the CPU program has none.
+  # at once: the CPU program has none.
   assert 'lapack' not in inverse.lower(a32).as_text()

@@ -46,9 +46,9 @@ def eig3(mat, iterations=24):
   the diagonal is float32 noise), and an iteration budget with a converged
   flag replaces the loop so it vmaps. The budget is fixed, not an early
   exit: a loop with a known trip count runs on a GPU without reading its
-  condition back to the host at every iteration (with an early exit, the
-  walk task's batched reset took 17 ms instead of 12 ms in one timed call
-  on an H200, 8,192 worlds).
+  condition back to the host at every iteration; an early exit makes the
+  walk task's batched reset about 40% slower on a GPU
+  (`docs/performance.md`).
 
   Returns:
     `(eigenvalues (3,), quaternion (4,))`, the quaternion taking the

@@ -29,9 +29,9 @@ MJX_NUMERICS = ('max_contact_points', 'max_geom_pairs')
 # settings of the bundled humanoid's XML (Playground's HumanoidWalk). With
 # MuJoCo's defaults (100 Newton iterations, 50 line-search iterations,
 # tolerance 1e-8), MJX's float32 solver runs a batched loop until its
-# slowest world meets the tolerance, which here it rarely does: raw
-# MJX stepped the reach model 2.85x slower (one H100, 8,192 worlds,
-# `benchmarks/overhead.py`, README). MuJoCo's C solver needs 1-6
+# slowest world meets the tolerance, which here it rarely does, so raw
+# MJX steps the reach model about 3x slower on a GPU
+# (`docs/performance.md`). MuJoCo's C solver needs 1-6
 # iterations on these models, and the caps move their trajectories by less
 # than 1e-4 in qpos and 5e-3 in qvel over 2 s
 # (`tests/test_entities_simulation_options.py`).

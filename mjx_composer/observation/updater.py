@@ -43,7 +43,8 @@ an *unbatched* tracer (the environment's scan counter), so the choice is a
 Python branch or a `lax.switch` that stays a real branch under `vmap`. Where
 the choice depends on the per-world step count (u not dividing n, or a varying
 rate) the value is computed and written under a mask. Conditionals are not
-free on GPUs (about 10 us each per scan iteration on an H200), so a caller
+free on GPUs (each reads its predicate back to the host at every scan
+iteration), so a caller
 that scans sub-steps 1..n-1 should pass `substep_bounds=(1, n - 1)`: when the
 same observables are sampled at all of those sub-steps (usually none), no
 conditional is emitted.
