@@ -14,7 +14,6 @@ per-observable plan and the key derivation built on it; it is separate from
 
 import dataclasses
 import numbers
-import zlib
 from typing import Any, Optional
 
 import jax
@@ -22,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.observation import obs_buffer
+from mjx_composer.utils import stable_id as stable_id_lib
 
 DEFAULT_BUFFER_SIZE = 1
 DEFAULT_UPDATE_INTERVAL = 1
@@ -227,7 +227,7 @@ def make_entry(
     )
   path = key if not is_sequence else f'{dict_index}/{key}'
   uids = tuple(
-      zlib.crc32(f'{path}#{purpose}'.encode('utf-8')) & 0x7FFFFFFF
+      stable_id_lib.stable_id(f'{path}#{purpose}')
       for purpose in (CORRUPTOR, DELAY, INTERVAL)
   )
   spec = obs.array_spec

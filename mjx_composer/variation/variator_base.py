@@ -68,12 +68,12 @@ from __future__ import annotations
 
 import dataclasses
 from typing import Any
-import zlib
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_composer.utils import stable_id as stable_id_lib
 from mjx_composer.variation import base
 from mjx_composer.variation import rounds
 
@@ -238,7 +238,7 @@ class Variator:
         f'{_compiled_name(b.element, physics.index)}.{b.attr}'
         for b in self.bindings
     )
-    digest = zlib.crc32('|'.join(parts).encode())
+    digest = stable_id_lib.stable_digest('|'.join(parts))
     more = f',+{len(parts) - 1}' if len(parts) > 1 else ''
     self._derived_name = f'{type(self).__name__}[{parts[0]}{more}]#{digest:08x}'
     return self._derived_name
