@@ -43,10 +43,11 @@ def _spd_inverse_in_xla(a):
   those finish. When two such calls run at once and
   hold every thread of the pool, no thread is left for their tasks and the
   program deadlocks (jaxlib 0.10; see `platform.cpu_linalg`). A
-  randomized reset factorized `M(qpos0)` here while MJX's forward pass
-  factorized its own mass matrix beside it, and hung on a 2-core machine.
-  These loops are plain XLA: `cpu_linalg.cholesky`, then the inverse of
-  the factor row by row, `inv(a) = inv(L)^T inv(L)`.
+  randomized reset factorizes `M(qpos0)` here while MJX's forward pass
+  factorizes its own mass matrix beside it, which can take every thread
+  of a 2-core machine's pool. These loops are plain XLA:
+  `cpu_linalg.cholesky`, then the inverse of the factor row by row,
+  `inv(a) = inv(L)^T inv(L)`.
   """
   n = a.shape[-1]
   index = jnp.arange(n)
