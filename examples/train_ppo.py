@@ -1,6 +1,6 @@
 """Trains a bundled composed task with Brax's PPO and reports time to a return.
 
-    python benchmarks/train_ppo.py --task reach --num-timesteps 8000000 \\
+    python examples/train_ppo.py --task reach --num-timesteps 8000000 \\
         --threshold 20 --out runs/reach
 
 `--task walk` and `--task joystick` (`joystick_rough`) default to MuJoCo
@@ -321,7 +321,8 @@ def load_policy(path, deterministic=True):
   The file is one of ours (`save_policy` with `policy_config`), or one of
   `train_compare.py`'s Playground runs: that policy is given the 'policy'
   group's vector as its observation (`--task walk --like-playground`'s is
-  Playground's HumanoidWalk observation, `swap_policies.py`).
+  Playground's HumanoidWalk observation, so a policy of either environment
+  runs in the other).
   """
   from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
 

@@ -281,8 +281,8 @@ def test_ppo_improves_reach_through_the_adapter():
       # for dm_control tasks) the value loss is no longer too small to
       # drive learning: measured on CPU, the return rose by 1.4 in 500 k
       # steps (0.1 unscaled, which failed the check below on one machine
-      # and passed on another). Half as many steps (stop 36, to keep CI
-      # short) still gave most of that rise (below).
+      # and passed on another). Half as many steps (to keep CI short) still
+      # give most of that rise (below).
       reward_scaling=10.0,
       num_evals=2,
       num_eval_envs=num_eval_envs,
