@@ -64,6 +64,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
+import mujoco.mjx.warp as mjx_warp
+from mujoco.mjx.warp import types as warp_types
 
 from mjx_composer.platform import internals
 
@@ -78,8 +80,6 @@ DEFAULT_WORLDS = 8192
 
 def warp_installed() -> bool:
   """Whether MJX can use MuJoCo Warp (`warp-lang` imports)."""
-  import mujoco.mjx.warp as mjx_warp  # pylint: disable=g-import-not-at-top
-
   return bool(mjx_warp.WARP_INSTALLED)
 
 
@@ -103,12 +103,11 @@ def default_impls(device, share_reset_forward=None) -> tuple[str, ...]:
   """What `impl=None` tries on `device`, in order.
 
   'warp' first on a CUDA GPU where MuJoCo Warp is installed and the fused
-  restart was not asked for (`share_reset_forward=True` is 'jax' only):
-  measured on one H200 at 8,192 worlds (README, `benchmarks/backends.py`),
-  MuJoCo Warp stepped the composed reach task 7.0x (before reach's solver
-  caps, which made the JAX implementation 2.85x faster) and walk 2.3x
-  faster than MJX's JAX implementation. 'jax' everywhere else, and after 'warp'
-  when Warp refuses the environment (`WarpUnsupportedError`).
+  restart was not asked for (`share_reset_forward=True` is 'jax' only): on
+  a GPU at 8,192 worlds, MuJoCo Warp steps the composed tasks faster than
+  MJX's JAX implementation (walk: about 2.3x; `benchmarks/backends.py`
+  measures it). 'jax' everywhere else, and after 'warp' when Warp refuses
+  the environment (`WarpUnsupportedError`).
   """
   if _is_cuda(device) and not share_reset_forward and warp_installed():
     return ('warp', 'jax')
@@ -259,9 +258,9 @@ def default_njmax(mj_model) -> int:
   rows for each bundled model; the JAX implementation allocates a world's
   worst case under its per-pair contact limits (every contact pair touching
   at once, every limit active). On push, Warp's 64 rows let 194 of 8,192
-  worlds drop constraints (one H200, stop 21); the JAX implementation's
-  count is 122. Where the estimate is larger (reach: 64 against 32), it
-  stays, so nothing that ran within Warp's default gets less room.
+  worlds drop constraints; the JAX implementation's count is 122. Where
+  the estimate is larger (reach: 64 against 32), it stays, so nothing that
+  ran within Warp's default gets less room.
   """
   jax_data = jax.eval_shape(lambda: mjx.make_data(mj_model, impl='jax'))
   jax_rows = internals.data_impl(jax_data).efc_J.shape[0]
@@ -269,6 +268,7 @@ def default_njmax(mj_model) -> int:
 
 
 def _overflow_type():
+  # Here, not at the top: MuJoCo Warp imports only where warp-lang does.
   from mujoco.mjx.third_party import mujoco_warp  # pylint: disable=g-import-not-at-top
 
   return mujoco_warp.OverflowType
@@ -407,8 +407,6 @@ def jax_view(model: mjx.Model, data: mjx.Data, mj_model: mujoco.MjModel):
 
 
 def _shared_names() -> frozenset:
-  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
-
   return frozenset(warp_types.DATA_NON_VMAP)
 
 
@@ -421,8 +419,6 @@ def shared_leaves(tree):
   batch or selected per world (`Data.where` keeps them). Every leaf of a
   'jax' `Data`, and of anything else, is per world (False).
   """
-  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
-
   names = _shared_names()
 
   def mark(node):

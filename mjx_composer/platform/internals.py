@@ -24,6 +24,7 @@ from jax._src.interpreters import mlir as _mlir
 from jax._src.lax import linalg as _linalg
 from mujoco.mjx._src import collision_driver as _collision_driver
 from mujoco.mjx._src import math as _mjx_math
+from mujoco.mjx.warp import types as _warp_types
 
 try:  # JAX's own configuration objects, beside the public `jax.config`.
   from jax._src import config as _jax_config
@@ -170,9 +171,6 @@ def warp_model_batch_dims() -> dict[str, bool]:
 
   `{model field: whether it has a batch dimension}` for the fields MuJoCo
   Warp reads: `backend.check_per_world_fields` refuses per-world values of
-  the others. MJX keeps the table private. Imported here, not at the top,
-  as `warp_default_njmax`.
+  the others. MJX keeps the table private.
   """
-  from mujoco.mjx.warp import types as warp_types  # pylint: disable=g-import-not-at-top
-
-  return warp_types._BATCH_DIM['Model']
+  return _warp_types._BATCH_DIM['Model']
