@@ -67,7 +67,7 @@ from mjx_composer.robot import Robot
 from mjx_composer.task import NullTask
 from mjx_composer.task import Task
 
-__version__ = '0.1.0'
+__version__ = '0.2.0'
 
 # Cholesky without jaxlib's LAPACK kernel on the CPU, which can deadlock.
 from mjx_composer import platform  # pylint: disable=g-bad-import-order
