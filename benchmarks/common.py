@@ -96,26 +96,27 @@ def make_env(
   if not observables:
     for obs in task.observables.values():
       obs.enabled = False
+    task.observation_groups = lambda: None  # one dict of (no) observables
   if episode_steps is not None:
     time_limit = episode_steps * task.control_timestep
   kwargs = {}
   if max_reset_attempts is not None:
     kwargs['max_reset_attempts'] = max_reset_attempts
-  if share_reset_forward is not None:
-    kwargs['share_reset_forward'] = share_reset_forward
-  if auto_reset_batch is not None:
-    kwargs['auto_reset_batch'] = auto_reset_batch
+  options = {}
   if reset_forward is not None:
-    kwargs['reset_forward'] = reset_forward
-  for name, value in (('impl', impl), ('naconmax', naconmax), ('njmax', njmax)):
-    if value is not None:
-      kwargs[name] = value
+    options['reset_forward'] = reset_forward
   return environment.Environment(
       task,
       time_limit=time_limit,
-      auto_reset=auto_reset,
-      # {}: no groups (None would mean the task's own groups).
-      observation_groups=task.observation_groups() if observables else {},
+      options=environment.ExecutionOptions(
+          auto_reset=auto_reset,
+          share_reset_forward=share_reset_forward,
+          auto_reset_batch=auto_reset_batch,
+          impl=impl,
+          naconmax=naconmax,
+          njmax=njmax,
+          **options,
+      ),
       **kwargs,
   )
 
@@ -134,12 +135,14 @@ def make_walk_like_playground(time_limit, **env_kwargs):
 
   # pylint: enable=g-import-not-at-top
   task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)
+  policy_only = {'policy': task.observation_groups()['policy']}
+  task.observation_groups = lambda: policy_only
   return environment.Environment(
       task,
       time_limit=time_limit,
-      auto_reset='same_step',
-      observation_groups={'policy': task.observation_groups()['policy']},
-      **env_kwargs,
+      options=environment.ExecutionOptions(
+          auto_reset='same_step', **env_kwargs
+      ),
   )
 
 

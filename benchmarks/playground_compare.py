@@ -249,14 +249,15 @@ def env_variants(names, **env_kwargs):
           del kwargs[FEATURES[feature]]
       task = walk.Walk(**kwargs)
       groups = task.observation_groups()
+      if 'groups' not in features:
+        policy_only = {'policy': groups['policy']}
+        task.observation_groups = lambda groups=policy_only: groups
       envs[name] = environment.Environment(
           task,
           time_limit=walk.EPISODE_SECONDS,
-          auto_reset='same_step',
-          observation_groups=(
-              groups if 'groups' in features else {'policy': groups['policy']}
+          options=environment.ExecutionOptions(
+              auto_reset='same_step', **env_kwargs
           ),
-          **env_kwargs,
       )
   return envs
 

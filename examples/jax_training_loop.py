@@ -27,8 +27,9 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from mjx_composer import cli
+import mjx_composer as composer
 from mjx_composer import platform
+from mjx_composer.tasks import registry
 
 
 class Policy(nn.Module):
@@ -134,8 +135,10 @@ def main(argv=None):
   args = parser.parse_args(argv)
   platform.configure()
 
-  env = cli.make_environment(
-      'reach', time_limit=args.time_limit, auto_reset='same_step'
+  env = registry.make_environment(
+      'reach',
+      time_limit=args.time_limit,
+      options=composer.ExecutionOptions(auto_reset='same_step'),
   )
   init, iteration = make_trainer(env, args.worlds, args.learning_rate)
   carry = init(jax.random.key(args.seed))

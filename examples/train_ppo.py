@@ -128,10 +128,10 @@ TASK_DEFAULTS['joystick_rough'] = TASK_DEFAULTS['joystick']
 
 
 def parse_args(argv=None):
-  from mjx_composer import cli  # pylint: disable=g-import-not-at-top
+  from mjx_composer.tasks import registry  # pylint: disable=g-import-not-at-top
 
   parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
-  parser.add_argument('--task', default='reach', choices=cli.TASKS)
+  parser.add_argument('--task', default='reach', choices=registry.names())
   parser.add_argument('--num-timesteps', type=int, default=10_000_000)
   parser.add_argument('--num-envs', type=int, default=2048)
   parser.add_argument(
@@ -201,26 +201,26 @@ def parse_args(argv=None):
       '--impl',
       choices=('jax', 'warp'),
       default=None,
-      help="Environment(impl=...): MJX's JAX physics or MuJoCo Warp's; "
-      "default: Environment's (warp on a CUDA GPU where it is installed "
+      help="ExecutionOptions(impl=...): MJX's JAX physics or MuJoCo Warp's; "
+      "default: ExecutionOptions' (warp on a CUDA GPU where it is installed "
       'and runs the task, else jax), and jax on several --devices',
   )
   parser.add_argument(
       '--share-reset-forward',
       action=argparse.BooleanOptionalAction,
       default=None,
-      help='Environment(share_reset_forward=...): restart ended episodes '
-      'inside the sub-step loop (half the step compile time, slower steps '
-      'on a GPU); default: on a CPU only',
+      help='ExecutionOptions(share_reset_forward=...): restart ended '
+      'episodes inside the sub-step loop (half the step compile time, '
+      'slower steps on a GPU); default: on a CPU only',
   )
   parser.add_argument(
       '--auto-reset-batch',
       type=int,
       default=None,
       metavar='K',
-      help='Environment(auto_reset_batch=K): reset the worlds whose episodes '
-      'end K at a time instead of the whole batch (for tasks whose episodes '
-      "end often; needs impl='jax'); default: the whole batch",
+      help='ExecutionOptions(auto_reset_batch=K): reset the worlds whose '
+      'episodes end K at a time instead of the whole batch (for tasks whose '
+      "episodes end often; needs impl='jax'); default: the whole batch",
   )
   parser.add_argument(
       '--no-compilation-cache',
@@ -558,8 +558,12 @@ def make_brax_env(args):
   groups; `make_networks` picks from it). With `args.like_playground`, the
   walk task as Playground's HumanoidWalk (`common.make_walk_like_playground`).
   """
-  from mjx_composer import cli  # pylint: disable=g-import-not-at-top
-  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+  # pylint: disable=g-import-not-at-top
+  import mjx_composer as composer
+  from mjx_composer.adapters import brax as brax_adapter
+  from mjx_composer.tasks import registry
+
+  # pylint: enable=g-import-not-at-top
 
   if getattr(args, 'like_playground', False):
     import common  # pylint: disable=g-import-not-at-top  # benchmarks/common.py
@@ -571,13 +575,15 @@ def make_brax_env(args):
         auto_reset_batch=getattr(args, 'auto_reset_batch', None),
     )
     return env, brax_adapter.BraxEnv(env)
-  env = cli.make_environment(
+  env = registry.make_environment(
       args.task,
       time_limit=args.time_limit,
-      auto_reset='same_step',
-      share_reset_forward=args.share_reset_forward,
-      impl=getattr(args, 'impl', None),
-      auto_reset_batch=getattr(args, 'auto_reset_batch', None),
+      options=composer.ExecutionOptions(
+          auto_reset='same_step',
+          share_reset_forward=args.share_reset_forward,
+          impl=getattr(args, 'impl', None),
+          auto_reset_batch=getattr(args, 'auto_reset_batch', None),
+      ),
   )
   return env, brax_adapter.BraxEnv(env)
 

@@ -1,13 +1,14 @@
-"""The `mjx-composer` command line: `mjx-composer demo [options]`.
+"""The `mjx-composer` command line: `mjx-composer demo|list [options]`.
 
-`demo` builds a bundled task from bundled entities, runs N worlds for T
-control steps on the default JAX device (the CPU unless a GPU build of JAX
-is installed) with a random policy, shows progress, and prints throughput and
-episode statistics.
+`demo` builds a registered task (`mjx_composer.tasks.registry`: the bundled
+ones, or yours), runs N worlds for T control steps on the default JAX device
+(the CPU unless a GPU build of JAX is installed) with a random policy, shows
+progress, and prints throughput and episode statistics. `list` prints the
+registered tasks, one a line.
 
 Compiled programs are kept in JAX's persistent compilation cache
-(`mjx_composer.platform.compilation_cache`), so a second run with the same options
-skips most of the compilation; `--no-compilation-cache` or
+(`mjx_composer.platform.compilation_cache`), so a second run with the same
+options skips most of the compilation; `--no-compilation-cache` or
 `MJX_COMPOSER_COMPILATION_CACHE=0` turns that off.
 """
 
@@ -19,66 +20,11 @@ import jax
 import jax.numpy as jnp
 import tqdm
 
-TASKS = ('reach', 'push', 'walk', 'joystick', 'joystick_rough')
-# What each task's `distance` metric measures, for the summary line.
-_DISTANCE_LABELS = {
-    'reach': 'hand-target distance',
-    'push': 'box-zone distance',
-    'walk': 'distance walked',
-    'joystick': 'distance travelled',
-    'joystick_rough': 'distance travelled',
-}
+from mjx_composer import environment
+from mjx_composer import platform
+from mjx_composer.tasks import registry
 
-
-def make_environment(
-    task_name='reach',
-    time_limit=2.0,
-    auto_reset='same_step',
-    share_reset_forward=None,
-    impl=None,
-    auto_reset_batch=None,
-):
-  """Builds a bundled task's `Environment` with its observation groups.
-
-  `impl` chooses the physics implementation ('jax' or 'warp', see
-  `Environment`); a task that cannot run on it is refused at build. None
-  is `Environment`'s default. `auto_reset_batch` goes to the `Environment`
-  (None: whole-batch auto-resets).
-  """
-  from mjx_composer import environment  # pylint: disable=g-import-not-at-top
-
-  if task_name == 'reach':
-    from mjx_composer.tasks import reach  # pylint: disable=g-import-not-at-top
-
-    task = reach.Reach()
-    groups = reach.Reach.observation_groups()
-  elif task_name == 'push':
-    from mjx_composer.tasks import push  # pylint: disable=g-import-not-at-top
-
-    task = push.Push()
-    groups = task.observation_groups()
-  elif task_name == 'walk':
-    from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
-
-    task = walk.Walk()
-    groups = task.observation_groups()
-  elif task_name in ('joystick', 'joystick_rough'):
-    from mjx_composer.tasks import joystick  # pylint: disable=g-import-not-at-top
-
-    terrain = 'rough' if task_name == 'joystick_rough' else 'flat'
-    task = joystick.Joystick(terrain=terrain)
-    groups = task.observation_groups()
-  else:
-    raise ValueError(f'Unknown task {task_name!r}; choose from {TASKS}.')
-  return environment.Environment(
-      task,
-      time_limit=time_limit,
-      auto_reset=auto_reset,
-      observation_groups=groups,
-      share_reset_forward=share_reset_forward,
-      impl=impl,
-      auto_reset_batch=auto_reset_batch,
-  )
+_COMMANDS = ('demo', 'list')
 
 
 def make_rollout(env, num_worlds, chunk):
@@ -102,7 +48,7 @@ def make_rollout(env, num_worlds, chunk):
         'length': totals['length']
         + jnp.sum(jnp.where(ended, states.metrics['episode_length'], 0)),
         'distance': totals['distance']
-        + jnp.sum(jnp.where(ended, states.metrics['distance'], 0.0)),
+        + jnp.sum(jnp.where(ended, states.metrics.get('distance', 0.0), 0.0)),
         'diverged': totals['diverged'] + jnp.sum(states.metrics['diverged']),
         'init_failures': totals['init_failures']
         + jnp.sum(jnp.where(ended, states.metrics['init_failures'], 0.0)),
@@ -127,7 +73,7 @@ def demo_parser():
           'Run a bundled composed task for N worlds and T control steps.'
       ),
   )
-  parser.add_argument('--task', default='reach', choices=TASKS)
+  parser.add_argument('--task', default='reach', choices=registry.names())
   parser.add_argument('--worlds', type=int, default=64)
   parser.add_argument(
       '--steps', type=int, default=200, help='control steps per world'
@@ -161,11 +107,7 @@ def demo_parser():
 
 
 def demo(argv=None):
-  # pylint: disable=g-import-not-at-top
-  from mjx_composer import platform
-
-  # pylint: enable=g-import-not-at-top
-
+  """`mjx-composer demo`: runs a registered task with a random policy."""
   parser = demo_parser()
   args = parser.parse_args(argv)
   if args.worlds < 1 or args.steps < 1 or args.chunk < 1:
@@ -180,7 +122,13 @@ def demo(argv=None):
       f'{cache_dir or "off"}'
   )
   t0 = time.perf_counter()
-  env = make_environment(args.task, args.time_limit, impl=args.impl)
+  env = registry.make_environment(
+      args.task,
+      time_limit=args.time_limit,
+      options=environment.ExecutionOptions(
+          auto_reset='same_step', impl=args.impl
+      ),
+  )
   print(
       f'Task {args.task!r}: {env.mj_model.nbody} bodies, '
       f'{env.mj_model.nu} actuators, {env.n_sub_steps} sub-steps per '
@@ -233,13 +181,18 @@ def demo(argv=None):
       f'{steps * env.n_sub_steps / elapsed:,.0f} physics steps/s.'
   )
   episodes = int(totals['episodes'])
+  distance = registry.entry(args.task).distance
   if episodes:
     print(
         f'Episodes finished: {episodes:,}; mean return '
         f'{float(totals["return"]) / episodes:.3f}, mean length '
-        f'{int(totals["length"]) / episodes:.1f} steps, mean final '
-        f'{_DISTANCE_LABELS[args.task]} '
-        f'{float(totals["distance"]) / episodes:.3f} m.'
+        f'{int(totals["length"]) / episodes:.1f} steps'
+        + (
+            f', mean final {distance} '
+            f'{float(totals["distance"]) / episodes:.3f} m.'
+            if distance
+            else '.'
+        )
     )
   else:
     print('No episode finished: raise --steps or lower --time-limit.')
@@ -252,14 +205,30 @@ def demo(argv=None):
   return 0
 
 
+def list_tasks(argv=None):
+  """`mjx-composer list`: the registered tasks, one a line."""
+  argparse.ArgumentParser(
+      prog='mjx-composer list',
+      description='List the registered tasks (mjx_composer.tasks.registry).',
+  ).parse_args(argv)
+  width = max(map(len, registry.names()), default=0)
+  for name in registry.names():
+    print(f'{name:<{width}}  {registry.describe(name)}'.rstrip())
+  return 0
+
+
 def main(argv=None):
   argv = list(sys.argv[1:] if argv is None else argv)
-  if not argv or argv[0] not in ('demo',):
+  if not argv or argv[0] not in _COMMANDS:
     print(
-        f'usage: mjx-composer demo [--task {"|".join(TASKS)}] [--worlds N] '
-        '[--steps T] [--time-limit S] [--seed K] [--no-compilation-cache]'
+        'usage: mjx-composer demo [--task NAME] [--worlds N] [--steps T] '
+        '[--time-limit S] [--seed K] [--impl jax|warp] '
+        '[--no-compilation-cache]\n'
+        '       mjx-composer list   (the task names)'
     )
     return 2
+  if argv[0] == 'list':
+    return list_tasks(argv[1:])
   return demo(argv[1:])
 
 

@@ -24,7 +24,10 @@ _STEPS = 5  # time_limit 0.05 s at 0.01 s per control step
 
 @pytest.fixture(scope='module')
 def env():
-  return conftest.make_swing_env(time_limit=0.05, auto_reset='same_step')
+  return conftest.make_swing_env(
+      time_limit=0.05,
+      options=environment_lib.ExecutionOptions(auto_reset='same_step'),
+  )
 
 
 @pytest.fixture(scope='module')
@@ -253,8 +256,7 @@ def test_ppo_improves_reach_through_the_adapter():
   env = environment_lib.Environment(
       _reach_task(),
       time_limit=0.5,
-      auto_reset='same_step',
-      observation_groups=reach.Reach.observation_groups(),
+      options=environment_lib.ExecutionOptions(auto_reset='same_step'),
   )
   brax_env = brax_adapter.BraxEnv(env, obs_key='policy')
   network_factory = functools.partial(

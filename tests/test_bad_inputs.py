@@ -487,7 +487,9 @@ def test_brax_env_rejects_a_bad_episode_length(length):
   from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
 
   env = composer.Environment(
-      composer.NullTask(_Arm()), time_limit=1.0, auto_reset='same_step'
+      composer.NullTask(_Arm()),
+      time_limit=1.0,
+      options=composer.ExecutionOptions(auto_reset='same_step'),
   )
   with pytest.raises(ValueError, match='positive number of control steps'):
     brax_adapter.BraxEnv(env, episode_length=length)

@@ -139,7 +139,9 @@ def test_set_pose_and_shift_pose(free):
   entity = loose if free else fixed
   env = composer.Environment(
       composer.NullTask(arena),
-      per_world_model_fields=() if free else ('body_pos', 'body_quat'),
+      options=composer.ExecutionOptions(
+          per_world_model_fields=() if free else ('body_pos', 'body_quat')
+      ),
   )
   base = env.physics(jax.jit(env.reset)(jax.random.key(0)))
   for position in (None, [1.0, 0.0, -1.0]):

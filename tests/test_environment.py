@@ -1,6 +1,9 @@
 """Environment: hook order, stepping, episode ends, auto-reset, keys, errors."""
 
+import dataclasses
+import inspect
 import math
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -10,6 +13,7 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer import environment as environment_lib
+from mjx_composer.runtime import auto_reset as auto_reset_lib
 from tests import conftest
 
 # -- hook scheduling (inventory 8.1) ------------------------------------------
@@ -326,7 +330,10 @@ def test_termination_is_not_truncation():
 
 
 def test_same_step_auto_reset():
-  env = conftest.make_swing_env(time_limit=0.02, auto_reset='same_step')
+  env = conftest.make_swing_env(
+      time_limit=0.02,
+      options=composer.ExecutionOptions(auto_reset='same_step'),
+  )
   reset, step = jax.jit(env.reset), jax.jit(env.step)
   state = reset(jax.random.key(1))
   state = step(state, jnp.array([1.0]))
@@ -505,7 +512,8 @@ def test_undeclared_model_write_in_step_is_a_clear_error():
   with pytest.raises(ValueError, match='per_world_model_fields'):
     jax.eval_shape(env.step, state, jnp.zeros(1))  # raised while tracing
   declared = composer.Environment(
-      Recolor(), per_world_model_fields=('geom_rgba',)
+      Recolor(),
+      options=composer.ExecutionOptions(per_world_model_fields=('geom_rgba',)),
   )
   state = jax.jit(lambda key: declared.step(declared.reset(key), jnp.zeros(1)))(
       jax.random.key(0)
@@ -515,8 +523,8 @@ def test_undeclared_model_write_in_step_is_a_clear_error():
 
 
 def test_bad_constructor_arguments():
-  with pytest.raises(ValueError, match='auto_reset'):
-    composer.Environment(conftest.SwingTask(), auto_reset='sometimes')
+  with pytest.raises(ValueError, match=r'ExecutionOptions\(auto_reset='):
+    composer.ExecutionOptions(auto_reset='sometimes')
   with pytest.raises(ValueError, match='ObservationPadding'):
     composer.Environment(conftest.SwingTask(), delayed_observation_padding=0)
   for name in environment_lib.COMPOSER_OPTIONS:
@@ -570,7 +578,9 @@ class _CountingTask(conftest.SwingTask):
 @pytest.mark.parametrize('auto_reset', ['next_step', 'same_step'])
 def test_persistent_state_and_model_fields_survive_auto_reset(auto_reset):
   env = composer.Environment(
-      _CountingTask(), time_limit=0.02, auto_reset=auto_reset
+      _CountingTask(),
+      time_limit=0.02,
+      options=composer.ExecutionOptions(auto_reset=auto_reset),
   )
   reset = jax.jit(jax.vmap(env.reset))
   step = jax.jit(jax.vmap(env.step))
@@ -687,9 +697,11 @@ def test_auto_reset_batch_gives_the_same_trajectories():
   envs = {
       batch: conftest.make_swing_env(
           time_limit=0.04,
-          auto_reset=auto_reset,
-          share_reset_forward=False if batch is None else None,
-          auto_reset_batch=batch,
+          options=composer.ExecutionOptions(
+              auto_reset=auto_reset,
+              share_reset_forward=False if batch is None else None,
+              auto_reset_batch=batch,
+          ),
       )
       for batch in (None, 3)
   }
@@ -721,11 +733,11 @@ def test_auto_reset_batch_gives_the_same_trajectories():
 
 def test_auto_reset_batch_refusals():
   with pytest.raises(ValueError, match='positive integer'):
-    conftest.make_swing_env(auto_reset_batch=0)
+    composer.ExecutionOptions(auto_reset_batch=0)
   with pytest.raises(ValueError, match='Set one of them'):
-    conftest.make_swing_env(auto_reset_batch=4, share_reset_forward=True)
+    composer.ExecutionOptions(auto_reset_batch=4, share_reset_forward=True)
   with pytest.raises(ValueError, match="needs impl='jax'"):
-    conftest.make_swing_env(auto_reset_batch=4, impl='warp')
+    composer.ExecutionOptions(auto_reset_batch=4, impl='warp')
 
 
 # -- fixed_initial_state -------------------------------------------------------
@@ -733,7 +745,7 @@ def test_auto_reset_batch_refusals():
 
 def _two_episodes(env, length):
   """Observations of a world's first two episodes under the same actions."""
-  next_step = env._auto_reset == 'next_step'  # pylint: disable=protected-access
+  next_step = env.auto_reset == 'next_step'
   per_episode = length + 1 if next_step else length
   actions = jnp.sin(jnp.arange(per_episode, dtype=jnp.float32))[:, None]
   actions = jnp.concatenate([actions, actions])
@@ -769,7 +781,9 @@ def test_fixed_initial_state_repeats_the_first_episode(auto_reset):
   episodes = {
       fixed: _two_episodes(
           conftest.make_swing_env(
-              time_limit=0.04, auto_reset=auto_reset, fixed_initial_state=fixed
+              time_limit=0.04,
+              fixed_initial_state=fixed,
+              options=composer.ExecutionOptions(auto_reset=auto_reset),
           ),
           length,
       )
@@ -817,3 +831,179 @@ def test_fixed_initial_state_repeats_every_initialization_attempt():
     failures[fixed] = set(np.asarray(states.metrics['init_failures']).tolist())
   assert failures[True] == {0, 3}  # the same toss on every attempt
   assert failures[False] >= {0, 1, 2}
+
+
+# -- ExecutionOptions and the deprecated keywords ------------------------------
+
+# A value for each `ExecutionOptions` field that builds the swing task on the
+# CPU, other than the default where one does.
+_OPTION_VALUES = {
+    'auto_reset': 'same_step',
+    'per_world_model_fields': ('geom_rgba',),
+    'impl': 'jax',
+    'naconmax': 64,
+    'njmax': 32,
+    'share_reset_forward': False,
+    'auto_reset_batch': 2,
+    'reset_forward': 'full',
+    'substep_sensors': 'all',
+}
+
+
+def test_every_option_field_is_exercised():
+  names = {
+      field.name for field in dataclasses.fields(composer.ExecutionOptions)
+  }
+  assert names == set(_OPTION_VALUES)
+
+
+def test_execution_options_are_frozen_and_hashable():
+  options = composer.ExecutionOptions(per_world_model_fields=['geom_rgba'])
+  assert options.per_world_model_fields == ('geom_rgba',)
+  assert hash(options) == hash(
+      composer.ExecutionOptions(per_world_model_fields=('geom_rgba',))
+  )
+  with pytest.raises(dataclasses.FrozenInstanceError):
+    options.impl = 'jax'
+  assert dataclasses.replace(options, impl='jax').impl == 'jax'
+  with pytest.raises(ValueError, match='sequence of field names'):
+    composer.ExecutionOptions(per_world_model_fields='geom_rgba')
+  with pytest.raises(ValueError, match='Unknown mjx.Model fields'):
+    composer.ExecutionOptions(per_world_model_fields=('no_such_field',))
+
+
+def test_options_are_resolved_for_the_device():
+  with warnings.catch_warnings():
+    warnings.simplefilter('error', DeprecationWarning)
+    env = conftest.make_swing_env(
+        options=composer.ExecutionOptions(naconmax=64, njmax=32)
+    )
+  # On this CPU the default is 'jax', where Warp's buffer sizes are ignored.
+  assert env.options == composer.ExecutionOptions(
+      impl='jax', share_reset_forward=True
+  )
+  assert env.impl == env.options.impl
+  assert env.share_reset_forward == env.options.share_reset_forward
+  assert env.auto_reset == 'next_step' and env.auto_reset_batch is None
+
+
+@pytest.mark.parametrize('name', sorted(_OPTION_VALUES))
+def test_deprecated_keyword_still_works_and_names_the_new_spelling(name):
+  value = _OPTION_VALUES[name]
+  with pytest.warns(DeprecationWarning) as record:
+    old = conftest.make_swing_env(**{name: value})
+  messages = [str(w.message) for w in record]
+  assert (
+      f'Environment({name}={value!r}) is deprecated: pass '
+      f'options=ExecutionOptions({name}={value!r})'
+  ) in messages[0], messages
+  with warnings.catch_warnings():
+    warnings.simplefilter('error', DeprecationWarning)
+    new = conftest.make_swing_env(
+        options=composer.ExecutionOptions(**{name: value})
+    )
+  assert old.options == new.options
+
+
+def test_deprecated_observation_groups_says_to_override_the_task():
+  groups = {'tip': composer.ObservationGroup(keys=['tip'])}
+
+  class Grouped(conftest.SwingTask):
+
+    def observation_groups(self):
+      return groups
+
+  with pytest.warns(
+      DeprecationWarning, match=r'override Task.observation_groups\(\)'
+  ):
+    old = composer.Environment(conftest.SwingTask(), observation_groups=groups)
+  with warnings.catch_warnings():
+    warnings.simplefilter('error', DeprecationWarning)
+    new = composer.Environment(Grouped())
+  assert set(old.observation_spec()) == set(new.observation_spec()) == {'tip'}
+  assert old.options == new.options
+
+
+def test_options_and_a_deprecated_keyword_do_not_mix():
+  options = composer.ExecutionOptions(impl='jax')
+  with pytest.raises(TypeError, match=r'Environment\(impl=...\) and options'):
+    composer.Environment(conftest.SwingTask(), impl='jax', options=options)
+  with pytest.raises(TypeError, match='in options=ExecutionOptions'):
+    composer.Environment(
+        conftest.SwingTask(), auto_reset='same_step', options=options
+    )
+  with pytest.raises(TypeError, match='takes an ExecutionOptions'):
+    composer.Environment(conftest.SwingTask(), options={'impl': 'jax'})
+
+
+def test_unknown_keyword_names_the_valid_ones():
+  with pytest.raises(TypeError, match=r"\['sub_steps'\].*n_sub_steps.*impl"):
+    composer.Environment(conftest.SwingTask(), sub_steps=2)
+
+
+def test_arguments_are_composers_in_composers_order():
+  parameters = inspect.signature(composer.Environment).parameters
+  assert list(parameters) == [
+      'task',
+      'time_limit',
+      'random_state',
+      'n_sub_steps',
+      'raise_exception_on_physics_error',
+      'strip_singleton_obs_buffer_dim',
+      'max_reset_attempts',
+      'recompile_mjcf_every_episode',
+      'fixed_initial_state',
+      'delayed_observation_padding',
+      'legacy_step',
+      'options',
+      'deprecated',
+  ]
+  assert parameters['options'].kind == inspect.Parameter.KEYWORD_ONLY
+  # composer's positional call builds as it would there.
+  env = composer.Environment(
+      conftest.SwingTask(),
+      0.05,
+      3,
+      None,
+      False,
+      False,
+      2,
+      False,
+      True,
+      composer.ObservationPadding.INITIAL_VALUE,
+      False,
+  )
+  assert env.time_limit == 0.05 and env.fixed_initial_state
+
+
+class _Transitions:
+  """A stand-in whose step programs say which they are."""
+
+  def reset_or_step(self, state, action):
+    return 'reset_or_step'
+
+  def step_and_restart(self, state, action):
+    return 'step_and_restart'
+
+
+@pytest.mark.parametrize('auto_reset', ['next_step', 'same_step'])
+@pytest.mark.parametrize('fuse', [True, False])
+def test_the_step_program_is_chosen_once(auto_reset, fuse):
+  transitions = _Transitions()
+  program = auto_reset_lib.step_program(
+      transitions, auto_reset=auto_reset, fuse=fuse, chunk=None
+  )
+  if fuse:
+    fused = {
+        'next_step': transitions.reset_or_step,
+        'same_step': transitions.step_and_restart,
+    }
+    assert program == fused[auto_reset]
+  else:
+    # pylint: disable=protected-access
+    separate = {
+        'next_step': auto_reset_lib._step_or_reset,
+        'same_step': auto_reset_lib._step_then_restart,
+    }
+    # pylint: enable=protected-access
+    assert program.func is separate[auto_reset]

@@ -506,4 +506,4 @@ def test_settling_is_refused_on_warp():
   """
   task = PlacementTask(sphere_kwargs={'settle_physics': True})
   with pytest.raises(backend.WarpUnsupportedError, match='settle_physics'):
-    composer.Environment(task, impl='warp')
+    composer.Environment(task, options=composer.ExecutionOptions(impl='warp'))

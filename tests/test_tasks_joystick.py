@@ -11,11 +11,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from mjx_composer import cli
 from mjx_composer import environment
 from mjx_composer.entities import go1
 from mjx_composer.runtime.state import StepType
 from mjx_composer.tasks import joystick
+from mjx_composer.tasks import registry
 
 _WORLDS = 2
 _STEPS = 6  # The time limit, in control steps.
@@ -30,7 +30,9 @@ def run():
       command_interval=_COMMAND_INTERVAL, push_interval=_PUSH_INTERVAL
   )
   env = environment.Environment(
-      task, time_limit=_STEPS * task.control_timestep, auto_reset='same_step'
+      task,
+      time_limit=_STEPS * task.control_timestep,
+      options=environment.ExecutionOptions(auto_reset='same_step'),
   )
   states = [
       jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), _WORLDS))
@@ -337,7 +339,7 @@ def test_rough_terrain_variant_builds_with_per_world_terrain():
     'name, terrain', [('joystick', 'flat'), ('joystick_rough', 'rough')]
 )
 def test_the_command_line_builds_it(name, terrain):
-  env = cli.make_environment(name, time_limit=joystick.EPISODE_SECONDS)
+  env = registry.make_environment(name, time_limit=joystick.EPISODE_SECONDS)
   assert isinstance(env.task, joystick.Joystick) and env.step_limit == 1000
   assert env.task.arena.ground_geoms[0].type == (
       mujoco.mjtGeom.mjGEOM_PLANE

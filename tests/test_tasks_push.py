@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import cli
 from mjx_composer.tasks import push
+from mjx_composer.tasks import registry
 
 _WORLDS = 256
 
@@ -28,7 +28,7 @@ def _fresh_physics(env):
 @pytest.fixture(scope='module')
 def pushed():
   task = push.Push()
-  env = composer.Environment(task, observation_groups=task.observation_groups())
+  env = composer.Environment(task)
   physics = _fresh_physics(env)
 
   @jax.jit
@@ -134,8 +134,8 @@ def test_baseline_placements():
 
 
 def test_demo_offers_the_push_task(capsys):
-  assert 'push' in cli.TASKS
-  env = cli.make_environment('push')
+  assert 'push' in registry.names()
+  env = registry.make_environment('push')
   spec = env.observation_spec()
   # Policy: 3 joint positions, 3 velocities, the hand, 5 boxes, the zone.
   assert spec['policy'].shape == (3 + 3 + 3 + 15 + 3,)

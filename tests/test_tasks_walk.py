@@ -9,9 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjx_composer import cli
 from mjx_composer import environment
 from mjx_composer.runtime.state import StepType
+from mjx_composer.tasks import registry
 from mjx_composer.tasks import walk
 
 _WORLDS = 2
@@ -24,7 +24,9 @@ def run():
   """(env, [state after reset, after step 1, ..., after step 6], actions)."""
   task = walk.Walk(push_interval=_PUSH_INTERVAL)
   env = environment.Environment(
-      task, time_limit=_STEPS * task.control_timestep, auto_reset='same_step'
+      task,
+      time_limit=_STEPS * task.control_timestep,
+      options=environment.ExecutionOptions(auto_reset='same_step'),
   )
   states = [
       jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), _WORLDS))
@@ -223,7 +225,7 @@ def test_playground_equivalent_settings_switch_everything_off():
 
 
 def test_the_command_line_builds_it():
-  env = cli.make_environment('walk', time_limit=walk.EPISODE_SECONDS)
+  env = registry.make_environment('walk', time_limit=walk.EPISODE_SECONDS)
   assert isinstance(env.task, walk.Walk) and env.step_limit == 1000
   assert set(env.observation_spec()) == {'policy', 'critic'}
   assert env.action_spec().shape == (21,)

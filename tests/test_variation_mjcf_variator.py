@@ -110,7 +110,9 @@ def rollout():
   """Two worlds, 3-step episodes with same-step auto-reset, 8 steps."""
   task = VariedTask()
   env = composer.Environment(
-      task, time_limit=_EPISODE_STEPS * 0.01, auto_reset='same_step'
+      task,
+      time_limit=_EPISODE_STEPS * 0.01,
+      options=composer.ExecutionOptions(auto_reset='same_step'),
   )
   keys = jax.random.split(jax.random.key(0), _N_WORLDS)
 

@@ -3,7 +3,9 @@
     from brax.training.agents.ppo import train as ppo
     from mjx_composer.adapters import brax as brax_adapter
 
-    env = composer.Environment(task, time_limit=2., auto_reset='same_step')
+    env = composer.Environment(
+        task, time_limit=2.,
+        options=composer.ExecutionOptions(auto_reset='same_step'))
     brax_env = brax_adapter.BraxEnv(env, obs_key='policy')
     make_policy, params, metrics = ppo.train(
         environment=brax_env, num_timesteps=..., num_envs=...,

@@ -49,7 +49,7 @@ def _environment(auto_reset):
   return composer.Environment(
       _TinySwing(),
       time_limit=_EPISODE_STEPS * 0.01,
-      auto_reset=auto_reset,
+      options=composer.ExecutionOptions(auto_reset=auto_reset),
   )
 
 
