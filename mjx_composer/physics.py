@@ -27,6 +27,7 @@ derived quantities such as `xpos`.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from flax import struct
@@ -37,6 +38,8 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer.model import element_index
+
+_MODEL_FIELD_NAMES = tuple(f.name for f in dataclasses.fields(mjx.Model))
 
 
 @struct.dataclass
@@ -80,22 +83,32 @@ class Physics:
     """The compiled host model (shared by every world; read it at trace time)."""
     return self.index.mj_model
 
-  def carry(self, model_fields) -> 'PhysicsCarry':
-    """The per-world parts of this physics, for a scan, a loop or a `State`.
+  def world_fields(self, model_fields) -> dict:
+    """The `WorldFields` of this physics, as keyword arguments.
 
     Args:
       model_fields: names of the model fields that are per-world; the rest
-        of the model is the shared constant that `PhysicsCarry.restore`
+        of the model is the shared constant that `WorldFields.restore`
         takes back.
     """
-    return PhysicsCarry(
+    return dict(
         data=self.data,
         task_state=self.task_state,
         entity_states=self.entity_states,
         model_fields={f: getattr(self.model, f) for f in model_fields},
         persistent=self.persistent,
-        initialization_failed=self.initialization_failed,
         scheduled_hooks=self.scheduled_hooks,
+    )
+
+  def carry(self, model_fields) -> 'PhysicsCarry':
+    """The per-world parts of this physics, for a scan or a loop.
+
+    Args:
+      model_fields: as in `world_fields`.
+    """
+    return PhysicsCarry(
+        **self.world_fields(model_fields),
+        initialization_failed=self.initialization_failed,
     )
 
   # -- dm_control-style accessors -------------------------------------------
@@ -247,12 +260,41 @@ class Physics:
     return self.replace(model=self.model.replace(**{address.field: new}))
 
 
-@struct.dataclass
-class PhysicsCarry:
-  """The per-world parts of a `Physics`, without the shared model constants.
+def changed_model_fields(before: mjx.Model, after: mjx.Model) -> list[str]:
+  """The fields of `after` that are not `before`'s (by identity).
 
-  What a `lax.scan` over sub-steps, a reset's retry loop or a `State`
-  carries; `restore` rebuilds the `Physics`. Made by `Physics.carry`.
+  A hook that writes a model field returns a model whose field is a new
+  array; the fields it leaves alone are the same objects. So this tells,
+  while tracing, which fields a hook wrote.
+  """
+  return [
+      name
+      for name in _MODEL_FIELD_NAMES
+      if getattr(after, name) is not getattr(before, name)
+  ]
+
+
+@struct.dataclass
+class WorldFields:
+  """What one world carries of its `Physics`: everything but the shared
+  model constants and the static index tables.
+
+  `runtime.state.State` (carried between steps) and `PhysicsCarry` (carried
+  through a loop) extend it; `Physics.world_fields` makes its fields and
+  `restore` takes them back. Its leaves come first in both, in this order.
+
+  Attributes:
+    data: the world's `mjx.Data`.
+    task_state: the task's per-episode state (`Task.initial_task_state`).
+    entity_states: each entity's per-episode state (`Entity.initial_state`),
+      keyed by the entity's full identifier ('' for the root entity).
+    model_fields: per-world values of the model fields that hooks or
+      variations write (`{field name: value}`); every other model field is
+      the environment's shared constant.
+    persistent: per-world entries that survive auto-resets
+      (`Physics.get_persistent`), keyed by their owner's name.
+    scheduled_hooks: hooks registered by `Physics.schedule_before_step`
+      (static: part of the pytree's structure, not of its leaves).
   """
 
   data: mjx.Data
@@ -260,8 +302,9 @@ class PhysicsCarry:
   entity_states: Any
   model_fields: dict
   persistent: Any
-  initialization_failed: Any
-  scheduled_hooks: tuple = struct.field(pytree_node=False, default=())
+  scheduled_hooks: tuple = struct.field(
+      pytree_node=False, default=(), kw_only=True
+  )
 
   def restore(
       self, model: mjx.Model, index: element_index.ElementIndex
@@ -275,10 +318,26 @@ class PhysicsCarry:
         task_state=self.task_state,
         index=index,
         persistent=self.persistent,
-        initialization_failed=self.initialization_failed,
+        initialization_failed=self._initialization_failed(),
         entity_states=self.entity_states,
         scheduled_hooks=self.scheduled_hooks,
     )
+
+  def _initialization_failed(self):
+    return None
+
+
+@struct.dataclass
+class PhysicsCarry(WorldFields):
+  """The per-world parts of a `Physics`, and whether its initialization
+  failed: what a `lax.scan` over sub-steps or a reset's retry loop carries.
+  Made by `Physics.carry`; `restore` rebuilds the `Physics`.
+  """
+
+  initialization_failed: Any
+
+  def _initialization_failed(self):
+    return self.initialization_failed
 
 
 def _entity_key(entity, entity_states) -> str:

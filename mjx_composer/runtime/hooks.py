@@ -20,21 +20,24 @@ identifier; an extra hook's registration slot), so overriding one more hook,
 or attaching another entity, never changes the draws of the others.
 
 Model fields: a device hook that writes a model field (a variator writing
-`geom_size`) makes that field per-world. The hooks record, at trace time,
-which participant wrote which field (`model_field_writers`), so that the
-environment can report why a field is carried per world.
+`geom_size`) makes that field per-world. `model_field_writers` says which
+participant writes which field (an abstract trace of the hooks), so that the
+environment can report why a field is carried per world. Step hooks may
+update, never add, per-world fields and entries (`check_step_writes`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from typing import Any, Callable
-import zlib
 
 import jax
-from mujoco import mjx
+import jax.numpy as jnp
 
+from mjx_composer import entity as entity_lib
 from mjx_composer import physics as physics_lib
+from mjx_composer import task as task_lib
+from mjx_composer.runtime import keys as keys_lib
 
 HOOK_NAMES = (
     'initialize_episode_mjcf',
@@ -47,12 +50,6 @@ HOOK_NAMES = (
 )
 # Hooks through which the task (and extra hooks) receive the action.
 _ACTION_HOOKS = ('before_step', 'before_substep')
-_MODEL_FIELD_NAMES = tuple(f.name for f in dataclasses.fields(mjx.Model))
-
-
-def stable_id(identity: str) -> int:
-  """A 31-bit integer for `fold_in`, the same in every process and run."""
-  return zlib.crc32(identity.encode()) & 0x7FFFFFFF
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,8 +86,6 @@ class EnvironmentHooks:
   def __init__(self, task):
     self._task = task
     self._extra: dict[str, list[Callable]] = {name: [] for name in HOOK_NAMES}
-    # Trace-time record: model field -> descriptions of the hooks writing it.
-    self._writers: dict[str, list[str]] = {}
 
   def add_extra_hook(self, hook_name: str, hook: Callable):
     """See `Environment.add_extra_hook`."""
@@ -105,11 +100,6 @@ class EnvironmentHooks:
 
   def participants(self, name: str) -> list[Participant]:
     """The participants of hook `name`, in calling order."""
-    # pylint: disable=g-import-not-at-top
-    from mjx_composer import entity as entity_lib
-    from mjx_composer import task as task_lib
-
-    # pylint: enable=g-import-not-at-top
     takes_action = name in _ACTION_HOOKS
     out = []
     # The task's before_step writes the action into ctrl even if not
@@ -147,10 +137,21 @@ class EnvironmentHooks:
   def has(self, name: str) -> bool:
     return bool(self.participants(name))
 
-  @property
-  def model_field_writers(self) -> dict[str, tuple[str, ...]]:
-    """`{model field: hooks that wrote it}`, as recorded while tracing."""
-    return {f: tuple(w) for f, w in sorted(self._writers.items())}
+  def model_field_writers(
+      self, name: str, physics, key, action=None
+  ) -> dict[str, tuple[str, ...]]:
+    """`{model field: the hooks that write it}` of hook `name` on `physics`.
+
+    From an abstract trace of the hooks (`jax.eval_shape`): nothing is
+    computed. `key` and `action` may be shapes.
+    """
+    writers = {}
+    jax.eval_shape(
+        lambda key, action: self._run(name, physics, key, action, writers),
+        key,
+        action,
+    )
+    return dict(sorted(writers.items()))
 
   # -- build time (host) ----------------------------------------------------
 
@@ -174,8 +175,10 @@ class EnvironmentHooks:
 
   # -- device (pure) ----------------------------------------------------------
 
-  def initialize_episode(self, physics, key):
-    return self._run('initialize_episode', physics, key)
+  def initialize_episode(self, physics, key, writers=None):
+    """Runs `initialize_episode`; `writers`, where given, a dict that
+    receives `{model field: the hooks that wrote it}`."""
+    return self._run('initialize_episode', physics, key, writers=writers)
 
   def before_step(self, physics, action, key):
     return self._run('before_step', physics, key, action)
@@ -196,13 +199,22 @@ class EnvironmentHooks:
       physics = self._call(participant, 'scheduled', physics, key, None)
     return physics
 
-  def _run(self, name, physics, key, action=None):
+  def _run(self, name, physics, key, action=None, writers=None):
     for participant in self.participants(name):
-      physics = self._call(participant, name, physics, key, action)
+      result = self._call(participant, name, physics, key, action)
+      if writers is not None:
+        label = f'{participant.describe}.{name}'
+        for field in physics_lib.changed_model_fields(
+            physics.model, result.model
+        ):
+          labels = writers.get(field, ())
+          if label not in labels:
+            writers[field] = labels + (label,)
+      physics = result
     return physics
 
   def _call(self, participant, name, physics, key, action):
-    hook_key = jax.random.fold_in(key, stable_id(participant.identity))
+    hook_key = keys_lib.hook_key(key, participant.identity)
     if participant.takes_action:
       result = participant.hook(physics, action, hook_key)
     else:
@@ -212,10 +224,45 @@ class EnvironmentHooks:
           f'{participant.describe}.{name} returned {type(result).__name__}: '
           'device hooks are pure and must return the (new) Physics.'
       )
-    for field in _MODEL_FIELD_NAMES:
-      if getattr(result.model, field) is not getattr(physics.model, field):
-        writers = self._writers.setdefault(field, [])
-        label = f'{participant.describe}.{name}'
-        if label not in writers:
-          writers.append(label)
     return result
+
+
+def check_step_writes(before, after, fields, hook_names):
+  """Step hooks may update, not add, per-world fields and persistent entries.
+
+  Raises a `ValueError` (while the step is traced) where the `hook_names`
+  hooks, run from the `Physics` `before` to `after`, wrote a model field
+  that is not among the per-world `fields`, scheduled a hook, or added,
+  removed or reshaped a persistent entry or entity state.
+  """
+  changed = physics_lib.changed_model_fields(before.model, after.model)
+  undeclared = sorted(set(changed) - set(fields))
+  if undeclared:
+    raise ValueError(
+        f'The {hook_names} hooks wrote model fields {undeclared} that are not '
+        'per-world. Declare them with Environment(..., '
+        f'per_world_model_fields={tuple(undeclared)!r}), or write them in '
+        'initialize_episode.'
+    )
+  if after.scheduled_hooks != before.scheduled_hooks:
+    raise ValueError(
+        f'The {hook_names} hooks scheduled a hook: call '
+        'physics.schedule_before_step from initialize_episode.'
+    )
+  shapes = lambda tree: jax.tree.map(
+      lambda x: (jnp.shape(x), jnp.result_type(x)), tree
+  )
+  for name, old, new in (
+      ('persistent', before.persistent, after.persistent),
+      ('entity state', before.entity_states, after.entity_states),
+  ):
+    if jax.tree.structure(old) != jax.tree.structure(new) or shapes(
+        old
+    ) != shapes(new):
+      raise ValueError(
+          f'The {hook_names} hooks added, removed or reshaped {name} '
+          f'entries (before: {shapes(old)}, after: {shapes(new)}). Create '
+          f'every {name} entry with its final shape and dtype (persistent '
+          'entries in initialize_episode, entity state in '
+          'Entity.initial_state); step hooks may only update it.'
+      )

@@ -23,7 +23,8 @@ from typing import Any
 
 from flax import struct
 import jax
-from mujoco import mjx
+
+from mjx_composer import physics as physics_lib
 
 
 class StepType(enum.IntEnum):
@@ -52,19 +53,14 @@ class Episode:
 
 
 @struct.dataclass
-class State:
+class State(physics_lib.WorldFields):
   """One world's state, carried between `step` calls (batched under vmap).
 
+  Its first fields are the world's `physics_lib.WorldFields` (`data`,
+  `task_state`, `entity_states`, `model_fields`, `persistent` and the static
+  `scheduled_hooks`); `Transitions.physics(state)` is its `Physics`.
+
   Attributes:
-    data: the world's `mjx.Data`.
-    task_state: the task's per-episode state (`Task.initial_task_state`).
-    entity_states: each entity's per-episode state (`Entity.initial_state`),
-      keyed by the entity's full identifier ('' for the root entity).
-    model_fields: per-world values of the model fields that hooks or
-      variations write (`{field name: value}`); every other model field is the
-      environment's shared constant.
-    persistent: per-world entries that survive auto-resets
-      (`Physics.get_persistent`), keyed by their owner's name.
     obs_state: the observation updater's ring buffers and counters.
     observation: the observation of this timestep.
     final_observation: the last observation of the episode that ended at this
@@ -80,15 +76,8 @@ class State:
       `init_failures`, `init_failed`, and the task's `get_metrics`.
     episode: the running `Episode` counters.
     key: the world's PRNG key for what comes next.
-    scheduled_hooks: hooks registered by `Physics.schedule_before_step`
-      (static: part of the pytree's structure, not of its leaves).
   """
 
-  data: mjx.Data
-  task_state: Any
-  entity_states: dict
-  model_fields: dict
-  persistent: dict
   obs_state: Any
   observation: Any
   final_observation: Any
@@ -100,7 +89,6 @@ class State:
   metrics: dict
   episode: Episode
   key: jax.Array
-  scheduled_hooks: tuple = struct.field(pytree_node=False, default=())
 
   @property
   def steps(self) -> jax.Array:

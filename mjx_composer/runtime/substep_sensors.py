@@ -7,7 +7,7 @@ post-constraint pass over the kinematic tree (`cacc`, `cfrc_int`,
 `cfrc_ext`). A control step of `n` sub-steps thus computes the sensors `n`
 times, yet between two sub-steps only the sub-step hooks and the observables
 sampled at sub-steps see the data. Where none of them reads what the sensor
-stages write (`OUTPUTS`; `Transitions` finds that at trace time), the
+stages write (`OUTPUTS`; `once_per_step` finds that from their jaxpr), the
 sub-steps run with MuJoCo's sensor flag disabled (`without_sensors`) and the
 control step computes the sensors once, after its last sub-step
 (`sensors_of`), from that sub-step's integration state (`IntegrationState`),
@@ -23,14 +23,20 @@ integrator advances `qpos`, `qvel`, `act` and `time`; every other field a
 sensor reads keeps its value through the integrator. So the sensors of the
 last sub-step are those of its end data with those four fields set back to
 the values the sub-step started from, provided nothing after the sub-step's
-physics wrote another field (the after-substep hooks; `Transitions` checks
-which data they write).
+physics wrote another field (the after-substep hooks; `once_per_step`
+checks which data they write).
 """
 
 import dataclasses
 
 import jax
+import jax.numpy as jnp
+import mujoco
 from mujoco import mjx
+
+from mjx_composer.platform import backend
+from mjx_composer.runtime import data_reads
+from mjx_composer.runtime import keys as keys_lib
 
 from mjx_composer.platform import internals
 
@@ -50,6 +56,14 @@ OUTPUTS = frozenset(
 # The leaves MJX's Euler and implicitfast integrators advance, and the
 # sensors read; `qacc_warmstart`, which they also write, no sensor reads.
 ADVANCED = ('qpos', 'qvel', 'act', 'time')
+
+# What `mjx.step` runs after `mjx.forward`, by integrator: the integrators
+# whose step splits into a forward pass and an update of `ADVANCED` (and
+# `qacc_warmstart`).
+INTEGRATORS = {
+    int(mujoco.mjtIntegrator.mjINT_EULER): mjx.euler,
+    int(mujoco.mjtIntegrator.mjINT_IMPLICITFAST): mjx.implicit,
+}
 
 
 @jax.tree_util.register_dataclass
@@ -97,3 +111,61 @@ def sensors_of(
   if internals.data_impl(data).efc_J.size:
     data = mjx.sensor_acc(model, data)
   return data.replace(**advanced)
+
+
+def once_per_step(transitions) -> bool:
+  """Whether `transitions`' sub-steps may leave the sensors to the end.
+
+  On MJX's JAX implementation with an integrator of `INTEGRATORS`, more
+  than one sub-step and the sensors enabled, where nothing between two
+  sub-steps' physics reads what the sensor stages write (`OUTPUTS`) and
+  the after-substep hooks write no data but the integration state
+  (`ADVANCED`). Found from the jaxpr of that work, traced with the shapes
+  of a reset's `State` (`Transitions.reset_shapes`).
+  """
+  model = transitions.initial.model
+  if (
+      transitions.n_sub_steps == 1
+      or backend.is_warp(model)
+      or int(model.opt.integrator) not in INTEGRATORS
+      or model.opt.disableflags & mjx.DisableBit.SENSOR
+  ):
+    return False
+  read, written = _between_substeps(transitions, transitions.reset_shapes.state)
+  return not (read.fields & OUTPUTS or written - set(ADVANCED))
+
+
+def _between_substeps(t, state) -> tuple[data_reads.Reads, set[str]]:
+  """What the work between two sub-steps' physics reads of `mjx.Data`,
+  and the data leaves the after-substep hooks write.
+
+  That work: a sub-step's after-substep hooks and observation update, then
+  the next sub-step's before-substep hooks (of the `Transitions` `t`). The
+  data those hooks pass on untouched to the physics is not read by them:
+  `mjx.step` reads only the integration state. `state`: a `State`'s shapes.
+  """
+  action = jax.ShapeDtypeStruct(t.action_shape, jnp.float32)
+  index = jax.ShapeDtypeStruct((), jnp.int32)
+  names = data_reads.leaf_names(state.data)
+  hooks_wrote = set()
+
+  def readers(data, state, key, action, i):
+    keys = keys_lib.StepKeys.split(key)
+    fields = tuple(state.model_fields)
+    stepped = t.physics(state.replace(data=data))
+    carry, obs_state = t.after_substep(
+        stepped, state.obs_state, keys, i, fields
+    )
+    pairs = zip(names, jax.tree.leaves(carry.data), jax.tree.leaves(data))
+    hooks_wrote.update(name for name, new, old in pairs if new is not old)
+    after = t.before_substep(
+        t.restore(carry), action, keys, i + 1, fields
+    ).carry(fields)
+    pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
+    written = [new for new, old in pairs if new is not old]
+    return (after.replace(data=None), obs_state, written), after.data
+
+  read = data_reads.reads(
+      readers, state.data, state, keys_lib.key_shape(), action, index
+  )
+  return read, hooks_wrote

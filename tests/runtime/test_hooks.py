@@ -16,6 +16,7 @@ import mjx_composer as composer
 from mjx_composer.model import element_index
 from mjx_composer.runtime import hooks as hooks_lib
 from mjx_composer.runtime import transitions
+from mjx_composer.utils import stable_id as stable_id_lib
 from tests import conftest
 
 
@@ -77,19 +78,23 @@ class _DrawingTask(_Task):
     return physics.update_task_state(task_draw=jax.random.uniform(key))
 
 
-def _run(task, name='initialize_episode'):
-  """The hooks' run on a fresh world of `task`'s compiled model."""
+def _initial(task):
+  """A fresh world of `task`'s compiled model."""
   spec, handles = task.root_entity.compose()
   model = spec.compile()
   index = element_index.ElementIndex(
       model, {k: (h, kind, c.name) for k, (h, kind, c) in handles.items()}
   )
   mjx_model = mjx.put_model(model)
-  physics = transitions.initial_physics(
+  return transitions.initial_physics(
       task, mjx_model, mjx.make_data(mjx_model), index
   )
+
+
+def _run(task, name='initialize_episode'):
+  """The hooks' run on a fresh world of `task`'s compiled model."""
   hooks = hooks_lib.EnvironmentHooks(task)
-  return hooks, getattr(hooks, name)(physics, jax.random.key(0))
+  return hooks, getattr(hooks, name)(_initial(task), jax.random.key(0))
 
 
 def test_entities_run_after_the_task_in_attachment_order():
@@ -119,19 +124,24 @@ def test_overriding_another_hook_does_not_change_an_owners_draw():
 
 def test_keys_derive_from_stable_identities():
   # The same identity gives the same number in every process.
-  assert hooks_lib.stable_id('entity:second/') == hooks_lib.stable_id(
+  assert stable_id_lib.stable_id('entity:second/') == stable_id_lib.stable_id(
       'entity:second/'
   )
-  assert hooks_lib.stable_id('task') != hooks_lib.stable_id('entity:')
-  assert 0 <= hooks_lib.stable_id('task') < 2**31
+  assert stable_id_lib.stable_id('task') != stable_id_lib.stable_id('entity:')
+  assert 0 <= stable_id_lib.stable_id('task') < 2**31
+  # CRC-32 of the UTF-8 text, its top bit cleared: a hook's key is the same
+  # in every process and release.
+  assert stable_id_lib.stable_id('task') == 1384045349
+  assert stable_id_lib.stable_digest('task') == 1384045349
 
 
 def test_model_field_writers_name_the_hook():
   task = _Task()
   hooks, physics = _run(task)
-  assert hooks.model_field_writers == {
-      'geom_rgba': ("Recolour('second').initialize_episode",)
-  }
+  writers = hooks.model_field_writers(
+      'initialize_episode', _initial(task), jax.random.key(0)
+  )
+  assert writers == {'geom_rgba': ("Recolour('second').initialize_episode",)}
   np.testing.assert_array_equal(
       physics.bind(task.second.geom).rgba, [1.0, 0, 0, 1]
   )

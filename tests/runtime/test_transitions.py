@@ -1,4 +1,4 @@
-"""Tests for `transitions`: the fused auto-reset.
+"""Tests for `fused_restart`: the auto-reset fused into the sub-step loop.
 
 With `share_reset_forward`, `Environment.step` runs
 `Transitions.step_and_restart` (same-step auto-reset) or
@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.runtime import episode as episode_lib
-from mjx_composer.runtime import transitions as transitions_lib
+from mjx_composer.runtime import control_flow
+from mjx_composer.runtime import keys as keys_lib
+from mjx_composer.runtime import fused_restart
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
 from tests import conftest
@@ -69,14 +70,14 @@ def _step_then_restart(env):
 
   def same_step(state, action):
     stepped = transitions.step(state, action)
-    return episode_lib.select_reset(
+    return control_flow.select_reset(
         stepped.last(), transitions.restart, (stepped,), stepped
     )
 
   def next_step(state, action):
-    reset_key, step_key = jax.random.split(state.key)
+    reset_key, step_key = keys_lib.next_step_keys(state.key)
     stepped = transitions.step(state.replace(key=step_key), action)
-    return episode_lib.select_reset(
+    return control_flow.select_reset(
         state.last(), transitions.reset, (reset_key, state), stepped
     )
 
@@ -86,9 +87,9 @@ def _step_then_restart(env):
 def test_the_fused_path_is_taken(env, monkeypatch):
   assert env._transitions.can_fuse_restart()  # pylint: disable=protected-access
   calls = []
-  loop = episode_lib.once_or_never
+  loop = control_flow.once_or_never
   monkeypatch.setattr(
-      episode_lib,
+      control_flow,
       'once_or_never',
       lambda *args: calls.append(1) or loop(*args),
   )
@@ -230,7 +231,7 @@ def test_masked_forward_is_forward_with_actuation_disabled():
   )
   forward = jax.jit(
       lambda masked: mjx.forward(
-          transitions_lib._actuation_masked(model, masked),  # pylint: disable=protected-access
+          fused_restart.actuation_masked(model, masked),
           data,
       )
   )

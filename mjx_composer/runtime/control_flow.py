@@ -1,0 +1,338 @@
+"""Control flow that stays cheap under `jax.vmap`: loops run once or never.
+
+A step program that holds a reset (auto-reset) must not compute it for every
+world at every step, and should not branch with `lax.cond`: on a GPU a
+conditional costs a host round trip, and its output needs buffers of its
+own, so the branch not taken copies its operand into them. These
+combinators keep the work conditional without conditionals:
+
+* `once_or_never`: `fn(x)` if a predicate holds, as a `while_loop` that runs
+  once or never (a loop that does not run leaves its carry in place);
+* `batch_any`: a flag that is shared by the batch under `vmap` (whether any
+  world's is set), so that loops on it stay loops;
+* `select_reset`: a per-world select between a step's result and a reset,
+  whose batching rule computes the resets only when some world needs one;
+* `loop_with_reset`: the sub-step loop of a fused auto-reset, with one more
+  iteration (the reset's) only when some world wants it;
+* `trace_once`: a function traced once and reused where it is needed twice;
+* `tree_select`: a leaf-by-leaf select that keeps MuJoCo Warp's buffers
+  shared by the batch.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+from mjx_composer.platform import backend
+
+
+def trace_once(fn, *args, return_shapes=False):
+  """`fn` traced once on `args`' shapes; returns a function that reuses it.
+
+  Calling the result emits the traced program again (or batches it, under
+  `vmap`) without running `fn`'s Python: what lets a reset that is needed in
+  two places (both branches of a batching rule, a first attempt and its
+  retries) be traced once. The result is `jax.jit(fn)`, traced here: a call
+  with the same shapes binds the cached trace as one nested call (XLA
+  inlines it), instead of re-evaluating its equations one by one, which
+  cost as much as tracing `fn` again. With `return_shapes`, also returns the
+  output's shapes (a pytree of `jax.ShapeDtypeStruct`).
+  """
+  traced = jax.jit(fn)
+  out_shape = jax.eval_shape(traced, *args)
+  if return_shapes:
+    return traced, out_shape
+  return traced
+
+
+def tree_select(pred, on_true, on_false):
+  """`on_true` where `pred`, else `on_false`, leaf by leaf (one world).
+
+  `mjx.Data` is merged by `Data.where` (`backend.select`): MuJoCo Warp's
+  buffers shared by the batch are kept, not selected.
+  """
+  return backend.select(pred, on_true, on_false)
+
+
+def _batch_all(axis_size, args, in_batched):
+  """A batching rule's arguments, the unbatched ones broadcast to the batch.
+
+  Except MuJoCo Warp's `Data` buffers shared by the batch
+  (`backend.shared_leaves`), which stay unbatched.
+  """
+  return jax.tree.map(
+      lambda x, b, shared: (
+          x if b or shared else jnp.broadcast_to(x, (axis_size,) + jnp.shape(x))
+      ),
+      args,
+      tuple(in_batched),
+      backend.shared_leaves(args),
+  )
+
+
+def _out_batched(out):
+  """A batching rule's output flags: all batched but Warp's shared buffers."""
+  return jax.tree.map(lambda shared: not shared, backend.shared_leaves(out))
+
+
+def select_reset(done, reset_fn, operands, stepped, chunk=None):
+  """`reset_fn(*operands)` where `done`, else `stepped`.
+
+  For one world this is a select. Under `jax.vmap` a select would compute the
+  reset of every world at every step; the batching rule instead computes
+  resets only when some world is done. With `chunk=None` (or a chunk no
+  smaller than the batch) it computes the whole batch's resets (a loop of
+  at most one iteration, run when `any(done)`), then selects per world.
+  With a smaller `chunk`, it gathers the done worlds into batches of
+  `chunk` worlds, resets those and scatters them back (`_reset_in_chunks`):
+  a step in which a few of many worlds end pays for a reset of `chunk`
+  worlds, not of all. Results are the same either way, to float rounding
+  (XLA may order a sum differently for another batch size). The reset is
+  traced once and reused by every path.
+  """
+  reset = trace_once(reset_fn, *operands)
+  # A restart resets the stepped state itself: then the loop below reads it
+  # from its carry, not as a second copy of the same buffers.
+  restarts_stepped = len(operands) == 1 and operands[0] is stepped
+  if restarts_stepped:
+    operands = ()
+
+  def select(done, operands, stepped):
+    operands = (stepped,) if restarts_stepped else operands
+    return tree_select(done, reset(*operands), stepped)
+
+  select_or_skip = jax.custom_batching.custom_vmap(select)
+
+  @select_or_skip.def_vmap
+  def _batched(axis_size, in_batched, done, operands, stepped):
+    done, operands, stepped = _batch_all(
+        axis_size, (done, operands, stepped), in_batched
+    )
+    if chunk is not None and chunk < axis_size:
+      out = _reset_in_chunks(
+          done,
+          reset,
+          (stepped,) if restarts_stepped else operands,
+          stepped,
+          chunk,
+      )
+    else:
+      out = _reset_at_most_once(done, select, operands, stepped)
+    return out, _out_batched(out)
+
+  return select_or_skip(done, operands, stepped)
+
+
+def _reset_at_most_once(done, select, operands, stepped):
+  """`vmap(select)(done, operands, stepped)` where any world is done.
+
+  Else `stepped`. A loop that runs once or never (`once_or_never`), not a
+  `lax.cond`: with a conditional, the branch without resets copies the
+  whole state at every step.
+  """
+  with jax.named_scope('auto_reset'):
+    return once_or_never(
+        jnp.any(done),
+        lambda state: jax.vmap(select)(done, operands, state),
+        stepped,
+    )
+
+
+def _reset_in_chunks(done, reset, operands, stepped, chunk):
+  """`select(done, vmap(reset)(*operands), stepped)`, `chunk` worlds at a time.
+
+  The done worlds come first in a stable order of the batch; each loop
+  iteration gathers the next `chunk` of them (rows of one array per dtype,
+  `_Rows`, so that a gather and a scatter are a few kernels, not one per
+  leaf), resets them and scatters the results back. Slots past the last
+  done world are computed and discarded. The loop runs
+  `ceil(done worlds / chunk)` times, none when no world is done.
+  """
+  n = done.shape[0]
+  order = jnp.argsort(jnp.logical_not(done), stable=True)  # done first
+  count = jnp.sum(done.astype(jnp.int32))
+  out_rows = _Rows(stepped)
+  operand_rows = _Rows(operands)
+
+  def body(loop):
+    start, packed = loop
+    # The last chunk slides back to stay inside the batch; the worlds it
+    # covers again were reset already and are masked out.
+    first = jnp.minimum(start, n - chunk)
+    index = jax.lax.dynamic_slice(order, (first,), (chunk,))
+    position = first + jnp.arange(chunk)
+    fresh = jax.vmap(reset)(*operand_rows.take(index))
+    # `select` (traced first, by `custom_vmap`) has checked that the reset
+    # returns what the step does, leaf for leaf: the same layout.
+    fresh_rows = _Rows(fresh)
+    keep = (position >= start) & (position < count)
+    packed = {
+        dtype: rows.at[index].set(
+            jnp.where(keep[:, None], fresh_rows.packed[dtype], rows[index])
+        )
+        for dtype, rows in packed.items()
+    }
+    return start + chunk, packed
+
+  _, packed = jax.lax.while_loop(
+      lambda loop: loop[0] < count,
+      body,
+      (jnp.zeros((), jnp.int32), out_rows.packed),
+  )
+  return out_rows.unpack(packed)
+
+
+class _Rows:
+  """A batched tree as one `(batch, width)` array per dtype, and back.
+
+  PRNG key leaves travel as their key data.
+  """
+
+  def __init__(self, tree):
+    leaves, self._treedef = jax.tree.flatten(tree)
+    self._impls = [
+        jax.random.key_impl(x)
+        if jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
+        else None
+        for x in leaves
+    ]
+    raw = [
+        jax.random.key_data(x) if impl is not None else x
+        for x, impl in zip(leaves, self._impls)
+    ]
+    self._shapes = [x.shape[1:] for x in raw]
+    self._groups = {}
+    for i, x in enumerate(raw):
+      self._groups.setdefault(jnp.dtype(x.dtype), []).append(i)
+    self.packed = {
+        dtype: jnp.concatenate(
+            [raw[i].reshape(raw[i].shape[0], -1) for i in members], axis=1
+        )
+        for dtype, members in self._groups.items()
+    }
+
+  def take(self, index):
+    """The tree of the rows `index`."""
+    return self.unpack({d: rows[index] for d, rows in self.packed.items()})
+
+  def unpack(self, packed):
+    """The tree of `packed` (arrays laid out as `self.packed`)."""
+    leaves = [None] * len(self._shapes)
+    for dtype, members in self._groups.items():
+      rows = packed[dtype]
+      offset = 0
+      for i in members:
+        shape = self._shapes[i]
+        size = math.prod(shape)
+        x = rows[:, offset : offset + size].reshape((rows.shape[0],) + shape)
+        offset += size
+        impl = self._impls[i]
+        leaves[i] = (
+            x if impl is None else jax.random.wrap_key_data(x, impl=impl)
+        )
+    return jax.tree.unflatten(self._treedef, leaves)
+
+
+def loop_with_reset(n, body, wants_reset, carry, operands):
+  """`body(i, carry, operands)` for `i < n`, then `i = n` where it is wanted.
+
+  The step loop of an auto-reset whose last iteration resets the episode,
+  so that the reset's forward pass is the sub-steps' forward pass (one copy
+  in the program). For one world this is a while loop of `n` iterations,
+  plus one where `wants_reset(carry, operands)` holds after them. Under
+  `jax.vmap` a batched loop condition would turn every branch on `i` in the
+  body into a select, computing the reset at every sub-step; the batching
+  rule instead keeps `i` shared by the batch, runs the body batched inside
+  the loop (so `batch_any` in it sees the batch), and runs the extra
+  iteration when some world wants it. Results are the same either way. The
+  body is traced once and reused by both paths.
+
+  Args:
+    n: the iterations every world runs.
+    body: `(i, carry, operands) -> carry`, for one world; at `i = n` it must
+      return `carry` unchanged where `wants_reset` is False (the batch runs
+      that iteration for every world). Its parts that run at one `i` only
+      belong in `once_or_never`, with conditions on `i` or `batch_any`.
+    wants_reset: `(carry, operands) -> bool`, for one world.
+    carry: the initial carry.
+    operands: per-world inputs the body reads.
+
+  Returns:
+    The final carry.
+  """
+  index = jnp.zeros((), jnp.int32)
+  traced = trace_once(body, index, carry, operands)
+
+  iterate = traced  # one world
+
+  def run(carry, operands, any_wants, iterate):
+    def again(loop):
+      i, carry = loop
+      return jnp.logical_or(
+          i < n, jnp.logical_and(i == n, any_wants(carry, operands))
+      )
+
+    def step(loop):
+      i, carry = loop
+      return i + 1, iterate(i, carry, operands)
+
+    return jax.lax.while_loop(again, step, (index, carry))[1]
+
+  def one_world(carry, operands):
+    return run(carry, operands, wants_reset, iterate)
+
+  looped = jax.custom_batching.custom_vmap(one_world)
+
+  @looped.def_vmap
+  def _batched(axis_size, in_batched, carry, operands):
+    carry, operands = _batch_all(axis_size, (carry, operands), in_batched)
+    out = run(
+        carry,
+        operands,
+        lambda carry, operands: jnp.any(jax.vmap(wants_reset)(carry, operands)),
+        jax.vmap(iterate, in_axes=(None, 0, 0)),
+    )
+    return out, _out_batched(out)
+
+  return looped(carry, operands)
+
+
+@jax.custom_batching.custom_vmap
+def batch_any(flag):
+  """`flag` for one world; under `jax.vmap`, whether any world's is set.
+
+  The result is shared by the batch (not batched), so a `lax.while_loop`
+  whose condition reads it keeps one trip count for every world, and the
+  `lax.cond`s and loops in its body that branch on the loop's own counter
+  stay branches and loops: a batched condition would turn them into
+  selects that compute every branch for every world.
+  """
+  return flag
+
+
+@batch_any.def_vmap
+def _batch_any_rule(axis_size, in_batched, flag):
+  del axis_size
+  (batched,) = in_batched
+  return (jnp.any(flag) if batched else flag), False
+
+
+def once_or_never(pred, fn, operand):
+  """`fn(operand)` if `pred`, else `operand`: a loop run once or never.
+
+  Meant for a `pred` shared by the batch (a loop counter, `batch_any`): the
+  loop then stays a loop under `jax.vmap`. A per-world `pred` still gives
+  each world its own result, but `vmap` runs `fn` for the whole batch when
+  any world's holds and selects. Not a `lax.cond`: a conditional's output
+  needs buffers of its own, so on a GPU the branch not taken copies its
+  operand into them, where a loop that does not run leaves its carry in
+  place.
+  """
+
+  def body(loop):
+    return jnp.zeros((), bool), fn(loop[1])
+
+  return jax.lax.while_loop(lambda loop: loop[0], body, (pred, operand))[1]

@@ -1,0 +1,252 @@
+"""The auto-reset fused into the sub-step loop: one forward pass per program.
+
+`Transitions.step` then `Transitions.restart` (or `reset`) holds two copies
+of MuJoCo's forward pass in the step program: the sub-steps', and the
+reset's. Here they are one: the sub-steps run `mjx.forward` then the
+integrator in a `lax.while_loop`, and the reset is one more iteration of
+that loop, whose forward pass runs with every actuator force masked to zero
+(`actuation_masked`), as composer's reset runs `mj_forward` with actuation
+disabled. Two entry points:
+
+* `step_and_restart` (same-step auto-reset): `step`, then `restart` where
+  the episode ended;
+* `reset_or_step` (next-step auto-reset): `reset` where the state is LAST,
+  else `step`.
+
+Both are bit-identical to the composition they replace
+(`tests/runtime/test_transitions.py`). They need an integrator that
+`mjx.step` runs after `mjx.forward` (`substep_sensors.INTEGRATORS`), no
+muscles and no actuator gravity compensation (`can_fuse`).
+
+The loop, over `i`: iterations `0..n-1` are the sub-steps (before-substep
+hooks, forward pass, integrator, after-substep hooks and observation
+update); the last of them also ends the control step and, where some world
+wants a reset, prepares it (the `initialize_episode` hooks, randomization
+included); iteration `n` runs only where some world wants it, and forwards
+the prepared reset with actuation masked. The parts that run at one
+iteration only are loops run once or never (`control_flow.once_or_never`)
+on conditions shared by the batch (the counter, `control_flow.batch_any`),
+so nothing in the loop is a `lax.cond` and nothing is computed for every
+world at every sub-step but the sub-step itself and selects on the counter.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+import numpy as np
+
+from mjx_composer.runtime import control_flow
+from mjx_composer.runtime import episode as episode_lib
+from mjx_composer.runtime import keys as keys_lib
+from mjx_composer.runtime import state as state_lib
+from mjx_composer.runtime import substep_sensors
+
+
+def can_fuse(transitions) -> bool:
+  """Whether the restart of `transitions`' model fuses exactly.
+
+  The masked forward pass equals the forward pass with actuation disabled
+  only where zero gains, biases and force ranges make every actuator force
+  zero, and the loop's integrator must be `mjx.step`'s.
+  """
+  if int(transitions.initial.model.opt.integrator) not in (
+      substep_sensors.INTEGRATORS
+  ):
+    return False
+  m = transitions.initial.index.mj_model
+  if np.any(m.actuator_gaintype == mujoco.mjtGain.mjGAIN_MUSCLE) or np.any(
+      m.actuator_biastype == mujoco.mjtBias.mjBIAS_MUSCLE
+  ):
+    return False  # a muscle's force is not zero when its parameters are
+  # Actuator-level gravity compensation adds to the actuator forces.
+  return not np.any(m.jnt_actgravcomp)
+
+
+def step_and_restart(transitions, state, action) -> state_lib.State:
+  """`step`, then `restart` where the episode ended (same-step auto-reset).
+
+  The same as `select(last, restart(stepped), stepped)` of `stepped =
+  step(state, action)`.
+  """
+  return _FusedLoop(transitions, state).run(state, action, None)
+
+
+def reset_or_step(transitions, state, action) -> state_lib.State:
+  """`reset` where `state` is LAST, else `step` (next-step auto-reset).
+
+  With `reset_key, step_key = keys.next_step_keys(state.key)`, the same as
+  `select(state.last(), reset(reset_key, previous=state), step(state with
+  step_key, action))`: a world that resets discards its sub-steps, as the
+  select does.
+  """
+  reset_key, step_key = keys_lib.next_step_keys(state.key)
+  return _FusedLoop(transitions, state).run(
+      state.replace(key=step_key), action, (reset_key, state)
+  )
+
+
+def actuation_masked(model, masked):
+  """`model`, where `masked`, with every actuator force zero.
+
+  Zero gains and biases make a (non-muscle) actuator's force zero, and zero
+  force ranges keep it there through the clamps, so the forward pass
+  computes what it does with actuation disabled: `qfrc_actuator` is zero.
+  """
+  if not model.nu:
+    return model
+
+  def zero_where_masked(x):
+    return jnp.where(masked, jnp.zeros_like(x), x)
+
+  fields = ['actuator_gainprm', 'actuator_biasprm', 'actuator_forcerange']
+  if model.ntendon:
+    fields.append('tendon_actfrcrange')
+  return model.replace(
+      **{name: zero_where_masked(getattr(model, name)) for name in fields}
+  )
+
+
+class _FusedLoop:
+  """One control step's loop of sub-steps and a reset (module docstring).
+
+  The loop's carry is `(carry, obs_state, stepped, failures)`: the world's
+  `PhysicsCarry` (the sub-steps', then the prepared reset's), the
+  observation state, the `State` returned (the stepped one, then the
+  restarted one where the world resets) and the reset's failed
+  initialization attempts. Its operands are `(state, action, keys,
+  next_reset)`: `next_reset` is None for a same-step restart (of the
+  stepped state, where it is LAST, with its key), else `(reset_key,
+  previous)`, a next-step reset of `previous` (where it is LAST, with
+  `reset_key`).
+  """
+
+  def __init__(self, transitions, state):
+    self._t = transitions
+    self._n = transitions.n_sub_steps
+    self._fields = tuple(state.model_fields)
+    self._integrate = substep_sensors.INTEGRATORS[
+        int(transitions.initial.model.opt.integrator)
+    ]
+
+  def run(self, state, action, next_reset):
+    """The loop from `state` (whose key is the step's)."""
+    t = self._t
+    keys = keys_lib.StepKeys.split(state.key)
+    physics = t.before_step(state, action, keys)
+    start = physics.replace(initialization_failed=jnp.zeros((), bool))
+    _, _, stepped, _ = control_flow.loop_with_reset(
+        self._n,
+        self._body,
+        lambda loop, operands: self._reset_from(loop[2], operands[3])[2],
+        (
+            start.carry(self._fields),
+            state.obs_state,
+            state,
+            jnp.zeros((), jnp.int32),
+        ),
+        (state, action, keys, next_reset),
+    )
+    return stepped
+
+  def _body(self, i, loop, operands):
+    t, n, fields = self._t, self._n, self._fields
+    carry, obs_state, stepped, failures = loop
+    state, action, keys, next_reset = operands
+    # At `i = n` the carry is the prepared restart: its sub-step hooks and
+    # integration are computed and dropped (selects on the shared `i`).
+    ready = carry
+    hooked = t.before_substep(t.restore(carry), action, keys, i, fields).carry(
+        fields
+    )
+    physics = t.restore(control_flow.tree_select(i < n, hooked, carry))
+    forward_model = actuation_masked(physics.model, i == n)
+    started = None
+    if t.sensors_once_per_step:
+      started = substep_sensors.IntegrationState.of(physics.data)
+      forward_model = substep_sensors.without_sensors(forward_model)
+    physics = physics.replace(data=mjx.forward(forward_model, physics.data))
+    moved = physics.replace(data=self._integrate(physics.model, physics.data))
+    moved, obs_state = t.after_substep(moved, obs_state, keys, i, fields)
+    # The restart's end first: it is the last reader of `ready` and
+    # `physics`, whose buffers the control step's end may then overwrite
+    # in place (else XLA copies them at every iteration).
+    stepped = control_flow.once_or_never(
+        i == n,
+        lambda stepped: self._finish_restart(
+            ready, physics, failures, stepped, next_reset
+        ),
+        stepped,
+    )
+    carry = control_flow.tree_select(i < n, moved, physics.carry(fields))
+    carry, obs_state, stepped, failures = control_flow.once_or_never(
+        i == n - 1,
+        lambda loop: self._end_step(state, keys, next_reset, started, loop),
+        (carry, obs_state, stepped, failures),
+    )
+    return carry, obs_state, stepped, failures
+
+  def _reset_from(self, stepped, next_reset):
+    """(key, previous state, whether it resets) of the reset iteration."""
+    if next_reset is None:
+      return (
+          self._t.episode_key(stepped.key, stepped),
+          stepped,
+          stepped.last(),
+      )
+    reset_key, previous = next_reset
+    return (
+        self._t.episode_key(reset_key, previous),
+        previous,
+        previous.last(),
+    )
+
+  def _end_step(self, state, keys, next_reset, started, loop):
+    """Ends the control step; prepares the restart where one is wanted."""
+    t = self._t
+    carry, obs_state, stepped, failures = loop
+    moved = t.restore(carry)
+    if t.sensors_once_per_step:
+      moved = moved.replace(
+          data=substep_sensors.sensors_of(moved.model, moved.data, started)
+      )
+    stepped = t.end_step(state, moved, obs_state, keys)
+    carry, failures = control_flow.once_or_never(
+        control_flow.batch_any(self._reset_from(stepped, next_reset)[2]),
+        lambda _: self._prepare_restart(stepped, next_reset),
+        (carry, failures),
+    )
+    return carry, obs_state, stepped, failures
+
+  def _prepare_restart(self, stepped, next_reset):
+    """The initialized carry of the restart, and its failed attempts."""
+    t = self._t
+    reset_key, previous, _ = self._reset_from(stepped, next_reset)
+    keys = keys_lib.ResetKeys.split(reset_key)
+    return t.initialize(keys.init, t.start_carry(previous))
+
+  def _finish_restart(self, ready, forwarded, failures, stepped, next_reset):
+    """The restarted state where the world resets, else `stepped`."""
+    t = self._t
+    reset_key, _, resets = self._reset_from(stepped, next_reset)
+    if t.sensors_once_per_step:  # the loop's forward pass skipped them
+      forwarded = forwarded.replace(
+          data=t.reset_forward.sensors_of(forwarded.model, forwarded.data)
+      )
+    # What `mjx.forward` leaves with actuation disabled.
+    data = forwarded.data.replace(
+        act_dot=jnp.zeros_like(forwarded.data.act_dot),
+        actuator_force=ready.data.actuator_force,
+    )
+    # What the reset's stage of the forward pass leaves (`Transitions.reset`).
+    data = t.reset_forward.restrict(data, ready.data)
+    restarted = t.first_state(
+        forwarded.replace(data=data),
+        ready,
+        failures,
+        keys_lib.ResetKeys.split(reset_key),
+    )
+    if next_reset is None:
+      restarted = episode_lib.reporting(restarted, stepped)
+    return control_flow.tree_select(resets, restarted, stepped)

@@ -1,0 +1,221 @@
+"""Control flow: tracing a reset once, the reset select, and the
+shared-condition loops of the fused restart (`batch_any`, `once_or_never`).
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_composer.runtime import control_flow
+
+
+def test_trace_once_runs_the_python_once():
+  calls = []
+
+  def reset(x):
+    calls.append(1)
+    return {'y': jnp.sin(x) * 2.0, 'n': jnp.zeros((), jnp.int32)}
+
+  traced = control_flow.trace_once(reset, jnp.ones(3))
+  x = jnp.arange(3.0)
+  np.testing.assert_array_equal(traced(x)['y'], reset(x)['y'])
+  batched = jax.vmap(traced)(jnp.stack([x, x + 1]))
+  assert batched['y'].shape == (2, 3) and batched['n'].shape == (2,)
+  # Two uses plus the direct reference call: fn's Python ran twice in all.
+  assert len(calls) == 2
+
+
+def _select_reset_fn(counter):
+  def reset(key):
+    counter.append(1)
+    return jax.random.uniform(key, (2,))
+
+  def step(done, key, stepped):
+    return control_flow.select_reset(done, reset, (key,), stepped)
+
+  return step
+
+
+def test_select_reset_batched_equals_the_per_world_select():
+  counter = []
+  step = _select_reset_fn(counter)
+  keys = jax.random.split(jax.random.key(0), 4)
+  stepped = jnp.full((4, 2), -1.0)
+  for done in ([False, True, False, True], [False] * 4, [True] * 4):
+    done = jnp.asarray(done)
+    batched = jax.jit(jax.vmap(step))(done, keys, stepped)
+    for i in range(4):
+      single = step(done[i], keys[i], stepped[i])
+      np.testing.assert_array_equal(batched[i], single)
+
+
+def test_select_reset_traces_the_reset_once_under_vmap():
+  counter = []
+  step = _select_reset_fn(counter)
+  keys = jax.random.split(jax.random.key(0), 4)
+  jax.jit(jax.vmap(step)).lower(jnp.zeros(4, bool), keys, jnp.zeros((4, 2)))
+  assert len(counter) == 1
+
+
+def test_select_reset_computes_the_batch_reset_only_when_a_world_is_done():
+  """Batched, the reset runs in a loop of at most one iteration, not a cond.
+
+  A `lax.cond` would make a GPU copy the state into the conditional's
+  output at every step without resets; a loop that does not run does not.
+  """
+  runs = []
+
+  def reset(key):
+    jax.debug.callback(lambda: runs.append(1))
+    return jax.random.uniform(key, (2,))
+
+  def step(done, key, stepped):
+    return control_flow.select_reset(done, reset, (key,), stepped)
+
+  keys = jax.random.split(jax.random.key(0), 4)
+  stepped = jnp.full((4, 2), -1.0)
+  batched = jax.jit(jax.vmap(step))
+  jaxpr = str(jax.make_jaxpr(jax.vmap(step))(jnp.zeros(4, bool), keys, stepped))
+  assert 'while' in jaxpr and 'cond[' not in jaxpr
+  out = jax.block_until_ready(batched(jnp.zeros(4, bool), keys, stepped))
+  jax.effects_barrier()
+  assert not runs
+  np.testing.assert_array_equal(out, stepped)
+  done = jnp.asarray([False, True, False, False])
+  out = jax.block_until_ready(batched(done, keys, stepped))
+  jax.effects_barrier()
+  assert runs
+  np.testing.assert_array_equal(out[0], stepped[0])
+  np.testing.assert_array_equal(out[1], reset(keys[1]))
+
+
+def test_select_reset_of_the_stepped_state_equals_the_per_world_select():
+  """A restart (the reset's operand is the stepped state) reads its carry."""
+
+  def restart(state):
+    return {'x': state['x'] * 2.0 + 1.0, 'n': state['n'] + 1}
+
+  def step(done, stepped):
+    return control_flow.select_reset(done, restart, (stepped,), stepped)
+
+  stepped = {'x': jnp.arange(8.0).reshape(4, 2), 'n': jnp.arange(4)}
+  batched = jax.jit(jax.vmap(step))
+  for done in ([False, True, False, True], [False] * 4, [True] * 4):
+    done = jnp.asarray(done)
+    got = batched(done, stepped)
+    for i in range(4):
+      single = step(done[i], jax.tree.map(lambda x: x[i], stepped))
+      np.testing.assert_array_equal(got['x'][i], single['x'])
+      np.testing.assert_array_equal(got['n'][i], single['n'])
+
+
+def _mixed_reset(key):
+  """A reset whose output has every kind of leaf a `State` has."""
+  a, b = jax.random.split(key)
+  return {
+      'x': jax.random.uniform(a, (3, 2)),
+      'n': jax.random.randint(b, (), 0, 100),
+      'flag': jax.random.bernoulli(b),
+      'key': jax.random.fold_in(key, 1),
+      'empty': jnp.zeros((0, 4)),
+  }
+
+
+@pytest.mark.parametrize('chunk', [1, 3, 5, 7, 8, None])
+def test_select_reset_in_chunks_equals_the_per_world_select(chunk):
+  """Done worlds gathered `chunk` at a time: the same as selecting each.
+
+  Seven worlds: chunks of 3 slide the last one back over worlds already
+  reset (masked); 7 and more take the whole-batch path.
+  """
+  n = 7
+  keys = jax.random.split(jax.random.key(0), n)
+  stepped = jax.vmap(_mixed_reset)(jax.random.split(jax.random.key(1), n))
+
+  def step(done, key, stepped):
+    return control_flow.select_reset(done, _mixed_reset, (key,), stepped, chunk)
+
+  batched_step = jax.jit(jax.vmap(step))
+  patterns = [
+      [False] * n,
+      [True] * n,
+      [False, True, False, False, True, True, False],
+      [True, False, False, False, False, False, True],
+      [False] * (n - 1) + [True],
+  ]
+  for done in patterns:
+    done = jnp.asarray(done)
+    batched = batched_step(done, keys, stepped)
+    for i in range(n):
+      single = step(done[i], keys[i], jax.tree.map(lambda x: x[i], stepped))
+      got = jax.tree.map(lambda x: x[i], batched)
+      for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(single)):
+        if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+          a, b = jax.random.key_data(a), jax.random.key_data(b)
+        np.testing.assert_array_equal(a, b)
+
+
+def test_select_reset_in_chunks_traces_the_reset_once():
+  counter = []
+
+  def reset(key):
+    counter.append(1)
+    return _mixed_reset(key)
+
+  def step(done, key, stepped):
+    return control_flow.select_reset(done, reset, (key,), stepped, chunk=2)
+
+  keys = jax.random.split(jax.random.key(0), 6)
+  stepped = jax.vmap(_mixed_reset)(keys)
+  jax.jit(jax.vmap(step)).lower(jnp.zeros(6, bool), keys, stepped)
+  assert len(counter) == 1
+
+
+def test_batch_any_is_the_flag_for_one_world_and_any_under_vmap():
+  assert bool(control_flow.batch_any(jnp.asarray(True)))
+  assert not bool(control_flow.batch_any(jnp.asarray(False)))
+  flags = jnp.array([False, True, False])
+  out = jax.vmap(control_flow.batch_any)(flags)
+  # One value for the batch, broadcast back by vmap.
+  np.testing.assert_array_equal(out, [True, True, True])
+  np.testing.assert_array_equal(
+      jax.vmap(control_flow.batch_any)(jnp.zeros(3, bool)), [False] * 3
+  )
+  # Nested vmaps: any over both axes.
+  nested = jax.vmap(jax.vmap(control_flow.batch_any))(flags.reshape(1, 3))
+  np.testing.assert_array_equal(nested, [[True, True, True]])
+
+
+def test_once_or_never_runs_fn_once_where_pred_else_returns_operand():
+  calls = []
+
+  def double(x):
+    calls.append(1)
+    return x * 2.0
+
+  x = jnp.arange(3.0)
+  np.testing.assert_array_equal(
+      control_flow.once_or_never(jnp.asarray(True), double, x), x * 2
+  )
+  np.testing.assert_array_equal(
+      control_flow.once_or_never(jnp.asarray(False), double, x), x
+  )
+  assert len(calls) == 2  # traced once per call, run at most once
+
+
+def test_once_or_never_on_a_shared_condition_stays_a_loop_under_vmap():
+  def world(flag, x):
+    return control_flow.once_or_never(
+        control_flow.batch_any(flag), lambda v: v + 1.0, x
+    )
+
+  flags = jnp.array([False, True])
+  x = jnp.zeros((2, 3))
+  # Every world runs it when any wants it: the condition is the batch's.
+  np.testing.assert_array_equal(jax.vmap(world)(flags, x), np.ones((2, 3)))
+  np.testing.assert_array_equal(
+      jax.vmap(world)(jnp.zeros(2, bool), x), np.zeros((2, 3))
+  )
+  hlo = jax.jit(jax.vmap(world)).lower(flags, x).as_text()
+  assert 'stablehlo.while' in hlo and 'stablehlo.select' not in hlo
