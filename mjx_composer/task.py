@@ -61,7 +61,37 @@ def check_timesteps_divisible(control_timestep, physics_timestep) -> int:
 
 
 class Task(abc.ABC):
-  """The base class of tasks."""
+  """The base class of tasks.
+
+  A task names the root entity of the scene, its timesteps, its observables
+  and its outcome (reward, discount, termination), and takes part in the
+  environment's hooks: on the host once, when the `Environment` is built
+  (`initialize_episode_mjcf`, `after_compile`), and on the device in every
+  episode and step of every world (`initialize_episode`, `before_step`,
+  `before_substep`, `after_substep`, `after_step`). The task's hooks run
+  before its entities' (composer's order).
+
+  The device hooks and outcome methods are traced by `jax.jit` once and then
+  run for every world under `jax.vmap`. So, unlike composer's, they:
+
+  * are pure: they take a `Physics` and a PRNG key and return the new
+    `Physics` (an unchanged one if they change nothing); `physics` is never
+    modified in place;
+  * keep nothing on `self`, which every world shares and which is read only
+    while tracing: per-world values live in task state
+    (`initial_task_state`, `physics.task_state`,
+    `physics.update_task_state(...)`) or, for a world's whole life, in
+    persistent entries (`physics.set_persistent`);
+  * draw randomness from `key` only (`jax.random`), never from NumPy or
+    Python's `random`, so that the same key gives the same episode;
+  * branch on traced values with `jnp.where` / `jax.lax`, not Python `if`;
+    Python side effects (printing, appending to lists) happen once, at
+    trace time.
+
+  After a hook moves bodies (writes `qpos`), call `physics.forward()` (or
+  `physics.kinematics()`) before reading positions: MJX has no lazy
+  forward pass.
+  """
 
   @property
   @abc.abstractmethod
@@ -69,6 +99,7 @@ class Task(abc.ABC):
     """The root `Entity` (usually an `Arena`) of the scene."""
 
   def iter_entities(self):
+    """Every entity of the scene: the root, then its descendants depth first."""
     return self.root_entity.iter_entities()
 
   # -- observables ---------------------------------------------------------
@@ -92,11 +123,15 @@ class Task(abc.ABC):
     return collections.OrderedDict()
 
   def observation_groups(self):
-    """Observation groups `Environment` uses when given none (or None).
+    """The observation groups of the environment's observation.
 
-    E.g. `{'policy': ObservationGroup(keys=[...]), 'critic': ...}` (see
-    `observation.groups`). None: the observation is one dict of every
-    enabled observable.
+    Override it to split the observation, e.g.
+    `{'policy': ObservationGroup(keys=[...]), 'critic': ...}` (see
+    `observation.groups`): the observation is then `{group: its value}`.
+
+    Returns:
+      `{group name: ObservationGroup}`, or None (the default): the
+      observation is one dict of every enabled observable.
     """
     return None
 
@@ -137,13 +172,23 @@ class Task(abc.ABC):
     self._control_timestep = value
 
   def set_timesteps(self, control_timestep, physics_timestep):
-    """Sets both timesteps, checking that one divides the other."""
+    """Sets both timesteps, checking that one divides the other.
+
+    Args:
+      control_timestep: the agent's timestep, in seconds.
+      physics_timestep: the physics timestep, in seconds.
+
+    Raises:
+      ValueError: unless `control_timestep` is an integer multiple of
+        `physics_timestep`, both positive and finite.
+    """
     check_timesteps_divisible(control_timestep, physics_timestep)
     self._check_root_entity().mjcf_model.option.timestep = physics_timestep
     self._control_timestep = control_timestep
 
   @property
   def physics_steps_per_control_step(self) -> int:
+    """How many physics steps one control step runs."""
     return check_timesteps_divisible(
         self.control_timestep, self.physics_timestep
     )
@@ -151,9 +196,19 @@ class Task(abc.ABC):
   # -- specs ---------------------------------------------------------------
 
   def action_spec(self, physics) -> specs.BoundedArray:
-    """A BoundedArray over all actuators' controls, from `ctrlrange`.
+    """A `BoundedArray` over all actuators' controls, from `ctrlrange`.
 
-    Unlimited actuators get ±mjMAXVAL, like `mujoco.action_spec`.
+    Unlimited actuators get ±mjMAXVAL, like `mujoco.action_spec`. The spec's
+    name is the tab-separated actuator names. When overriding it, put
+    actions that drive no MuJoCo actuator first, as composer's convention
+    is, and override `before_step` to apply them.
+
+    Args:
+      physics: the environment's initial `Physics` (for the model's
+        actuators).
+
+    Returns:
+      The spec of one world's action.
     """
     model = physics.mj_model
     limited = np.asarray(model.actuator_ctrllimited, bool)
@@ -187,68 +242,205 @@ class Task(abc.ABC):
 
     Its structure, shapes and dtypes are fixed for the environment's life;
     `initialize_episode` typically overwrites the values.
+
+    Returns:
+      A pytree of arrays (e.g. `{'target': jnp.zeros(3)}`), read in hooks as
+      `physics.task_state` and written with `physics.update_task_state`.
     """
     return {}
 
   # -- hooks ---------------------------------------------------------------
-  # Build time (host).
+  # Build time (host): run once, when the `Environment` is built.
 
   def initialize_episode_mjcf(self, random_state):
-    """Edits specs before compilation. Runs once, at environment build."""
+    """Edits the scene's specs before the model is compiled.
+
+    Runs once, when the `Environment` is built (composer runs it before
+    every episode; the model here is compiled once). It may add, remove or
+    edit elements of the entities' specs. Per-episode changes belong in
+    `initialize_episode` instead (a variation writes per-world model
+    fields).
+
+    Args:
+      random_state: a `numpy.random.RandomState` (the `Environment`'s
+        `random_state`).
+    """
 
   def after_compile(self, physics, random_state):
-    """Runs once after compilation; may return a Physics whose model is kept."""
+    """Runs once, after the model is compiled and put on the device.
 
-  # Device (pure): each returns the new Physics.
+    It may read the compiled model (`physics.mj_model`, `physics.bind`) and
+    cache what later hooks need (e.g. element indices) on `self`, which is
+    allowed here: it runs on the host, not per world.
+
+    Args:
+      physics: the `Physics` of the compiled model at `qpos0`.
+      random_state: a `numpy.random.RandomState` (the `Environment`'s
+        `random_state`).
+
+    Returns:
+      None, or a `Physics` whose model the environment keeps (to change
+      model fields shared by every world).
+    """
+
+  # Device (pure): traced once, run for every world; each returns the
+  # new Physics.
 
   def initialize_episode(self, physics, key):
-    """Sets up an episode (after qpos0, before entities' hooks)."""
+    """Sets up an episode of one world.
+
+    Runs at every reset, after the model's default state (`qpos0`) and its
+    kinematics, before the entities' `initialize_episode`. It may set the
+    state (`qpos`, `qvel`, ...), write task state, write model fields
+    (each such field becomes per-world and is found automatically), create
+    persistent entries, schedule hooks with `physics.schedule_before_step`,
+    and report a failed initialization with `physics.fail_initialization()`
+    (the environment retries up to `max_reset_attempts` times).
+
+    Args:
+      physics: one world's `Physics`.
+      key: a PRNG key for this hook's draws.
+
+    Returns:
+      The new `Physics`.
+    """
+    del key
     return physics
 
   def before_step(self, physics, action, key):
-    """Applies the action. The default writes it into `ctrl`.
+    """Applies the action, before the control step's physics steps.
 
-    Overrides must still set the control, e.g. through
-    `super().before_step(...)` or `physics.set_control(...)`.
+    The default writes `action` into the actuators' controls. Overrides
+    must still set the control, through `super().before_step(...)` or
+    `physics.set_control(...)` (e.g. to clip or transform the action). It
+    may write state, task state, persistent entries and model fields (the
+    latter only those declared in
+    `ExecutionOptions(per_world_model_fields=...)` or written by
+    `initialize_episode` too); it may not add persistent entries or task
+    state keys (their structure is fixed at reset).
+
+    Args:
+      physics: one world's `Physics`.
+      action: one world's action, shaped as `action_spec`.
+      key: a PRNG key for this hook's draws.
+
+    Returns:
+      The new `Physics`.
     """
     del key
     return physics.set_control(action)
 
   def before_substep(self, physics, action, key):
-    """Runs before each physics sub-step; actuation may be set here."""
+    """Runs before each physics step of the control step.
+
+    Actuation may be set, or overridden, here. What it may write is what
+    `before_step` may.
+
+    Args:
+      physics: one world's `Physics`.
+      action: one world's action, as given to `before_step`.
+      key: a PRNG key for this hook's draws (a different one every
+        sub-step).
+
+    Returns:
+      The new `Physics`.
+    """
     del action, key
     return physics
 
   def after_substep(self, physics, key):
+    """Runs after each physics step of the control step.
+
+    What it may write is what `before_step` may.
+
+    Args:
+      physics: one world's `Physics`.
+      key: a PRNG key for this hook's draws (a different one every
+        sub-step).
+
+    Returns:
+      The new `Physics`.
+    """
     del key
     return physics
 
   def after_step(self, physics, key):
+    """Runs after the control step's physics steps.
+
+    It runs before the last observation update and the reward, discount and
+    termination, which see what it writes. What it may write is what
+    `before_step` may.
+
+    Args:
+      physics: one world's `Physics`.
+      key: a PRNG key for this hook's draws.
+
+    Returns:
+      The new `Physics`.
+    """
     del key
     return physics
 
   # -- outcome -------------------------------------------------------------
+  # Pure functions of the physics after a control step; they write nothing.
 
   @abc.abstractmethod
   def get_reward(self, physics):
-    """The reward (a scalar, or matching `get_reward_spec`)."""
+    """The reward of the control step that ended in `physics`.
+
+    Args:
+      physics: one world's `Physics` after the step's hooks.
+
+    Returns:
+      A scalar (or an array matching `get_reward_spec`).
+    """
 
   def get_discount(self, physics):
+    """The discount of the control step that ended in `physics`.
+
+    Args:
+      physics: one world's `Physics` after the step's hooks.
+
+    Returns:
+      A scalar in [0, 1] (or an array matching `get_discount_spec`); 1.0 by
+      default.
+    """
     del physics
     return 1.0
 
   def should_terminate_episode(self, physics):
+    """Whether the episode ends at `physics` (a termination, not a
+    truncation: the step's discount is `get_discount`'s).
+
+    Args:
+      physics: one world's `Physics` after the step's hooks.
+
+    Returns:
+      A boolean scalar; False by default.
+    """
     del physics
     return False
 
   def get_metrics(self, physics):
-    """Extra per-world metrics `{name: scalar}` reported in `State.metrics`."""
+    """Extra per-world metrics, reported in `State.metrics` every step.
+
+    Args:
+      physics: one world's `Physics` after the step's hooks (or after the
+        reset, at the start of an episode).
+
+    Returns:
+      `{name: scalar}`, the same names at every step (stored as float32).
+    """
     del physics
     return {}
 
 
 class NullTask(Task):
-  """A task with no reward: for exploring a scene."""
+  """A task with no reward: for exploring a scene.
+
+  Args:
+    root_entity: the scene's root `Entity` (usually an `Arena`).
+  """
 
   def __init__(self, root_entity):
     self._root_entity = root_entity
