@@ -556,7 +556,8 @@ def make_brax_env(args):
   `args.impl` and `args.auto_reset_batch` (when given), same-step
   auto-reset, and the task's observation groups (Brax sees the dict of
   groups; `make_networks` picks from it). With `args.like_playground`, the
-  walk task as Playground's HumanoidWalk (`common.make_walk_like_playground`).
+  walk task as Playground's HumanoidWalk (`make_walk_like_playground` of
+  `benchmarks/common.py`, so this needs a checkout of the repository).
   """
   # pylint: disable=g-import-not-at-top
   import mjx_composer as composer
@@ -566,7 +567,16 @@ def make_brax_env(args):
   # pylint: enable=g-import-not-at-top
 
   if getattr(args, 'like_playground', False):
-    import common  # pylint: disable=g-import-not-at-top  # benchmarks/common.py
+    # The benchmarks' definition, so that training and the throughput
+    # comparison use the same environment (benchmarks/common.py).
+    sys.path.insert(
+        0,
+        os.path.join(
+            os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+            'benchmarks',
+        ),
+    )
+    import common  # pylint: disable=g-import-not-at-top
 
     env = common.make_walk_like_playground(
         args.time_limit,

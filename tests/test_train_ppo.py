@@ -38,6 +38,25 @@ def fns(brax_env):
   return {'reset': jax.jit(brax_env.reset), 'step': jax.jit(brax_env.step)}
 
 
+@pytest.fixture(scope='module')
+def written(brax_env, tmp_path_factory):
+  """`write_rollout_metrics`' payload and its file, computed once.
+
+  It holds `rollout_metrics` of the policy and of zero actions, which the
+  tests below check against a step-by-step reference (each rollout is a
+  program of its own to compile).
+  """
+  out = tmp_path_factory.mktemp('rollout_metrics')
+  args = argparse.Namespace(
+      metrics_worlds=_WORLDS, render_steps=_STEPS, seed=_SEED - 1
+  )
+  payload = train_ppo.write_rollout_metrics(
+      brax_env, _constant_policy(0.5), args, str(out)
+  )
+  with open(out / 'rollout_metrics.json') as f:
+    return payload, json.load(f)
+
+
 def _constant_policy(value):
   def policy(obs, unused_key):
     return jnp.full(obs.shape[:-1] + (1,), value), {}
@@ -63,10 +82,8 @@ def _step_by_step(fns, action):
   return {name: np.mean([r[name] for r in per_step]) for name in per_step[0]}
 
 
-def test_rollout_metrics_average_every_world_and_step(brax_env, fns):
-  got = train_ppo.rollout_metrics(
-      brax_env, _constant_policy(0.5), _WORLDS, _STEPS, _SEED
-  )
+def test_rollout_metrics_average_every_world_and_step(written, fns):
+  got = written[0]['policy']  # rollout_metrics of the constant policy
   want = _step_by_step(fns, 0.5)
   assert set(got) == set(want)
   assert {'reward', 'episode_return', 'diverged'} <= set(got)
@@ -74,32 +91,23 @@ def test_rollout_metrics_average_every_world_and_step(brax_env, fns):
     np.testing.assert_allclose(got[name], want[name], rtol=1e-5, atol=1e-7)
 
 
-def test_zero_actions_baseline(brax_env, fns):
-  zero = train_ppo.rollout_metrics(brax_env, None, _WORLDS, _STEPS, _SEED)
+def test_zero_actions_baseline(written, fns):
+  zero = written[0]['zero_actions']  # rollout_metrics with policy None
   want = _step_by_step(fns, 0.0)
   for name in want:
     np.testing.assert_allclose(zero[name], want[name], rtol=1e-5, atol=1e-7)
 
 
-def test_write_rollout_metrics_compares_policy_and_zero_actions(
-    brax_env, tmp_path
-):
-  args = argparse.Namespace(
-      metrics_worlds=_WORLDS, render_steps=_STEPS, seed=_SEED - 1
-  )
-  payload = train_ppo.write_rollout_metrics(
-      brax_env, _constant_policy(0.5), args, str(tmp_path)
-  )
-  with open(tmp_path / 'rollout_metrics.json') as f:
-    written = json.load(f)
-  assert written == payload
-  assert (written['worlds'], written['steps'], written['seed']) == (
+def test_write_rollout_metrics_compares_policy_and_zero_actions(written):
+  payload, from_file = written
+  assert from_file == payload
+  assert (from_file['worlds'], from_file['steps'], from_file['seed']) == (
       _WORLDS,
       _STEPS,
       _SEED,
   )
   # The policy's actions reach the worlds: the reward differs.
-  assert written['policy']['reward'] != written['zero_actions']['reward']
+  assert from_file['policy']['reward'] != from_file['zero_actions']['reward']
 
 
 def test_auto_reset_batch_reaches_the_environment():
