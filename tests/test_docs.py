@@ -16,7 +16,9 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 # ```python, ```python notest, ```bash, ... at the start of a line; a block
 # ends at the next line that is a bare fence.
-_FENCE = re.compile(r'^```(?P<info>[^`\n]*)\n(?P<code>.*?)^```[ \t]*$', re.M | re.S)
+_FENCE = re.compile(
+    r'^```(?P<info>[^`\n]*)\n(?P<code>.*?)^```[ \t]*$', re.M | re.S
+)
 
 
 def markdown_files():
@@ -43,7 +45,9 @@ def _compiled(path, line, code):
   return compile('\n' * (line - 1) + code, str(path), 'exec')
 
 
-_RUN = [path for path in markdown_files() if any(r for *_, r in python_blocks(path))]
+_RUN = [
+    path for path in markdown_files() if any(r for *_, r in python_blocks(path))
+]
 
 
 @pytest.mark.parametrize('path', markdown_files(), ids=str)
