@@ -138,7 +138,7 @@ class _FusedLoop:
     start = physics.replace(initialization_failed=jnp.zeros((), bool))
     _, _, stepped, _ = control_flow.loop_with_reset(
         self._n,
-        self._body,
+        self.body,
         lambda loop, operands: self._reset_from(loop[2], operands[3])[2],
         (
             start.carry(self._fields),
@@ -150,7 +150,8 @@ class _FusedLoop:
     )
     return stepped
 
-  def _body(self, i, loop, operands):
+  def body(self, i, loop, operands):
+    """Iteration `i` of the loop (`body`, as the lowered program names it)."""
     t, n, fields = self._t, self._n, self._fields
     carry, obs_state, stepped, failures = loop
     state, action, keys, next_reset = operands
