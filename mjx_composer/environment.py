@@ -67,6 +67,7 @@ from mjx_composer.model import model_checks
 from mjx_composer.observation import updater as updater_lib
 from mjx_composer.platform import backend
 from mjx_composer.runtime import auto_reset as auto_reset_lib
+from mjx_composer.runtime import control_flow
 from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import hooks as hooks_lib
 from mjx_composer.runtime import options as options_lib
@@ -547,7 +548,7 @@ class Environment:
     if self._options.auto_reset == 'same_step':
       reset = jnp.logical_or(reset, state.last())
     full = reset_forward_lib.forward('full', physics.model, physics.data)
-    return episode_lib.tree_select(reset, full, physics.data)
+    return control_flow.tree_select(reset, full, physics.data)
 
   # -- reset and step ------------------------------------------------------
 

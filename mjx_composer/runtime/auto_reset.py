@@ -10,8 +10,8 @@ before anything is traced:
 * whether the restart runs as one more iteration of the sub-step loop
   (`ExecutionOptions.share_reset_forward`, where the model allows it:
   `Transitions.can_fuse_restart`), or separately, selected per world by
-  `episode.select_reset` (`ExecutionOptions.auto_reset_batch` worlds at a
-  time under `jax.vmap`, or the whole batch).
+  `control_flow.select_reset` (`ExecutionOptions.auto_reset_batch` worlds
+  at a time under `jax.vmap`, or the whole batch).
 
 `step_program` makes that choice once; every program it returns is a pure
 function `(state, action) -> State` of one world with the same results (to
@@ -25,7 +25,8 @@ from typing import Callable
 
 import jax
 
-from mjx_composer.runtime import episode as episode_lib
+from mjx_composer.runtime import control_flow
+from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import state as state_lib
 
 StepProgram = Callable[[state_lib.State, jax.Array], state_lib.State]
@@ -43,7 +44,8 @@ def step_program(
       (`Transitions.reset_or_step`, `Transitions.step_and_restart`); the
       caller checks `Transitions.can_fuse_restart`.
     chunk: for the separate restart, how many ended worlds reset together
-      under `jax.vmap` (`episode.select_reset`); None for the whole batch.
+      under `jax.vmap` (`control_flow.select_reset`); None for the whole
+      batch.
 
   Returns:
     `(state, action) -> State`, pure; the action already checked.
@@ -64,9 +66,9 @@ def _step_or_reset(transitions, chunk, state, action):
   LAST (a select, not a branch); the reset is computed only when some world
   needs it.
   """
-  reset_key, step_key = jax.random.split(state.key)
+  reset_key, step_key = keys_lib.next_step_keys(state.key)
   stepped = transitions.step(state.replace(key=step_key), action)
-  return episode_lib.select_reset(
+  return control_flow.select_reset(
       state.last(),
       transitions.reset,
       (reset_key, state),
@@ -78,7 +80,7 @@ def _step_or_reset(transitions, chunk, state, action):
 def _step_then_restart(transitions, chunk, state, action):
   """Same-step auto-reset: a world whose episode just ended restarts."""
   stepped = transitions.step(state, action)
-  return episode_lib.select_reset(
+  return control_flow.select_reset(
       stepped.last(),
       transitions.restart,
       (stepped,),

@@ -83,12 +83,12 @@ class ExecutionOptions:
       computed together. None (default): at a step in which any world's
       episode ends, the reset of the whole batch is computed and selected
       per world. An integer K: the worlds that end are gathered into
-      batches of K, reset and scattered back (`episode.select_reset`), so a
-      step in which a few of many worlds end pays for K resets, not for
-      all: for tasks whose episodes end often (falls) on large batches. The
-      results are the same to float rounding. Needs impl='jax' (None then
-      resolves to 'jax') and refuses `share_reset_forward=True`, which runs
-      the reset inside the sub-step loop.
+      batches of K, reset and scattered back (`control_flow.select_reset`),
+      so a step in which a few of many worlds end pays for K resets, not
+      for all: for tasks whose episodes end often (falls) on large batches.
+      The results are the same to float rounding. Needs impl='jax' (None
+      then resolves to 'jax') and refuses `share_reset_forward=True`, which
+      runs the reset inside the sub-step loop.
     reset_forward: 'observed' (default): a reset runs only the stage of the
       forward pass whose results something reads before the next physics
       step (the observables sampled at reset, the start metrics, the next
