@@ -34,14 +34,9 @@ import jax
 import jax.numpy as jnp
 
 from mjx_composer.platform import backend
-from mjx_composer.runtime import control_flow
 from mjx_composer.runtime import state as state_lib
 
 AUTO_RESET_MODES = ('next_step', 'same_step')
-
-# Where `environment.py` still looks them up; they live in `control_flow`.
-select_reset = control_flow.select_reset
-tree_select = control_flow.tree_select
 
 
 def step_limit(time_limit: float, control_timestep: float) -> float:
