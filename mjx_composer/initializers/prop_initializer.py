@@ -50,7 +50,6 @@ the physics' persistent entries.
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -61,116 +60,12 @@ from mjx_composer.platform import backend
 from mjx_composer import initializer
 from mjx_composer.model import element_index
 from mjx_composer.initializers import contacts
+from mjx_composer.initializers import placement_tables
 from mjx_composer.variation import base as variation_base
 from mjx_composer.variation import rotations
 
 _SETTLE_QVEL_TOL = 1e-3
 _SETTLE_QACC_TOL = 1e-2
-
-
-class _Single(NamedTuple):
-  """A prop placed on its own, through `set_pose` and a kinematics pass.
-
-  Used for fixed props (their pose is a model field) and for props with
-  joints of their own, whose geoms do not move rigidly with the frame.
-  """
-
-  prop_index: int
-  pair_groups: tuple  # ((FunctionKey, (n, 2) geom ids), ...)
-
-
-class _RigidRun(NamedTuple):
-  """Consecutive free, rigid props placed by one `lax.scan`.
-
-  Tables are stacked along the props and padded where sizes differ.
-  """
-
-  prop_indices: np.ndarray  # (n,) indices into `PropPlacer.props`
-  qpos_adr: np.ndarray  # (n,) the freejoints' qpos addresses
-  geom_ids: np.ndarray  # (n, G) geom ids; `ngeom` pads (dropped)
-  chains: np.ndarray  # (n, G, D) welded bodies below the frame
-  # down to each geom's body; -1 pads
-  keys: tuple  # MJX function keys of the pair tables
-  pairs: tuple  # per key: (n, P, 2) geom pairs
-  valid: tuple  # per key: (n, P) which pairs are real
-
-
-class _Tables(NamedTuple):
-  """Static facts resolved once against a compiled model."""
-
-  index: Any  # the ElementIndex these were resolved with
-  steps: tuple  # `_Single`s and `_RigidRun`s, in prop order
-  held_qpos: np.ndarray  # qpos addresses of every non-prop joint
-  held_dofs: np.ndarray  # dof addresses of every non-prop joint
-  prop_dofs: np.ndarray  # dof addresses of every prop joint
-  fixed_fields: tuple  # model fields placement writes
-
-
-def _entity_elements(entity, attr):
-  """Element handles of `attr` ('geoms', 'joints') in an entity's subtree."""
-  return [
-      el for e in entity.iter_entities() for el in getattr(e.mjcf_model, attr)
-  ]
-
-
-def _joint_addresses(model, joint_ids):
-  """(qpos addresses, dof addresses) of compiled joints, as int arrays."""
-  qpos, dofs = [], []
-  for j in joint_ids:
-    kind = int(model.jnt_type[j])
-    start = int(model.jnt_qposadr[j])
-    qpos.extend(range(start, start + element_index.QPOS_WIDTH[kind]))
-    start = int(model.jnt_dofadr[j])
-    dofs.extend(range(start, start + element_index.DOF_WIDTH[kind]))
-  return np.asarray(qpos, np.int32), np.asarray(dofs, np.int32)
-
-
-def _rigid_run(model, members):
-  """Stacks the tables of consecutive rigid props into one `_RigidRun`.
-
-  Args:
-    model: the compiled host model.
-    members: `(prop index, qpos address, geom ids, chains, pair groups)`.
-  """
-  n = len(members)
-  max_geoms = max(len(m[2]) for m in members)
-  depth = max([len(c) for m in members for c in m[3]] + [0])
-  geom_ids = np.full((n, max_geoms), model.ngeom, np.int32)
-  chains = np.full((n, max_geoms, max(depth, 1)), -1, np.int32)
-  for i, (_, _, geoms, prop_chains, _) in enumerate(members):
-    geom_ids[i, : len(geoms)] = geoms
-    for j, chain in enumerate(prop_chains):
-      chains[i, j, : len(chain)] = chain
-  # One table per narrow-phase function, padded with a real pair of that
-  # function (masked out) so every prop runs the same code.
-  keys, pairs, valid = [], [], []
-  for _, _, _, _, groups in members:
-    for key, _ in groups:
-      if key not in keys:
-        keys.append(key)
-  for key in keys:
-    per_prop = [
-        dict(groups).get(key, np.zeros((0, 2), np.int32))
-        for *_, groups in members
-    ]
-    width = max(len(p) for p in per_prop)
-    filler = next(p[0] for p in per_prop if len(p))
-    table = np.tile(filler, (n, width, 1)).astype(np.int32)
-    mask = np.zeros((n, width), bool)
-    for i, p in enumerate(per_prop):
-      table[i, : len(p)] = p
-      mask[i, : len(p)] = True
-    pairs.append(table)
-    valid.append(mask)
-  return _RigidRun(
-      np.asarray([m[0] for m in members], np.int32),
-      np.asarray([m[1] for m in members], np.int32),
-      geom_ids,
-      chains,
-      tuple(keys),
-      tuple(pairs),
-      tuple(valid),
-  )
 
 
 class PropPlacer(initializer.Initializer):
@@ -260,7 +155,9 @@ class PropPlacer(initializer.Initializer):
 
   # -- static tables (host, at trace time) ----------------------------------
 
-  def _resolve(self, index, ignore_contacts_with_entities) -> _Tables:
+  def _resolve(
+      self, index, ignore_contacts_with_entities
+  ) -> placement_tables.Tables:
     """Resolves (and caches) everything static about this placement."""
     cache_key = (id(index), tuple(id(e) for e in ignore_contacts_with_entities))
     cached = self._tables.get(cache_key)
@@ -284,7 +181,7 @@ class PropPlacer(initializer.Initializer):
         )
       own_joints = [
           index.element_id(joint_kind, j)
-          for j in _entity_elements(prop, 'joints')
+          for j in placement_tables.entity_elements(prop, 'joints')
       ]
       freejoint = prop.freejoint
       free_id = (
@@ -313,17 +210,19 @@ class PropPlacer(initializer.Initializer):
         )
         continue
       if run:
-        steps.append(_rigid_run(model, run))
+        steps.append(placement_tables.rigid_run(model, run))
         run = []
       if free_id is None:
         fixed_fields = ('body_pos', 'body_quat')
-      steps.append(_Single(i, groups))
+      steps.append(placement_tables.Single(i, groups))
     if run:
-      steps.append(_rigid_run(model, run))
-    prop_qpos, prop_dofs = _joint_addresses(model, all_prop_joints)
+      steps.append(placement_tables.rigid_run(model, run))
+    prop_qpos, prop_dofs = placement_tables.joint_addresses(
+        model, all_prop_joints
+    )
     held_qpos = np.setdiff1d(np.arange(model.nq), prop_qpos).astype(np.int32)
     held_dofs = np.setdiff1d(np.arange(model.nv), prop_dofs).astype(np.int32)
-    tables = _Tables(
+    tables = placement_tables.Tables(
         index, tuple(steps), held_qpos, held_dofs, prop_dofs, fixed_fields
     )
     self._tables[cache_key] = tables
@@ -337,9 +236,15 @@ class PropPlacer(initializer.Initializer):
     """
     tables = self._resolve(physics.index, tuple(ignore_contacts_with_entities))
     for step in tables.steps:
-      if isinstance(step, _Single) and step.prop_index == prop_index:
+      if (
+          isinstance(step, placement_tables.Single)
+          and step.prop_index == prop_index
+      ):
         return step.pair_groups
-      if isinstance(step, _RigidRun) and prop_index in step.prop_indices:
+      if (
+          isinstance(step, placement_tables.RigidRun)
+          and prop_index in step.prop_indices
+      ):
         row = list(step.prop_indices).index(prop_index)
         return tuple(
             (key, pairs[row][valid[row]])
@@ -454,7 +359,7 @@ class PropPlacer(initializer.Initializer):
     # moved since the last forward pass).
     physics = physics.replace(data=mjx.kinematics(physics.model, physics.data))
     for step in tables.steps:
-      if isinstance(step, _RigidRun):
+      if isinstance(step, placement_tables.RigidRun):
         physics, states, step_failed = self._place_run(
             physics, key, step, states
         )

@@ -3,12 +3,12 @@
 `Variation`'s operators (in `base`) build these nodes, as composer's
 `_BinaryOperation`, `_UnaryOperation` and `_GetItemOperation` (the names they
 keep here, since they show in messages such as "... is not iterable"). Each
-is a `base.CompositeVariation` that evaluates its operands and applies the
+is a `composite.CompositeVariation` that evaluates its operands and applies the
 operator, with static bounds where the operator allows (interval arithmetic)
 and a readable repr (`Uniform(low=0.0, high=1.0) + 2`, parenthesized by
 precedence). They live apart from `base`, which holds the `Variation`
 protocol itself; `base` imports this module last, because these classes
-subclass `base.CompositeVariation`.
+subclass `composite.CompositeVariation`.
 """
 
 import operator
@@ -16,6 +16,7 @@ import operator
 import numpy as np
 
 from mjx_composer.variation import base
+from mjx_composer.variation import composite
 
 # Symbol and precedence (higher binds tighter) of each operator.
 _BINARY_SYMBOLS = {
@@ -43,7 +44,7 @@ def _format_operand(value, use_str, parenthesize):
   return f"({text})" if parenthesize else text
 
 
-class _BinaryOperation(base.CompositeVariation):
+class _BinaryOperation(composite.CompositeVariation):
   """`op(first, second)` of two evaluated operands (one at least a variation)."""
 
   def __init__(self, op, first, second):
@@ -107,7 +108,7 @@ class _BinaryOperation(base.CompositeVariation):
     return self._format(use_str=False)
 
 
-class _UnaryOperation(base.CompositeVariation):
+class _UnaryOperation(composite.CompositeVariation):
   """`op(operand)` of an evaluated variation (composer only has `neg`)."""
 
   def __init__(self, op, operand):
@@ -161,7 +162,7 @@ def _format_index(index) -> str:
   return repr(index)
 
 
-class _GetItemOperation(base.CompositeVariation):
+class _GetItemOperation(composite.CompositeVariation):
   """`np.asarray(value)[index]` of an evaluated variation."""
 
   def __init__(self, operand, index):
@@ -196,16 +197,16 @@ class _GetItemOperation(base.CompositeVariation):
     return self._format(use_str=False)
 
 
-def binary_operation(op, first, second) -> base.CompositeVariation:
+def binary_operation(op, first, second) -> composite.CompositeVariation:
   """`op(first, second)`, e.g. `operator.add`; one operand a variation."""
   return _BinaryOperation(op, first, second)
 
 
-def unary_operation(op, operand) -> base.CompositeVariation:
+def unary_operation(op, operand) -> composite.CompositeVariation:
   """`op(operand)` of a variation (`operator.neg`)."""
   return _UnaryOperation(op, operand)
 
 
-def get_item_operation(operand, index) -> base.CompositeVariation:
+def get_item_operation(operand, index) -> composite.CompositeVariation:
   """`np.asarray(value)[index]` of a variation's value."""
   return _GetItemOperation(operand, index)

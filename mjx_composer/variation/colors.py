@@ -19,6 +19,7 @@ without a last axis of size 4 are handed whole to every channel, as composer.
 import jax.numpy as jnp
 
 from mjx_composer.variation import base
+from mjx_composer.variation import composite
 
 
 def _stack_channels(channels):
@@ -76,7 +77,7 @@ def _rgb_to_hsv(r, g, b):
   return h, s, max_c
 
 
-class RgbVariation(base.CompositeVariation):
+class RgbVariation(composite.CompositeVariation):
   """A colour given by independent R, G, B and alpha channels in [0, 1]."""
 
   def __init__(self, r, g, b, alpha=1.0):
@@ -106,7 +107,7 @@ class RgbVariation(base.CompositeVariation):
     )
 
 
-class HsvVariation(base.CompositeVariation):
+class HsvVariation(composite.CompositeVariation):
   """A colour given by hue, saturation, value and alpha channels in [0, 1].
 
   Converted with the rule of `colorsys.hsv_to_rgb` (hue wraps modulo 1).

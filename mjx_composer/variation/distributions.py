@@ -30,13 +30,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.variation import base
+from mjx_composer.variation import composite
 
 
 def _int_dtype():
   return jnp.result_type(int)
 
 
-class Distribution(base.CompositeVariation):
+class Distribution(composite.CompositeVariation):
   """Base class of parametrised distributions.
 
   Subclasses pass their parameters by keyword to `__init__` (in the order of

@@ -18,9 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.variation import base
+from mjx_composer.variation import composite
 
 
-class MathOp(base.CompositeVariation):
+class MathOp(composite.CompositeVariation):
   """Applies `_callable` to the evaluated `args` and `kwargs`.
 
   Positional arguments are converted to jnp arrays (lists are stacked, as

@@ -9,9 +9,10 @@ feeds each result back as the next `current_value`).
 import jax.numpy as jnp
 
 from mjx_composer.variation import base
+from mjx_composer.variation import composite
 
 
-class _Noise(base.CompositeVariation):
+class _Noise(composite.CompositeVariation):
   """`base (op) amount`, base being the initial or the current value."""
 
   _SYMBOL = "?"

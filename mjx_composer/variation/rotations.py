@@ -19,6 +19,7 @@ import numpy as np
 
 from mjx_composer.utils import transformations as tr
 from mjx_composer.variation import base
+from mjx_composer.variation import composite
 
 IDENTITY_QUATERNION = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -67,7 +68,7 @@ class UniformQuaternion(base.Variation):
     return ()
 
 
-class QuaternionFromAxisAngle(base.CompositeVariation):
+class QuaternionFromAxisAngle(composite.CompositeVariation):
   """The quaternion rotating by `angle` around `axis`.
 
   Computes `axisangle_to_quat(axis * angle)`, as composer: a non-unit axis
@@ -101,7 +102,7 @@ class QuaternionFromAxisAngle(base.CompositeVariation):
     )
 
 
-class QuaternionPreMultiply(base.CompositeVariation):
+class QuaternionPreMultiply(composite.CompositeVariation):
   """`quat * (current if cumulative else initial)`: rotates an orientation.
 
   Pre-multiplication applies `quat` in the parent (world) frame after the
@@ -140,7 +141,7 @@ class QuaternionPreMultiply(base.CompositeVariation):
     return base.format_call(type(self).__name__, self._quat, **extra)
 
 
-class QuaternionRotate(base.CompositeVariation):
+class QuaternionRotate(composite.CompositeVariation):
   """Rotates a 3-vector by `quat`.
 
   The vector is `vec` if given (a constant or variation, evaluated with the
