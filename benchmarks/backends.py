@@ -1,6 +1,6 @@
 """Throughput of the physics implementations, impl='jax' against impl='warp'.
 
-For each bundled task, implementation (`Environment(impl=...)`) and number
+For each bundled task, implementation (`ExecutionOptions(impl=...)`) and number
 of worlds, on the task's compiled model:
 
 * raw:      `scan` over `vmap(mjx.step)`, sub-steps in a `fori_loop`, from

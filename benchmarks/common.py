@@ -64,6 +64,7 @@ def make_env(
     naconmax=None,
     njmax=None,
     reset_forward=None,
+    substep_sensors=None,
     **task_kwargs,
 ):
   """A bundled task's `Environment`, as the benchmarks build it.
@@ -77,7 +78,8 @@ def make_env(
     max_reset_attempts: passed to the `Environment` when given.
     share_reset_forward: passed to the `Environment` when given.
     auto_reset_batch: passed to the `Environment` when given.
-    reset_forward: passed to the `Environment` when given.
+    reset_forward, substep_sensors: `ExecutionOptions` fields, passed
+      when given.
     impl, naconmax, njmax: the physics implementation ('jax', 'warp', or
       None for the `Environment`'s default) and MuJoCo Warp's buffer sizes,
       passed to the `Environment` when given. The benchmarks measure MJX's
@@ -105,6 +107,8 @@ def make_env(
   options = {}
   if reset_forward is not None:
     options['reset_forward'] = reset_forward
+  if substep_sensors is not None:
+    options['substep_sensors'] = substep_sensors
   return environment.Environment(
       task,
       time_limit=time_limit,
@@ -309,7 +313,7 @@ def add_share_reset_forward_arg(parser):
       '--share-reset-forward',
       choices=('on', 'off'),
       default=None,
-      help="our environments' Environment(share_reset_forward=...) "
+      help="our environments' ExecutionOptions(share_reset_forward=...) "
       "(default: the Environment's default for the device)",
   )
 

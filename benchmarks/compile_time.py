@@ -80,7 +80,7 @@ base task, when it is among `--tasks`.
         walk:only_randomize --programs step raw_step
 
 `--share-reset-forward on|off` builds the composed environments with that
-`Environment(share_reset_forward=...)` (default: the device's default, on
+`ExecutionOptions(share_reset_forward=...)` (default: the device's default, on
 for a CPU, off for a GPU), e.g. to compare the two step programs on a GPU.
 """
 
@@ -697,7 +697,7 @@ def main(argv=None):
       '--reset-forward',
       choices=('observed', 'full'),
       default=None,
-      help="Environment(reset_forward=...) (default: the Environment's, "
+      help="ExecutionOptions(reset_forward=...) (default: the Environment's, "
       "'observed')",
   )
   parser.add_argument(

@@ -245,14 +245,14 @@ def parse_args(argv=None):
       '--share-reset-forward',
       action=argparse.BooleanOptionalAction,
       default=None,
-      help='ours: Environment(share_reset_forward=...); default: on a CPU only',
+      help='ours: ExecutionOptions(share_reset_forward=...); default: on a CPU only',
   )
   parser.add_argument(
       '--auto-reset-batch',
       type=int,
       default=None,
       metavar='K',
-      help='ours: Environment(auto_reset_batch=K) (worlds that end reset K '
+      help='ours: ExecutionOptions(auto_reset_batch=K) (worlds that end reset K '
       "at a time; impl='jax' only); default: the whole batch",
   )
   parser.add_argument(

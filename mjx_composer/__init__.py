@@ -71,4 +71,5 @@ __version__ = '0.2.0'
 
 # Cholesky without jaxlib's LAPACK kernel on the CPU, which can deadlock.
 from mjx_composer import platform  # pylint: disable=g-bad-import-order
+
 platform.safe_defaults()

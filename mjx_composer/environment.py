@@ -52,7 +52,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 from typing import Callable
-import warnings
 
 from dm_env import specs
 import jax
@@ -66,6 +65,7 @@ from mjx_composer.model import element_index
 from mjx_composer.model import model_checks
 from mjx_composer.observation import updater as updater_lib
 from mjx_composer.platform import backend
+from mjx_composer.runtime import arguments
 from mjx_composer.runtime import auto_reset as auto_reset_lib
 from mjx_composer.runtime import control_flow
 from mjx_composer.runtime import episode as episode_lib
@@ -75,29 +75,12 @@ from mjx_composer.runtime import reset_forward as reset_forward_lib
 from mjx_composer.runtime import state as state_lib
 from mjx_composer.runtime import transitions as transitions_lib
 
+COMPOSER_OPTIONS = arguments.COMPOSER_OPTIONS
 ExecutionOptions = options_lib.ExecutionOptions
 HOOK_NAMES = hooks_lib.HOOK_NAMES
 ObservationPadding = updater_lib.ObservationPadding
 State = state_lib.State
 StepType = state_lib.StepType
-
-# The `ExecutionOptions` fields, once `Environment` keyword arguments.
-_OPTION_FIELDS = tuple(f.name for f in dataclasses.fields(ExecutionOptions))
-# `Environment`'s arguments: composer's, in composer's order, and `options`.
-_ARGUMENTS = (
-    'task',
-    'time_limit',
-    'random_state',
-    'n_sub_steps',
-    'raise_exception_on_physics_error',
-    'strip_singleton_obs_buffer_dim',
-    'max_reset_attempts',
-    'recompile_mjcf_every_episode',
-    'fixed_initial_state',
-    'delayed_observation_padding',
-    'legacy_step',
-    'options',
-)
 
 
 class EpisodeInitializationError(RuntimeError):
@@ -174,14 +157,14 @@ class Environment:
       options: ExecutionOptions | None = None,
       **deprecated,
   ):
-    options, observation_groups = _options_from(options, deprecated)
-    _check_composer_options(
+    options, observation_groups = arguments.options_from(options, deprecated)
+    arguments.check_composer_options(
         raise_exception_on_physics_error=raise_exception_on_physics_error,
         recompile_mjcf_every_episode=recompile_mjcf_every_episode,
         fixed_initial_state=fixed_initial_state,
         legacy_step=legacy_step,
     )
-    _check_arguments(
+    arguments.check_arguments(
         delayed_observation_padding, max_reset_attempts, time_limit
     )
     self._requested_options = options
@@ -366,9 +349,12 @@ class Environment:
         fuse=self._fuses,
         chunk=options.auto_reset_batch,
     )
+    # What the programs' shapes depend on (the reset's shapes and the
+    # per-world model fields its hooks write, the reset's stage of the
+    # forward pass, sensors once per control step) is found here, once, from
+    # abstract traces: never decided inside the trace of a user's program.
+    self._transitions.analyse()
     if impl == 'warp':
-      # Hooks make fields per-world when reset is traced: trace it now.
-      jax.eval_shape(self.reset, jax.random.key(0))
       backend.check_per_world_fields(impl, self.per_world_model_fields)
 
   # -- properties ----------------------------------------------------------
@@ -554,7 +540,7 @@ class Environment:
 
   def reset(self, key) -> State:
     """Starts an episode for one world. Pure; jit and vmap it."""
-    return self._transitions.reset(_as_key(key))
+    return self._transitions.reset(arguments.as_key(key))
 
   def step(self, state: State, action) -> State:
     """Advances one world by one control step. Pure; jit and vmap it.
@@ -563,7 +549,7 @@ class Environment:
     `ExecutionOptions.auto_reset` says (`runtime.auto_reset`: the program
     was chosen when the environment was built).
     """
-    _check_one_world(state)
+    arguments.check_one_world(state)
     return self._advance(state, self._check_action(action))
 
   def _check_action(self, action):
@@ -582,118 +568,3 @@ class Environment:
 
 # composer's `Environment` options that only False (or leaving them out) can
 # mean here, and what happens instead of True.
-COMPOSER_OPTIONS = {
-    'raise_exception_on_physics_error': (
-        'nothing can raise inside a jitted step: a world whose physics '
-        'diverges ends its episode (LAST, discount 0) with '
-        "metrics['diverged'] = 1 and is reset, and the other worlds are "
-        "untouched. Read metrics['diverged'] instead."
-    ),
-    'recompile_mjcf_every_episode': (
-        'the model is compiled once, when the Environment is built: '
-        'initialize_episode_mjcf and after_compile run once, on the host. '
-        'Per-episode changes belong in initialize_episode (variations write '
-        'per-world model fields).'
-    ),
-    'legacy_step': (
-        "mjx.step is MuJoCo's mj_step: composer's legacy_step=False "
-        'semantics (derived quantities in an observation lag the state by '
-        'one physics step).'
-    ),
-}
-
-
-def _check_composer_options(**options):
-  """composer's boolean options: True, False or None; True only if we can."""
-  for name, value in options.items():
-    if not (value is None or isinstance(value, bool)):
-      raise ValueError(f'{name} must be True, False or None, got {value!r}.')
-    if value and name in COMPOSER_OPTIONS:
-      raise ValueError(
-          f'Environment({name}=True) is not available: '
-          f'{COMPOSER_OPTIONS[name]} Pass {name}=False or leave it out.'
-      )
-
-
-def _check_arguments(padding, max_reset_attempts, time_limit):
-  if not isinstance(padding, ObservationPadding):
-    raise ValueError(
-        'delayed_observation_padding must be an '
-        f'ObservationPadding, got {padding!r}.'
-    )
-  if int(max_reset_attempts) != max_reset_attempts or max_reset_attempts < 1:
-    raise ValueError(
-        'max_reset_attempts must be a positive integer, got '
-        f'{max_reset_attempts!r}.'
-    )
-  if time_limit <= 0:
-    raise ValueError(f'time_limit must be positive, got {time_limit}.')
-
-
-def _options_from(options, deprecated):
-  """`(ExecutionOptions, observation_groups)` from `Environment`'s arguments.
-
-  `deprecated` holds the keyword arguments that `ExecutionOptions` and
-  `Task.observation_groups` replace; each still works, with a warning.
-  """
-  if options is not None and not isinstance(options, ExecutionOptions):
-    raise TypeError(
-        'Environment(options=...) takes an ExecutionOptions, got '
-        f'{type(options).__name__} {options!r}.'
-    )
-  unknown = sorted(
-      set(deprecated) - set(_OPTION_FIELDS) - {'observation_groups'}
-  )
-  if unknown:
-    raise TypeError(
-        f'Environment() got unexpected keyword arguments {unknown}. Its '
-        f'arguments: {", ".join(_ARGUMENTS)}; options=ExecutionOptions(...) '
-        f'takes {", ".join(_OPTION_FIELDS)}.'
-    )
-  observation_groups = deprecated.pop('observation_groups', None)
-  if observation_groups is not None:
-    warnings.warn(
-        'Environment(observation_groups=...) is deprecated: override '
-        "Task.observation_groups() instead (the environment uses the task's "
-        'groups when given none).',
-        DeprecationWarning,
-        stacklevel=3,
-    )
-  if options is not None and deprecated:
-    names = ', '.join(f'{name}=...' for name in deprecated)
-    raise TypeError(
-        f'Environment({names}) and options=... were both given: pass '
-        f'{", ".join(deprecated)} in options=ExecutionOptions(...) only.'
-    )
-  for name, value in deprecated.items():
-    warnings.warn(
-        f'Environment({name}={value!r}) is deprecated: pass '
-        f'options=ExecutionOptions({name}={value!r}).',
-        DeprecationWarning,
-        stacklevel=3,
-    )
-  if options is None:
-    options = ExecutionOptions(**deprecated)
-  return options, observation_groups
-
-
-def _check_one_world(state):
-  if jnp.ndim(state.step_type):
-    raise ValueError(
-        f'This state holds {jnp.shape(state.step_type)[0]} worlds: step a '
-        'batch with jax.vmap(env.step)(states, actions).'
-    )
-
-
-def _as_key(key):
-  key = jnp.asarray(key) if not isinstance(key, jax.Array) else key
-  if jnp.issubdtype(key.dtype, jax.dtypes.prng_key):
-    if key.shape == ():
-      return key
-  elif key.shape == (2,) and key.dtype == jnp.uint32:
-    return jax.random.wrap_key_data(key)
-  raise ValueError(
-      'reset expects one PRNG key (jax.random.key(seed)); got an '
-      f'array of shape {key.shape} and dtype {key.dtype}. For a '
-      'batch, jax.vmap(env.reset)(jax.random.split(key, n)).'
-  )

@@ -3,7 +3,7 @@
 MJX 3.17 runs the same `mjx.Model`/`mjx.Data` API on two implementations:
 'jax' (XLA, every device) and 'warp' (MuJoCo Warp kernels called through
 JAX's FFI, on a CUDA GPU or, compiled through LLVM, on the CPU). An
-`Environment(impl=...)` picks one when it is built (`resolve_impl`); this
+`ExecutionOptions(impl=...)` picks one when it is built (`resolve_impl`); this
 module holds what differs between them and refuses, when the environment
 is built, what MuJoCo Warp cannot run:
 
@@ -17,7 +17,7 @@ is built, what MuJoCo Warp cannot run:
   field profile (`hfield_data`), is refused (`check_per_world_fields`).
   Fields that MuJoCo Warp does not read at all (`dof_M0`, `stat`) may vary:
   they only matter to the 'jax' implementation.
-* the fused same-step restart (`Environment(share_reset_forward=True)`):
+* the fused same-step restart (`ExecutionOptions(share_reset_forward=True)`):
   it runs the integrator (`mjx.euler`, `mjx.implicit`) apart from
   `mjx.forward`, which MJX provides on 'jax' only; on 'warp' the sub-steps
   run `mjx.step` and the restart is separate.
@@ -86,7 +86,7 @@ def warp_installed() -> bool:
 class WarpUnsupportedError(NotImplementedError):
   """MuJoCo Warp cannot run this environment (its model or per-world fields).
 
-  With `Environment(impl='warp')` it reaches the caller; with `impl=None`
+  With `ExecutionOptions(impl='warp')` it reaches the caller; with `impl=None`
   the environment is built on 'jax' instead, with a logged warning.
   """
 
@@ -151,7 +151,7 @@ def resolve_impl(impl, device, share_reset_forward=None) -> tuple[str, ...]:
 
 
 def default_share_reset_forward(impl: str, device) -> bool:
-  """`Environment(share_reset_forward=None)`: True on a CPU with 'jax'."""
+  """`ExecutionOptions(share_reset_forward=None)`: True on a CPU with 'jax'."""
   return impl == 'jax' and device.platform == 'cpu'
 
 

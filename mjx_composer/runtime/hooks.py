@@ -240,8 +240,9 @@ def check_step_writes(before, after, fields, hook_names):
   if undeclared:
     raise ValueError(
         f'The {hook_names} hooks wrote model fields {undeclared} that are not '
-        'per-world. Declare them with Environment(..., '
-        f'per_world_model_fields={tuple(undeclared)!r}), or write them in '
+        'per-world. Declare them with Environment(..., options='
+        f'ExecutionOptions(per_world_model_fields={tuple(undeclared)!r})), or '
+        'write them in '
         'initialize_episode.'
     )
   if after.scheduled_hooks != before.scheduled_hooks:

@@ -39,7 +39,7 @@ forward pass, as the fields the stage does not compute do.
 Every stage ends as `mjx.forward` with actuation disabled does
 (`mjx.fwd_actuation`: `act_dot` and `qfrc_actuator` zero). Fields the stage
 does not compute keep their values from before the forward pass.
-Environment(reset_forward='full') always runs `'full'`, as composer does.
+ExecutionOptions(reset_forward='full') always runs `'full'`, as composer does.
 """
 
 import dataclasses

@@ -14,7 +14,7 @@ control step computes the sensors once, after its last sub-step
 as its `mjx.step` would have. The control step's data, observations and
 rewards are those of `n` plain `mjx.step` calls (to float rounding:
 `tests/runtime/test_substep_sensors.py` compares them). Where the restart is fused
-into the sub-step loop (`Environment(share_reset_forward=True)`), the
+into the sub-step loop (`ExecutionOptions(share_reset_forward=True)`), the
 restart's forward pass skips them too and the restart computes those its
 reset's stage computes (`ResetForward.sensors_of`).
 

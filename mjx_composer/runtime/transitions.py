@@ -85,7 +85,7 @@ INITIAL_KEY = 'environment/initial_key'
 
 # Where the declared per-world model fields come from, in
 # `per_world_model_fields`.
-DECLARED = 'Environment(per_world_model_fields=...)'
+DECLARED = 'ExecutionOptions(per_world_model_fields=...)'
 
 
 @dataclasses.dataclass(frozen=True)

@@ -19,6 +19,7 @@ from mujoco import mjx
 import numpy as np
 import pytest
 
+import mjx_composer as composer
 from mjx_composer.platform import backend
 from mjx_composer.platform import internals
 from mjx_composer import environment
@@ -45,9 +46,8 @@ def warp_env():
   return environment.Environment(
       reach.Reach(),
       time_limit=0.1,
-      impl='warp',
-      naconmax=16 * WORLDS,
       max_reset_attempts=2,
+      options=composer.ExecutionOptions(impl='warp', naconmax=16 * WORLDS),
   )
 
 
@@ -230,7 +230,10 @@ def test_default_njmax_holds_the_jax_implementations_rows():
 
 def test_warp_refuses_a_per_world_height_field():
   with pytest.raises(NotImplementedError) as raised:
-    environment.Environment(joystick.Joystick(terrain='rough'), impl='warp')
+    environment.Environment(
+        joystick.Joystick(terrain='rough'),
+        options=composer.ExecutionOptions(impl='warp'),
+    )
   message = str(raised.value)
   assert 'hfield_data' in message
   assert 'Joystick.initialize_episode' in message

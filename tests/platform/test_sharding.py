@@ -21,7 +21,7 @@ which differed by at most 1.9e-6 (relative 2e-7: one or two float32
 roundings) in a few entries. Each device compiles the per-world program for
 its own number of worlds (here 8, 4 or 2), and XLA may order a
 floating-point reduction differently for another batch size, as between
-batch sizes on one device (see the README); the solver's warm start carries
+batch sizes on one device; the solver's warm start carries
 such a difference to the next step. So floats are compared at rtol 1e-5
 (atol 1e-5) across device counts, integers exactly, and everything bit for
 bit where each device holds as many worlds (4 devices in one process against
@@ -90,7 +90,9 @@ class _VariedSwing(conftest.SwingTask):
 
 def _make_env():
   return composer.Environment(
-      _VariedSwing(), time_limit=_TIME_LIMIT, auto_reset='same_step'
+      _VariedSwing(),
+      time_limit=_TIME_LIMIT,
+      options=composer.ExecutionOptions(auto_reset='same_step'),
   )
 
 

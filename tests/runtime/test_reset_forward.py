@@ -388,9 +388,11 @@ def test_resets_reading_one_sensor_skip_the_others():
       lambda mode: composer.Environment(
           _ReadsAVelocitySensor(),
           time_limit=0.05,
-          auto_reset='same_step',
-          share_reset_forward=False,
-          reset_forward=mode,
+          options=composer.ExecutionOptions(
+              auto_reset='same_step',
+              share_reset_forward=False,
+              reset_forward=mode,
+          ),
       )
   )
   env, observed = runs['observed']
@@ -423,8 +425,9 @@ def test_step_hooks_reading_the_reset_state_are_served(field, stage):
       lambda mode: composer.Environment(
           _ReadsInBeforeStep(field),
           time_limit=0.05,
-          auto_reset='same_step',
-          reset_forward=mode,
+          options=composer.ExecutionOptions(
+              auto_reset='same_step', reset_forward=mode
+          ),
       )
   )
   assert runs['observed'][0].reset_forward_stage == stage
@@ -450,11 +453,9 @@ def test_walk_stages_follow_the_sensors_read():
   # HumanoidWalk's observation reads the centre-of-mass velocity sensor
   # alone of the humanoid's 16: velocities suffice.
   task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)
-  env = composer.Environment(
-      task,
-      time_limit=1.0,
-      observation_groups={'policy': task.observation_groups()['policy']},
-  )
+  policy = task.observation_groups()['policy']
+  task.observation_groups = lambda: {'policy': policy}
+  env = composer.Environment(task, time_limit=1.0)
   assert env.reset_forward_stage == 'velocity'
 
 

@@ -205,13 +205,12 @@ class _SensingTask(conftest.SwingTask):
     return physics
 
 
-def _make_env(mode, between=None, observed='acceleration', **kwargs):
-  kwargs.setdefault('share_reset_forward', False)
+def _make_env(mode, between=None, observed='acceleration', **options):
+  options.setdefault('share_reset_forward', False)
   return composer.Environment(
       _SensingTask(between, observed),
       time_limit=0.1,
-      substep_sensors=mode,
-      **kwargs,
+      options=composer.ExecutionOptions(substep_sensors=mode, **options),
   )
 
 
@@ -288,7 +287,11 @@ def test_sensors_read_or_disturbed_between_substeps_stay_in_every_substep(
 def test_a_single_substep_keeps_mjx_step():
   task = _SensingTask()
   task.set_timesteps(control_timestep=0.005, physics_timestep=0.005)
-  env = composer.Environment(task, time_limit=0.1, share_reset_forward=False)
+  env = composer.Environment(
+      task,
+      time_limit=0.1,
+      options=composer.ExecutionOptions(share_reset_forward=False),
+  )
   assert not env.sensors_once_per_step
 
 
@@ -306,7 +309,11 @@ def test_the_locomotion_tasks_compute_their_sensors_once_per_step():
       walk.Walk(**walk.PLAYGROUND_EQUIVALENT),
       joystick.Joystick(),
   ):
-    env = composer.Environment(task, time_limit=1.0, share_reset_forward=False)
+    env = composer.Environment(
+        task,
+        time_limit=1.0,
+        options=composer.ExecutionOptions(share_reset_forward=False),
+    )
     assert env.sensors_once_per_step
 
 

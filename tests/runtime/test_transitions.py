@@ -48,7 +48,9 @@ class _RandomizedSwing(conftest.SwingTask):
 @pytest.fixture(scope='module', params=['same_step', 'next_step'])
 def env(request):
   return composer.Environment(
-      _RandomizedSwing(), time_limit=0.05, auto_reset=request.param
+      _RandomizedSwing(),
+      time_limit=0.05,
+      options=composer.ExecutionOptions(auto_reset=request.param),
   )
 
 
@@ -102,8 +104,9 @@ def test_the_fused_path_is_taken(env, monkeypatch):
   separate = composer.Environment(
       _RandomizedSwing(),
       time_limit=0.05,
-      auto_reset=env.auto_reset,
-      share_reset_forward=False,
+      options=composer.ExecutionOptions(
+          auto_reset=env.auto_reset, share_reset_forward=False
+      ),
   )
   jax.eval_shape(
       separate.step,
@@ -161,8 +164,9 @@ def test_the_step_program_loses_one_copy_of_the_forward_pass(
   env = composer.Environment(
       _RandomizedSwing(),
       time_limit=0.05,
-      auto_reset=env.auto_reset,
-      reset_forward=reset_forward,
+      options=composer.ExecutionOptions(
+          auto_reset=env.auto_reset, reset_forward=reset_forward
+      ),
   )
   states = jax.eval_shape(
       jax.vmap(env.reset), jax.random.split(jax.random.key(0), 2)
@@ -333,7 +337,7 @@ def test_the_separate_step_branches_only_inside_its_reset(
     task_name, auto_reset
 ):
   """On a GPU each conditional costs a host round trip and copies of the
-  state every step (3% of reach's throughput at 8,192 worlds, README): the
+  state every step (docs/performance.md): the
   batched step's only conditionals are inside the reset, which runs only
   at steps where some world's episode ends."""
   # pylint: disable=g-import-not-at-top
@@ -347,7 +351,11 @@ def test_the_separate_step_branches_only_inside_its_reset(
     task = walk.Walk()
   # pylint: enable=g-import-not-at-top
   env = composer.Environment(
-      task, time_limit=1.0, auto_reset=auto_reset, share_reset_forward=False
+      task,
+      time_limit=1.0,
+      options=composer.ExecutionOptions(
+          auto_reset=auto_reset, share_reset_forward=False
+      ),
   )
   states = jax.eval_shape(
       jax.vmap(env.reset), jax.random.split(jax.random.key(0), 2)
