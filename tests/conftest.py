@@ -1,7 +1,6 @@
 """Shared fixtures: small composed scenes compiled once per test session."""
 
 import collections
-import dataclasses
 import json
 import os
 import shutil
@@ -266,20 +265,10 @@ class SwingTask(PendulumTask):
     return jnp.where(self.should_terminate_episode(physics), 0.0, 1.0)
 
 
-_OPTION_FIELDS = frozenset(
-    f.name for f in dataclasses.fields(composer.ExecutionOptions)
-)
-
-
 def make_swing_env(**kwargs):
-  """The swing task's `Environment`; `ExecutionOptions` fields by keyword."""
   task_kwargs = {k: kwargs.pop(k) for k in ('terminate_above',) if k in kwargs}
-  options = {k: kwargs.pop(k) for k in list(kwargs) if k in _OPTION_FIELDS}
-  return composer.Environment(
-      SwingTask(**task_kwargs),
-      options=composer.ExecutionOptions(**options),
-      **kwargs,
-  )
+  task = SwingTask(**task_kwargs)
+  return composer.Environment(task, **kwargs)
 
 
 @pytest.fixture(scope='session')

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
+from mjx_composer import cli
 from mjx_composer.tasks import push
 from mjx_composer.tasks import registry
 

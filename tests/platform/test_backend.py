@@ -243,37 +243,47 @@ def test_warp_refuses_a_per_world_height_field():
 def test_warp_refuses_declared_unbatchable_fields():
   with pytest.raises(NotImplementedError, match='hfield_data'):
     conftest.make_swing_env(
-        impl='warp', per_world_model_fields=('hfield_data',)
+        options=composer.ExecutionOptions(
+            impl='warp', per_world_model_fields=('hfield_data',)
+        )
     )
 
 
 def test_warp_refuses_the_shared_reset_forward():
   with pytest.raises(ValueError, match='share_reset_forward=True'):
-    conftest.make_swing_env(impl='warp', share_reset_forward=True)
+    conftest.make_swing_env(
+        options=composer.ExecutionOptions(impl='warp', share_reset_forward=True)
+    )
 
 
 def test_warp_buffer_sizes_need_warp_or_the_default():
   with pytest.raises(ValueError, match="impl='warp' or impl=None only"):
-    conftest.make_swing_env(impl='jax', naconmax=64)
+    conftest.make_swing_env(
+        options=composer.ExecutionOptions(impl='jax', naconmax=64)
+    )
   with pytest.raises(ValueError, match='positive integer'):
-    conftest.make_swing_env(impl='warp', njmax=0)
+    conftest.make_swing_env(
+        options=composer.ExecutionOptions(impl='warp', njmax=0)
+    )
   with pytest.raises(ValueError, match='positive integer'):
-    conftest.make_swing_env(njmax=0)
+    conftest.make_swing_env(options=composer.ExecutionOptions(njmax=0))
   # The default builds on 'jax' here (a CPU): sizes meant for Warp on a GPU
   # are ignored, so the same call runs on either.
-  env = conftest.make_swing_env(naconmax=64, njmax=32)
+  env = conftest.make_swing_env(
+      options=composer.ExecutionOptions(naconmax=64, njmax=32)
+  )
   assert env.impl == 'jax'
 
 
 def test_unknown_impl_is_refused():
   with pytest.raises(ValueError, match="impl must be 'jax', 'warp'"):
-    conftest.make_swing_env(impl='cpp')
+    conftest.make_swing_env(options=composer.ExecutionOptions(impl='cpp'))
 
 
 def test_warp_not_installed_says_how_to_install(monkeypatch):
   monkeypatch.setattr(backend, 'warp_installed', lambda: False)
   with pytest.raises(ImportError, match=r"pip install 'mjx-composer\[warp\]'"):
-    conftest.make_swing_env(impl='warp')
+    conftest.make_swing_env(options=composer.ExecutionOptions(impl='warp'))
 
 
 def test_default_impl_is_jax_on_a_cpu():
@@ -324,9 +334,11 @@ def test_default_impl_falls_back_to_jax_where_warp_refuses(monkeypatch, caplog):
   """Warp refuses a per-world height field; the default builds on 'jax'."""
   _warp_first_everywhere(monkeypatch)
 
-  def build(**kwargs):
+  def build(**options):
     task = _DrawingSwingTask()
-    env = environment.Environment(task, random_state=3, **kwargs)
+    env = environment.Environment(
+        task, random_state=3, options=composer.ExecutionOptions(**options)
+    )
     return env, task.draws
 
   with caplog.at_level('WARNING'):

@@ -342,7 +342,10 @@ def _worker_brax(out):
   # pylint: enable=g-import-not-at-top
   assert jax.local_device_count() == 2
   brax_env = brax_adapter.BraxEnv(
-      conftest.make_swing_env(time_limit=0.03, auto_reset='same_step'),
+      conftest.make_swing_env(
+          time_limit=0.03,
+          options=composer.ExecutionOptions(auto_reset='same_step'),
+      ),
       obs_key='tip',
   )
   progress = []
@@ -524,7 +527,9 @@ def test_single_world_host_environment_refuses_a_mesh():
 
 def test_a_warp_batch_is_not_split_over_devices():
   """Warp's batch-shared contact buffer cannot be cut along the worlds."""
-  env = conftest.make_swing_env(time_limit=0.05, impl='warp')
+  env = conftest.make_swing_env(
+      time_limit=0.05, options=composer.ExecutionOptions(impl='warp')
+  )
   # Two entries of this process's one device: only the mesh's size matters.
   two = jax.sharding.Mesh(np.array(jax.devices() * 2), (sharding.WORLD_AXIS,))
   for build in (sharding.batched_reset, sharding.batched_step):

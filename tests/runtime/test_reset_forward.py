@@ -332,9 +332,11 @@ def test_observed_resets_make_the_same_episodes(
   runs = _rollouts(
       lambda mode: conftest.make_swing_env(
           time_limit=0.05,
-          auto_reset=auto_reset,
-          share_reset_forward=share_reset_forward,
-          reset_forward=mode,
+          options=composer.ExecutionOptions(
+              auto_reset=auto_reset,
+              share_reset_forward=share_reset_forward,
+              reset_forward=mode,
+          ),
       )
   )
   env, observed = runs['observed']
@@ -461,13 +463,18 @@ def test_walk_stages_follow_the_sensors_read():
 
 def test_reset_forward_must_be_observed_or_full():
   with pytest.raises(ValueError, match="'observed' or 'full'"):
-    conftest.make_swing_env(reset_forward='partial')
+    conftest.make_swing_env(
+        options=composer.ExecutionOptions(reset_forward='partial')
+    )
 
 
 def test_physics_of_a_reset_state_is_complete():
   runs = _rollouts(
       lambda mode: conftest.make_swing_env(
-          time_limit=0.05, auto_reset='same_step', reset_forward=mode
+          time_limit=0.05,
+          options=composer.ExecutionOptions(
+              auto_reset='same_step', reset_forward=mode
+          ),
       ),
       steps=5,
   )
