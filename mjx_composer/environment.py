@@ -351,9 +351,11 @@ class Environment:
     )
     # What the programs' shapes depend on (the reset's shapes and the
     # per-world model fields its hooks write, the reset's stage of the
-    # forward pass, sensors once per control step) is found here, once, from
-    # abstract traces: never decided inside the trace of a user's program.
-    self._transitions.analyse()
+    # forward pass, sensors once per control step) is found from abstract
+    # traces that read shapes only, once, on first use
+    # (`Transitions.analyse` runs them all): building stays cheap for an
+    # environment that is never traced, and the answer is the same whenever
+    # they run. Warp needs the per-world fields now, to refuse at build.
     if impl == 'warp':
       backend.check_per_world_fields(impl, self.per_world_model_fields)
 
