@@ -4,6 +4,8 @@ import collections
 import json
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 
 # Compile with LLVM's optimizations off (XLA's HLO passes, which decide
@@ -285,3 +287,31 @@ def swing_fns(swing_env):
       'vreset': jax.jit(jax.vmap(swing_env.reset)),
       'vstep': jax.jit(jax.vmap(swing_env.step)),
   }
+
+
+def run_script(script, argument, tmp_path, *, drop=(), env=None):
+  """Runs `script` in a fresh CPU process; returns its last line as JSON.
+
+  The process gets `json.dumps(argument)` as its argument, this repository
+  on PYTHONPATH, none of the variables in `drop`, `XDG_CACHE_HOME` inside
+  `tmp_path` (never the user's own cache folder), then `env`.
+  """
+  repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+  full_env = {k: v for k, v in os.environ.items() if k not in drop}
+  full_env['JAX_PLATFORMS'] = 'cpu'
+  full_env['XDG_CACHE_HOME'] = str(tmp_path / 'xdg')
+  full_env['PYTHONPATH'] = os.pathsep.join(
+      [repo] + [p for p in [os.environ.get('PYTHONPATH')] if p]
+  )
+  full_env.update(env or {})
+  result = subprocess.run(
+      [sys.executable, '-c', script, json.dumps(argument)],
+      env=full_env,
+      cwd=tmp_path,
+      capture_output=True,
+      text=True,
+      timeout=300,
+      check=False,
+  )
+  assert result.returncode == 0, result.stderr
+  return json.loads(result.stdout.strip().splitlines()[-1])

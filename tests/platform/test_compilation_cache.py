@@ -5,15 +5,10 @@ JAX's cache settings are process-wide, so every check that enables the
 cache runs in a fresh Python process.
 """
 
-import json
-import os
 import pathlib
-import subprocess
-import sys
 
 from mjx_composer.platform import compilation_cache
-
-_REPO = pathlib.Path(__file__).resolve().parents[2]
+from tests import conftest
 
 # Enables the cache (writing every program, however fast it compiled), jits
 # one small function and prints what happened as JSON.
@@ -54,25 +49,7 @@ _OUR_VARS = (
 
 def _run(tmp_path, env=None, **kwargs):
   """Runs `_SCRIPT` in a fresh process; returns its JSON line."""
-  full_env = {k: v for k, v in os.environ.items() if k not in _OUR_VARS}
-  full_env['JAX_PLATFORMS'] = 'cpu'
-  # Never the user's own cache folder: XDG_CACHE_HOME points into tmp_path.
-  full_env['XDG_CACHE_HOME'] = str(tmp_path / 'xdg')
-  full_env['PYTHONPATH'] = os.pathsep.join(
-      [str(_REPO)] + [p for p in [os.environ.get('PYTHONPATH')] if p]
-  )
-  full_env.update(env or {})
-  result = subprocess.run(
-      [sys.executable, '-c', _SCRIPT, json.dumps(kwargs)],
-      env=full_env,
-      cwd=tmp_path,
-      capture_output=True,
-      text=True,
-      timeout=300,
-      check=False,
-  )
-  assert result.returncode == 0, result.stderr
-  return json.loads(result.stdout.strip().splitlines()[-1])
+  return conftest.run_script(_SCRIPT, kwargs, tmp_path, drop=_OUR_VARS, env=env)
 
 
 def _entries(path):

@@ -3,19 +3,12 @@
 JAX's settings are process-wide, so each check runs in a fresh process.
 """
 
-import json
-import os
-import pathlib
-import subprocess
-import sys
-
 import pytest
 
 from mjx_composer.platform import compilation_cache
 from mjx_composer.platform import cpu_linalg
 from mjx_composer.platform import prng_lowering
-
-_REPO = pathlib.Path(__file__).resolve().parents[2]
+from tests import conftest
 
 # Imports the package, reports the Cholesky lowering, then (unless told not
 # to) calls `configure` and reports what it set, as JSON.
@@ -52,24 +45,9 @@ _OUR_VARS = (
 
 
 def _run(tmp_path, argument, **env):
-  full_env = {k: v for k, v in os.environ.items() if k not in _OUR_VARS}
-  full_env['JAX_PLATFORMS'] = 'cpu'
-  full_env['XDG_CACHE_HOME'] = str(tmp_path / 'xdg')
-  full_env['PYTHONPATH'] = os.pathsep.join(
-      [str(_REPO)] + [p for p in [os.environ.get('PYTHONPATH')] if p]
+  return conftest.run_script(
+      _SCRIPT, argument, tmp_path, drop=_OUR_VARS, env=env
   )
-  full_env.update(env)
-  result = subprocess.run(
-      [sys.executable, '-c', _SCRIPT, json.dumps(argument)],
-      env=full_env,
-      cwd=tmp_path,
-      capture_output=True,
-      text=True,
-      timeout=300,
-      check=False,
-  )
-  assert result.returncode == 0, result.stderr
-  return json.loads(result.stdout.strip().splitlines()[-1])
 
 
 def test_importing_the_package_lowers_cholesky_without_lapack(tmp_path):
