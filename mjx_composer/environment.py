@@ -50,6 +50,7 @@ Warp refuses at build).
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import logging
 from typing import Callable
 
@@ -157,7 +158,9 @@ class Environment:
       options: ExecutionOptions | None = None,
       **deprecated,
   ):
-    options, observation_groups = arguments.options_from(options, deprecated)
+    options, observation_groups = arguments.options_from(
+        options, deprecated, _ARGUMENTS
+    )
     arguments.check_composer_options(
         raise_exception_on_physics_error=raise_exception_on_physics_error,
         recompile_mjcf_every_episode=recompile_mjcf_every_episode,
@@ -570,3 +573,12 @@ class Environment:
 
 # composer's `Environment` options that only False (or leaving them out) can
 # mean here, and what happens instead of True.
+
+
+# `Environment`'s arguments as its signature names them (composer's, in
+# composer's order, and `options`), for error messages.
+_ARGUMENTS = tuple(
+    name
+    for name, parameter in inspect.signature(Environment).parameters.items()
+    if parameter.kind != inspect.Parameter.VAR_KEYWORD
+)

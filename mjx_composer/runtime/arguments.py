@@ -22,21 +22,6 @@ ObservationPadding = updater_lib.ObservationPadding
 
 # The `ExecutionOptions` fields, once `Environment` keyword arguments.
 OPTION_FIELDS = tuple(f.name for f in dataclasses.fields(ExecutionOptions))
-# `Environment`'s arguments: composer's, in composer's order, and `options`.
-ARGUMENTS = (
-    'task',
-    'time_limit',
-    'random_state',
-    'n_sub_steps',
-    'raise_exception_on_physics_error',
-    'strip_singleton_obs_buffer_dim',
-    'max_reset_attempts',
-    'recompile_mjcf_every_episode',
-    'fixed_initial_state',
-    'delayed_observation_padding',
-    'legacy_step',
-    'options',
-)
 
 
 COMPOSER_OPTIONS = {
@@ -87,11 +72,13 @@ def check_arguments(padding, max_reset_attempts, time_limit):
     raise ValueError(f'time_limit must be positive, got {time_limit}.')
 
 
-def options_from(options, deprecated):
+def options_from(options, deprecated, arguments):
   """`(ExecutionOptions, observation_groups)` from `Environment`'s arguments.
 
   `deprecated` holds the keyword arguments that `ExecutionOptions` and
   `Task.observation_groups` replace; each still works, with a warning.
+  `arguments`: the names of `Environment`'s arguments, for the error that
+  an unknown keyword gets.
   """
   if options is not None and not isinstance(options, ExecutionOptions):
     raise TypeError(
@@ -104,7 +91,7 @@ def options_from(options, deprecated):
   if unknown:
     raise TypeError(
         f'Environment() got unexpected keyword arguments {unknown}. Its '
-        f'arguments: {", ".join(ARGUMENTS)}; options=ExecutionOptions(...) '
+        f'arguments: {", ".join(arguments)}; options=ExecutionOptions(...) '
         f'takes {", ".join(OPTION_FIELDS)}.'
     )
   observation_groups = deprecated.pop('observation_groups', None)
