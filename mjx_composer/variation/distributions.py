@@ -19,6 +19,15 @@ Sample shape (composer's rule, generalised to broadcasting):
   shares it. (composer returns the unbroadcast draw and relies on the
   assignment to broadcast; returning the full shape keeps shapes static.)
 
+Parameters are checked at construction as `numpy.random` checks them at
+each draw (a negative `scale`, a probability outside [0, 1], `low >= high`
+for integers, ...), and non-finite parameters are refused too (numpy would
+return NaN or infinite samples): constants by value, variations by their
+`static_bounds()` where known (e.g. `Exponential(scale=Uniform(-1, 1))` is
+refused, since half its draws would be invalid). A distribution that could
+draw from invalid parameters never reaches a jitted step, where JAX would
+return wrong samples without an error.
+
 Dtypes: continuous distributions return the floating type of their
 parameters (the default float, float32 unless x64 is enabled, for integer or
 Python parameters); `UniformInteger`, `Poisson` and `Bernoulli` return the
@@ -37,6 +46,99 @@ def _int_dtype():
   return jnp.result_type(int)
 
 
+class _Domain:
+  """The values a parameter may take, checked on its static bounds."""
+
+  def __init__(self, requirement, valid, fix):
+    self.requirement = requirement  # "must be ..." in the message.
+    self.valid = valid  # (low, high) bound arrays -> all valid.
+    self.fix = fix
+
+  def check(self, owner, name, value):
+    """Raises for a constant, or bounded variation, outside the domain."""
+    if not base.contains_variation(value) and not callable(value):
+      array = base.numeric_array(value)
+      if array is None:
+        if isinstance(value, jax.core.Tracer):
+          return  # Traced (inside a user's jit): checked by no one here.
+        raise TypeError(
+            f"{owner}: `{name}` must be a number, array or variation, got "
+            f"{value!r}. {self.fix}"
+        )
+    bounds = base.static_bounds(value)
+    if bounds is None:
+      return  # An unbounded variation: its draws cannot be checked here.
+    low, high = (np.asarray(b, dtype=float) for b in bounds)
+    with np.errstate(invalid="ignore"):
+      ok = bool(np.all(self.valid(low, high)))
+    if not ok:
+      if base.contains_variation(value):
+        got = (
+            f"a variation with values in [{_brief(low)}, {_brief(high)}] "
+            f"({value!r})"
+        )
+      else:
+        got = repr(value)
+      raise ValueError(
+          f"{owner}: `{name}` must be {self.requirement}, got {got}. "
+          f"{self.fix}"
+      )
+
+
+def _below(low, high):
+  """False if some `low` may be >= `high` (True when bounds are unknown)."""
+  low_bounds, high_bounds = base.static_bounds(low), base.static_bounds(high)
+  if low_bounds is None or high_bounds is None:
+    return True
+  return bool(np.all(np.asarray(low_bounds[1]) < np.asarray(high_bounds[0])))
+
+
+def _brief(array):
+  return np.array2string(np.asarray(array), threshold=6)
+
+
+def _finite(low, high):
+  return np.isfinite(low) & np.isfinite(high)
+
+
+_FINITE = _Domain("finite", _finite, "Pass finite values.")
+_NONNEGATIVE = _Domain(
+    "finite and >= 0 (numpy.random refuses negative ones)",
+    lambda low, high: _finite(low, high) & (low >= 0),
+    "Pass values >= 0.",
+)
+_PROBABILITY = _Domain(
+    "a probability in [0, 1] (numpy.random refuses others)",
+    lambda low, high: _finite(low, high) & (low >= 0) & (high <= 1),
+    "Pass values between 0 and 1.",
+)
+
+
+def _poisson_max():
+  """numpy's largest rate for int64 samples, for the default integer type."""
+  maximum = float(np.iinfo(_int_dtype()).max)
+  return maximum - 10 * np.sqrt(maximum)
+
+
+_RATE = _Domain(
+    "finite, >= 0 and small enough for the integer type (numpy.random "
+    "refuses others)",
+    lambda low, high: _finite(low, high)
+    & (low >= 0)
+    & (high <= _poisson_max()),
+    "Pass a rate >= 0 (and below about 2e9 for int32 samples, without x64).",
+)
+
+
+def _integral(low, high):
+  return _finite(low, high) & (low == np.round(low)) & (high == np.round(high))
+
+
+_INTEGER = _Domain(
+    "integers", _integral, "Pass integer bounds, e.g. UniformInteger(0, 5)."
+)
+
+
 class Distribution(composite.CompositeVariation):
   """Base class of parametrised distributions.
 
@@ -51,8 +153,14 @@ class Distribution(composite.CompositeVariation):
   """
 
   _DRAWS_RANDOMNESS = True
+  # Parameter name -> `_Domain` its values must lie in (checked at __init__).
+  _DOMAINS = {}
 
   def __init__(self, single_sample=False, **params):
+    owner = type(self).__name__
+    for name, value in params.items():
+      if name in self._DOMAINS and value is not None:
+        self._DOMAINS[name].check(owner, name, value)
     self._single_sample = bool(single_sample)
     self._params = dict(params)
     self._operands = tuple(params.values())
@@ -98,7 +206,13 @@ class Distribution(composite.CompositeVariation):
 
 
 class Uniform(Distribution):
-  """Uniform on `[low, high)` (numpy's `uniform`; `low > high` is allowed)."""
+  """Uniform on `[low, high)` (numpy's `uniform`; `low > high` is allowed).
+
+  `low > high` samples `(high, low]`, as composer's `RandomState.uniform`
+  does; non-finite bounds are refused.
+  """
+
+  _DOMAINS = {"low": _FINITE, "high": _FINITE}
 
   def __init__(self, low=0.0, high=1.0, single_sample=False):
     """Initializes a `Uniform`.
@@ -130,8 +244,11 @@ class UniformInteger(Distribution):
   """Uniform integers in `[low, high)`, or `[0, low)` if `high` is None.
 
   numpy's `randint` semantics; the upper bound is exclusive, so
-  `static_bounds()` is `(low, high - 1)`.
+  `static_bounds()` is `(low, high - 1)`. As numpy refuses them, `low >=
+  high` (or `low <= 0` without `high`) and non-integer bounds are refused.
   """
+
+  _DOMAINS = {"low": _INTEGER, "high": _INTEGER}
 
   def __init__(self, low, high=None, single_sample=False):
     """Initializes a `UniformInteger`.
@@ -141,8 +258,29 @@ class UniformInteger(Distribution):
         integer scalar, array, or variation.
       high: exclusive upper bound, or `None`.
       single_sample: draw once and broadcast (see module docstring).
+
+    Raises:
+      TypeError: for a bound that is not a number, array or variation.
+      ValueError: for non-integer bounds, or an empty range (`low >= high`,
+        or `low <= 0` when `high` is None) for any element or any value the
+        bounds' variations may draw.
     """
     super().__init__(low=low, high=high, single_sample=single_sample)
+    if high is None:
+      if not _below(0, low):
+        raise ValueError(
+            "UniformInteger: `low` (the exclusive upper bound when `high` is "
+            f"None) must be >= 1, got {low!r}: the range [0, low) is empty "
+            "(or may be, for a variation), which numpy.random refuses. Pass "
+            "UniformInteger(n) with n >= 1 for [0, n)."
+        )
+    elif not _below(low, high):
+      raise ValueError(
+          f"UniformInteger: `high` must be greater than `low`, got "
+          f"low={low!r}, high={high!r}: the range [low, high) is empty (or "
+          "may be, for variation bounds), which numpy.random refuses. Pass "
+          "low < high, e.g. UniformInteger(2, 5)."
+      )
 
   def _draw(self, key, shape, low, high):
     if high is None:
@@ -269,7 +407,9 @@ class UniformPointOnSphere(base.Variation):
 
 
 class Normal(Distribution):
-  """Gaussian with mean `loc` and standard deviation `scale`."""
+  """Gaussian with mean `loc` and standard deviation `scale` (finite, >= 0)."""
+
+  _DOMAINS = {"loc": _FINITE, "scale": _NONNEGATIVE}
 
   def __init__(self, loc=0.0, scale=1.0, single_sample=False):
     super().__init__(loc=loc, scale=scale, single_sample=single_sample)
@@ -280,7 +420,9 @@ class Normal(Distribution):
 
 
 class LogNormal(Distribution):
-  """`exp(N(mean, sigma))` (numpy's `lognormal` parametrisation)."""
+  """`exp(N(mean, sigma))` (numpy's `lognormal` parametrisation; `sigma >= 0`)."""
+
+  _DOMAINS = {"mean": _FINITE, "sigma": _NONNEGATIVE}
 
   def __init__(self, mean=0.0, sigma=1.0, single_sample=False):
     super().__init__(mean=mean, sigma=sigma, single_sample=single_sample)
@@ -291,7 +433,9 @@ class LogNormal(Distribution):
 
 
 class Exponential(Distribution):
-  """Exponential with mean `scale` (numpy's parametrisation)."""
+  """Exponential with mean `scale` (numpy's parametrisation; `scale >= 0`)."""
+
+  _DOMAINS = {"scale": _NONNEGATIVE}
 
   def __init__(self, scale=1.0, single_sample=False):
     super().__init__(scale=scale, single_sample=single_sample)
@@ -301,7 +445,9 @@ class Exponential(Distribution):
 
 
 class Poisson(Distribution):
-  """Poisson with rate `lam`; integer samples."""
+  """Poisson with rate `lam` (finite, >= 0); integer samples."""
+
+  _DOMAINS = {"lam": _RATE}
 
   def __init__(self, lam=1.0, single_sample=False):
     super().__init__(lam=lam, single_sample=single_sample)
@@ -311,12 +457,19 @@ class Poisson(Distribution):
 
 
 class Bernoulli(Distribution):
-  """1 with probability `prob`, else 0 (integers, like `binomial(1, prob)`)."""
+  """1 with probability `prob`, else 0 (integers, like `binomial(1, prob)`).
+
+  `prob` must lie in [0, 1], as numpy's `binomial` requires.
+  """
+
+  _DOMAINS = {"prob": _PROBABILITY}
 
   def __init__(self, prob=0.5, single_sample=False):
     super().__init__(prob=prob, single_sample=single_sample)
 
   def _draw(self, key, shape, prob):
+    # jax.random.bernoulli refuses integer (or bool) probabilities: cast.
+    prob = prob.astype(base.float_dtype(prob))
     return jax.random.bernoulli(key, prob, shape).astype(_int_dtype())
 
   def static_bounds(self):
