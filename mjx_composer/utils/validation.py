@@ -30,6 +30,8 @@ __all__ = [
     'check_range_pair',
     'check_integer',
     'check_in_range',
+    'check_bool',
+    'check_choice',
 ]
 
 
@@ -250,3 +252,46 @@ def check_integer(name, value, *, owner=None, minimum=None, fix=None):
         )
     )
   return value
+
+
+def check_bool(name, value, *, owner=None, fix=None):
+  """Returns `value` as a bool after checking it is one.
+
+  `bool('false')` is True: a switch given a string, a number or None is
+  refused rather than read by its truth value.
+
+  Raises:
+    TypeError: for anything but a Python or NumPy bool.
+  """
+  if not isinstance(value, (bool, np.bool_)):
+    raise TypeError(
+        _error(owner, name, 'True or False', value, fix or 'Pass a bool.')
+    )
+  return bool(value)
+
+
+def check_choice(name, value, choices, *, owner=None, fix=None):
+  """Returns `value` after checking it is one of `choices`.
+
+  Raises:
+    ValueError: for a value not in `choices` (a TypeError for an unhashable
+      one is avoided: the comparison is by equality).
+  """
+  if not any(value is choice or _equal(value, choice) for choice in choices):
+    raise ValueError(
+        _error(
+            owner,
+            name,
+            f'one of {tuple(choices)!r}',
+            value,
+            fix or f'Pass one of {", ".join(map(repr, choices))}.',
+        )
+    )
+  return value
+
+
+def _equal(value, choice):
+  try:
+    return bool(value == choice)
+  except (TypeError, ValueError):  # e.g. an array compared with a string.
+    return False
