@@ -15,6 +15,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_composer.utils import validation
+
 # -- rewards -------------------------------------------------------------------
 
 
@@ -206,6 +208,17 @@ class Pushes:
   """
 
   def __init__(self, interval, magnitude=(0.1, 1.0)):
+    if interval is not None:
+      validation.check_integer(
+          'interval',
+          interval,
+          owner='Pushes',
+          minimum=0,
+          fix='Pass an int >= 0 (0 or None: no pushes).',
+      )
+    validation.check_range_pair(
+        'magnitude', magnitude, owner='Pushes', nonnegative=True
+    )
     self.interval = int(interval or 0)
     self.magnitude = tuple(float(m) for m in magnitude)
 

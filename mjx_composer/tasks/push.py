@@ -28,6 +28,7 @@ from mjx_composer.entities import simulation_options as options_lib
 from mjx_composer.initializers import prop_initializer
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.tasks import reach
+from mjx_composer.utils import validation
 from mjx_composer.variation import distributions
 from mjx_composer.variation import rotations
 
@@ -91,10 +92,27 @@ class Push(task.Task):
       solver_iterations=options_lib.SOLVER_CAPS['iterations'],
       solver_ls_iterations=options_lib.SOLVER_CAPS['ls_iterations'],
   ):
-    if placement not in _PLACEMENTS:
-      raise ValueError(
-          f'placement must be one of {_PLACEMENTS}, got ' f'{placement!r}.'
+    validation.check_integer('num_boxes', num_boxes, owner='Push', minimum=1)
+    validation.check_choice('placement', placement, _PLACEMENTS, owner='Push')
+    validation.check_integer(
+        'max_attempts_per_prop', max_attempts_per_prop, owner='Push', minimum=1
+    )
+    if max_contact_points is not None:
+      validation.check_integer(
+          'max_contact_points',
+          max_contact_points,
+          owner='Push',
+          minimum=1,
+          fix='Pass an int >= 1, or None for no cap.',
       )
+    reach.check_arm_task_arguments(
+        'Push',
+        control_timestep,
+        physics_timestep,
+        observation_noise,
+        solver_iterations,
+        solver_ls_iterations,
+    )
     self._arena = arenas.WalledArena(
         size=(_ARENA_HALF_SIZE, _ARENA_HALF_SIZE), size_variation=None
     )

@@ -27,6 +27,7 @@ from mjx_composer.entities import robots
 from mjx_composer.entities import simulation_options as options_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
+from mjx_composer.utils import validation
 from mjx_composer.variation import colors
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
@@ -45,6 +46,41 @@ def gaussian_noise(scale):
     )
 
   return corrupt
+
+
+def check_arm_task_arguments(
+    owner,
+    control_timestep,
+    physics_timestep,
+    observation_noise,
+    solver_iterations,
+    solver_ls_iterations,
+):
+  """The arguments the arm tasks share, checked before anything is built.
+
+  Raises:
+    TypeError, ValueError: naming the argument, its value and the fix.
+  """
+  validation.check_positive('control_timestep', control_timestep, owner=owner)
+  validation.check_positive('physics_timestep', physics_timestep, owner=owner)
+  validation.check_nonnegative(
+      'observation_noise',
+      observation_noise,
+      owner=owner,
+      fix='Pass a standard deviation >= 0 (0: no noise).',
+  )
+  for name, value in (
+      ('solver_iterations', solver_iterations),
+      ('solver_ls_iterations', solver_ls_iterations),
+  ):
+    if value is not None:
+      validation.check_integer(
+          name,
+          value,
+          owner=owner,
+          minimum=1,
+          fix="Pass an int >= 1, or None to keep MuJoCo's default.",
+      )
 
 
 def cap_solver(arena, iterations, ls_iterations):
@@ -83,6 +119,15 @@ class Reach(task.Task):
       solver_iterations=options_lib.SOLVER_CAPS['iterations'],
       solver_ls_iterations=options_lib.SOLVER_CAPS['ls_iterations'],
   ):
+    check_arm_task_arguments(
+        'Reach',
+        control_timestep,
+        physics_timestep,
+        observation_noise,
+        solver_iterations,
+        solver_ls_iterations,
+    )
+    validation.check_bool('randomize', randomize, owner='Reach')
     self._arena = arenas.Floor(size=(1.5, 1.5))
     self._arm = robots.Arm()
     self._arena.attach(self._arm)

@@ -50,6 +50,7 @@ from mjx_composer.entities import humanoid as humanoid_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
 from mjx_composer.tasks import locomotion
+from mjx_composer.utils import validation
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
 from mjx_composer.variation import noises
@@ -90,6 +91,42 @@ _WITH_HISTORY = ('joint_positions', 'joint_velocities')
 _PRIVILEGED = ('gyro', 'torso_velocity', 'accelerometer')
 
 
+def _check_arguments(**kwargs):
+  """`Walk`'s arguments, checked before anything is built."""
+  v, owner = validation, 'Walk'
+  v.check_nonnegative(
+      'move_speed',
+      kwargs['move_speed'],
+      owner=owner,
+      fix='Pass a speed in m/s, >= 0 (0: stand still).',
+  )
+  for name in ('control_timestep', 'physics_timestep', 'fall_height'):
+    v.check_positive(name, kwargs[name], owner=owner)
+  v.check_nonnegative(
+      'noise_level', kwargs['noise_level'], owner=owner, fix='0: no noise.'
+  )
+  v.check_nonnegative(
+      'initial_pose_noise', kwargs['initial_pose_noise'], owner=owner
+  )
+  v.check_integer(
+      'observation_delay', kwargs['observation_delay'], owner=owner, minimum=0
+  )
+  v.check_integer('history', kwargs['history'], owner=owner, minimum=1)
+  if kwargs['push_interval'] is not None:
+    v.check_integer(
+        'push_interval',
+        kwargs['push_interval'],
+        owner=owner,
+        minimum=0,
+        fix='Pass an int >= 0 (0 or None: no pushes).',
+    )
+  v.check_range_pair(
+      'push_magnitude', kwargs['push_magnitude'], owner=owner, nonnegative=True
+  )
+  v.check_bool('randomize', kwargs['randomize'], owner=owner)
+  v.check_bool('terminate_on_fall', kwargs['terminate_on_fall'], owner=owner)
+
+
 class Walk(task.Task):
   """Walk at `move_speed` (module docstring).
 
@@ -124,6 +161,20 @@ class Walk(task.Task):
       fall_height=0.8,
       initial_pose_noise=0.1,
   ):
+    _check_arguments(
+        move_speed=move_speed,
+        control_timestep=control_timestep,
+        physics_timestep=physics_timestep,
+        noise_level=noise_level,
+        observation_delay=observation_delay,
+        history=history,
+        randomize=randomize,
+        push_interval=push_interval,
+        push_magnitude=push_magnitude,
+        terminate_on_fall=terminate_on_fall,
+        fall_height=fall_height,
+        initial_pose_noise=initial_pose_noise,
+    )
     self._move_speed = float(move_speed)
     self._arena = arenas.Floor(size=(20.0, 20.0))
     self._humanoid = humanoid_lib.Humanoid()
