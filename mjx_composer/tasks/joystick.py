@@ -63,6 +63,7 @@ from mjx_composer.entities import go1 as go1_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
 from mjx_composer.tasks import locomotion
+from mjx_composer.utils import validation
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
 from mjx_composer.variation import noises
@@ -147,8 +148,38 @@ class Joystick(task.Task):
       push_magnitude=(0.1, 1.0),
       terminate_on_fall=True,
   ):
-    if terrain not in TERRAINS:
-      raise ValueError(f'terrain must be one of {TERRAINS}, got {terrain!r}.')
+    v, owner = validation, 'Joystick'  # Checked before anything is built.
+    v.check_choice('terrain', terrain, TERRAINS, owner=owner)
+    for name, value in (
+        ('control_timestep', control_timestep),
+        ('physics_timestep', physics_timestep),
+        ('kp', kp),
+        ('action_scale', action_scale),
+    ):
+      v.check_positive(name, value, owner=owner)
+    v.check_nonnegative('kd', kd, owner=owner)
+    v.check_nonnegative('noise_level', noise_level, owner=owner, fix='0: none.')
+    v.check_integer(
+        'observation_delay', observation_delay, owner=owner, minimum=0
+    )
+    v.check_integer('history', history, owner=owner, minimum=1)
+    for name, value in (
+        ('command_interval', command_interval),
+        ('push_interval', push_interval),
+    ):
+      if value is not None:
+        v.check_integer(
+            name,
+            value,
+            owner=owner,
+            minimum=0,
+            fix='Pass an int >= 0 (0 or None: never).',
+        )
+    v.check_range_pair(
+        'push_magnitude', push_magnitude, owner=owner, nonnegative=True
+    )
+    v.check_bool('randomize', randomize, owner=owner)
+    v.check_bool('terminate_on_fall', terminate_on_fall, owner=owner)
     if terrain == 'flat':
       self._arena = arenas.Floor(size=(10.0, 10.0))
     else:
