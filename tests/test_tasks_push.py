@@ -130,7 +130,7 @@ def test_baseline_placements():
       np.linalg.norm(positions[..., :2], axis=-1), 0.3, atol=1e-5
   )
   assert np.std(positions[:, 0, 0]) > 0.05
-  with pytest.raises(ValueError, match='placement must be one of'):
+  with pytest.raises(ValueError, match='`placement` must be one of'):
     push.Push(placement='random')
 
 
