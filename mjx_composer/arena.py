@@ -3,6 +3,7 @@
 import mujoco
 
 from mjx_composer import entity
+from mjx_composer.model import pymjcf
 
 
 class Arena(entity.Entity):
@@ -15,12 +16,21 @@ class Arena(entity.Entity):
   `noslip_iterations=5` is left out: MJX has no noslip solver, and asking for
   it would make MuJoCo on the host (our reference) disagree with MJX.
 
+  An arena written against PyMJCF, as dm_control's arenas are, reads and
+  edits `self._mjcf_root` after `super()._build(name=name)`: on first use it
+  becomes the arena's model, an `mjcf.RootElement` with the same defaults
+  (or `xml_path` loaded with `mjcf.from_path`), in place of the MjSpec. A
+  subclass may also assign its own `mjcf.RootElement` to `self._mjcf_root`.
+
   Args:
     name: the arena's name (its spec's `modelname`).
     xml_path: optional MJCF file to start from instead of an empty scene.
   """
 
+  _pymjcf_root = None
+
   def _build(self, name=None, xml_path=None):
+    self._build_args = (name, xml_path)
     if xml_path is not None:
       spec = mujoco.MjSpec.from_file(str(xml_path))
     else:
@@ -41,12 +51,41 @@ class Arena(entity.Entity):
 
   @property
   def mjcf_model(self):
+    if self._pymjcf_root is not None:
+      return self._pymjcf_root
     return self._spec
+
+  @property
+  def _mjcf_root(self):
+    """The arena's PyMJCF model (dm_control's attribute); see the class."""
+    if self._pymjcf_root is None:
+      spec = self._spec
+      if len(spec.bodies) > 1 or spec.geoms or spec.sites or spec.lights:
+        raise RuntimeError(
+            f'Arena {self.name!r} already has MjSpec elements: an arena is '
+            'built either on its MjSpec (self.mjcf_model) or on PyMJCF '
+            '(self._mjcf_root), not both.'
+        )
+      self._pymjcf_root = _pymjcf_arena(*self._build_args)
+      self._spec = None
+    return self._pymjcf_root
+
+  @_mjcf_root.setter
+  def _mjcf_root(self, root):
+    if root is not None and not pymjcf.is_root(root):
+      raise TypeError(
+          f'_mjcf_root must be a dm_control mjcf.RootElement, got '
+          f'{type(root).__name__}.'
+      )
+    self._pymjcf_root = root
 
   def add_free_entity(self, entity_to_add):
     """Attaches an entity with a freejoint on its frame; returns the frame."""
     frame = self.attach(entity_to_add)
-    frame.add_freejoint()
+    if pymjcf.is_element(frame):
+      frame.add('freejoint')
+    else:
+      frame.add_freejoint()
     return frame
 
   @property
@@ -70,3 +109,24 @@ class Arena(entity.Entity):
     """
     del key
     return physics
+
+
+def _pymjcf_arena(name, xml_path):
+  """A PyMJCF arena model with `Arena`'s defaults, or `xml_path` loaded."""
+  from dm_control import mjcf  # pylint: disable=g-import-not-at-top
+
+  if xml_path is not None:
+    root = mjcf.from_path(str(xml_path))
+  else:
+    root = mjcf.RootElement()
+    root.compiler.angle = 'radian'
+    root.option.timestep = 0.002
+    root.option.cone = 'elliptic'
+  root.compiler.boundmass = 1e-5
+  root.compiler.boundinertia = 1e-11
+  root.visual.map.znear = 0.01
+  root.visual.headlight.diffuse = [0.6, 0.6, 0.6]
+  root.visual.headlight.ambient = [0.3, 0.3, 0.3]
+  root.visual.headlight.specular = [0.0, 0.0, 0.0]
+  root.model = name or root.model or 'arena'
+  return root

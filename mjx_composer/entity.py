@@ -15,6 +15,16 @@ Names of attached elements are prefixed with `"<entity name>/"`, so a site
 `hand` of an arm attached as `arm` compiles to `arm/hand`, and the attachment
 frame body (which may carry a freejoint) is named `arm/`, as in dm_control.
 
+PyMJCF. An entity's model may instead be a `dm_control.mjcf.RootElement`
+(`mjcf.from_path(...)`, `mjcf.RootElement()`), as dm_control's entities
+build it: it is converted to an MjSpec each time the tree is composed
+(`model/pymjcf.py`), and the PyMJCF elements it hands out (bodies, joints,
+sites, geoms, actuators, sensors, cameras) bind, observe, vary and host
+attachments like MjSpec handles. PyMJCF and MjSpec entities attach to each
+other in either direction. A dm_control `composer.Entity` itself (its
+walkers, arenas and props) attaches through `DmControlEntity`, which
+`attach` applies to it.
+
 Hooks. The build-time hooks `initialize_episode_mjcf(random_state)` and
 `after_compile(physics, random_state)` run once on the host when the
 environment is built (with a `numpy.random.RandomState`). The per-episode and
@@ -27,6 +37,7 @@ it in `Task.initial_task_state` instead).
 from __future__ import annotations
 
 import abc
+import sys
 import weakref
 from typing import Iterator
 
@@ -35,6 +46,7 @@ import mujoco
 
 from mjx_composer.model import composition_checks
 from mjx_composer.model import element_index
+from mjx_composer.model import pymjcf
 from mjx_composer.utils import transformations as tr
 
 _DEFAULT_SPEC_NAME = 'MuJoCo Model'
@@ -57,17 +69,25 @@ class Entity(abc.ABC):
     self._attached: list[Entity] = []
     self._attachment_frame = None  # MjsBody in the parent's own spec
     observable_options = kwargs.pop('observable_options', None)
-    self._build(*args, **kwargs)
+    try:
+      self._build(*args, **kwargs)
+    except AttributeError as e:
+      _raise_with_spec_hint(e, f'{type(self).__name__}._build')
+      raise
     spec = self.mjcf_model
-    if not isinstance(spec, mujoco.MjSpec):
+    if pymjcf.is_root(spec):
+      if not spec.model:
+        spec.model = type(self).__name__.lower()
+    elif not isinstance(spec, mujoco.MjSpec):
       raise TypeError(
           f'{type(self).__name__}.mjcf_model must return a '
-          f'mujoco.MjSpec, got {type(spec).__name__}.'
+          'mujoco.MjSpec or a dm_control mjcf.RootElement, got '
+          f'{type(spec).__name__}.'
       )
-    if not spec.modelname or spec.modelname == _DEFAULT_SPEC_NAME:
+    elif not spec.modelname or spec.modelname == _DEFAULT_SPEC_NAME:
       spec.modelname = type(self).__name__.lower()
-    if '/' in spec.modelname:
-      raise ValueError(f'Entity name {spec.modelname!r} must not contain "/".')
+    if '/' in self.name:
+      raise ValueError(f'Entity name {self.name!r} must not contain "/".')
     self._observables = self._build_observables()
     self._observables.set_options(observable_options)
 
@@ -84,12 +104,18 @@ class Entity(abc.ABC):
   @property
   @abc.abstractmethod
   def mjcf_model(self) -> mujoco.MjSpec:
-    """The entity's own `mujoco.MjSpec` (never the composed one)."""
+    """The entity's own model (never the composed one).
+
+    A `mujoco.MjSpec`, or a dm_control `mjcf.RootElement`.
+    """
 
   @property
   def name(self) -> str:
     """The entity name, used as the prefix `"<name>/"` when attached."""
-    return self.mjcf_model.modelname
+    model = self.mjcf_model
+    if pymjcf.is_root(model):
+      return pymjcf.model_name(model)
+    return model.modelname
 
   @property
   def full_identifier(self) -> str:
@@ -170,20 +196,27 @@ class Entity(abc.ABC):
     """Attaches `entity` below this one and returns its attachment frame.
 
     Args:
-      entity: an entity with no parent.
-      attach_site: an `MjsSite` or `MjsBody` of this entity's own spec; the
-        frame takes the site's pose. Defaults to `self.attachment_site`.
+      entity: an entity with no parent, or a dm_control `composer.Entity`
+        (wrapped in a `DmControlEntity`, reachable as the frame's entity:
+        `self.attached_entity(frame)`).
+      attach_site: an `MjsSite` or `MjsBody` of this entity's own spec (a
+        PyMJCF `site` or `body` of its own PyMJCF model); the frame takes the
+        site's pose. Defaults to `self.attachment_site`.
 
     Returns:
       The attachment frame: an `MjsBody` named `"<entity name>/"` in this
       entity's spec that holds the child. Add a freejoint to it
       (`frame.add_freejoint()`) to make the child free, or edit its
-      `pos`/`quat` to move it.
+      `pos`/`quat` to move it. In a PyMJCF model it is a PyMJCF `body`
+      (`frame.add('freejoint')`), named `"<entity name>/"` once composed.
     """
     if not isinstance(entity, Entity):
-      raise TypeError(
-          f'Can only attach an Entity, got {type(entity).__name__}.'
-      )
+      if not DmControlEntity.accepts(entity):
+        raise TypeError(
+            'Can only attach an Entity (or a dm_control composer.Entity), '
+            f'got {type(entity).__name__}.'
+        )
+      entity = DmControlEntity(entity)
     if entity is self or any(e is self for e in entity.iter_entities()):
       raise ValueError('Cannot attach an entity to itself or its descendant.')
     if entity.parent is not None:
@@ -201,7 +234,9 @@ class Entity(abc.ABC):
         )
     spec = self.mjcf_model
     site = self.attachment_site if attach_site is None else attach_site
-    if isinstance(site, mujoco.MjsSite):
+    if pymjcf.is_root(spec) or pymjcf.is_element(site):
+      frame = self._pymjcf_frame(spec, site)
+    elif isinstance(site, mujoco.MjsSite):
       if not any(s is site for s in spec.sites):
         raise ValueError(
             f'attach_site {site.name!r} is not a site of '
@@ -228,12 +263,46 @@ class Entity(abc.ABC):
     self._attached.append(entity)
     return frame
 
+  def _pymjcf_frame(self, model, site):
+    """An attachment frame at a PyMJCF site or body of this PyMJCF model."""
+    if not pymjcf.is_root(model):
+      raise TypeError(
+          f'attach_site {pymjcf.describe(site)} is a PyMJCF element, but '
+          f"{self.name!r}'s model is an MjSpec: pass one of its MjsSite or "
+          'MjsBody handles.'
+      )
+    if not pymjcf.is_element(site) or site.tag not in (
+        'site',
+        'body',
+        'worldbody',
+    ):
+      raise TypeError(
+          f"{self.name!r}'s model is a PyMJCF model: attach_site must be "
+          f'one of its PyMJCF sites or bodies, got {site!r}.'
+      )
+    if site.root is not model:
+      raise ValueError(
+          f'attach_site {pymjcf.describe(site)} is not an element of '
+          f"{self.name!r}'s own PyMJCF model."
+      )
+    return pymjcf.add_frame(site)
+
+  def attached_entity(self, frame) -> Entity:
+    """The entity attached below this one at attachment frame `frame`."""
+    for child in self._attached:
+      if child.attachment_frame is frame:
+        return child
+    raise ValueError(f'{frame!r} is no attachment frame of {self.name!r}.')
+
   def detach(self):
     """Detaches this entity from its parent, restoring the parent's spec."""
     parent = self.parent
     if parent is None:
       raise RuntimeError('Cannot detach an entity that is not attached.')
-    parent.mjcf_model.delete(self._attachment_frame)
+    if pymjcf.is_element(self._attachment_frame):
+      self._attachment_frame.remove()
+    else:
+      parent.mjcf_model.delete(self._attachment_frame)
     parent._attached.remove(self)  # pylint: disable=protected-access
     self._parent = None
     self._attachment_frame = None
@@ -269,6 +338,14 @@ class Entity(abc.ABC):
       the composed spec (its `.name` is the fully qualified name).
     """
     own = self.mjcf_model
+    aliases = {}
+    if pymjcf.is_root(own):
+      own, aliases = pymjcf.to_spec(
+          own,
+          {id(c.attachment_frame): c.name + '/' for c in self._attached},
+      )
+      # Keyed by the spec handle (kept alive in the value, so ids stay unique).
+      aliases = {id(h): (e, h) for e, _, h in aliases.values()}
     # copy() and attach() silently drop elements with dangling references;
     # elements that refer to attached entities are added back at the end.
     deferred = composition_checks.cross_entity_elements(self, own)
@@ -290,6 +367,9 @@ class Entity(abc.ABC):
         # Unnamed elements get a stable name so they can be resolved.
         copied.name = f'unnamed_{kind}_{len(handles)}'
       handles[id(original)] = (original, kind, copied)
+      alias = aliases.get(id(original))
+      if alias is not None:  # The PyMJCF element the handle was made from.
+        handles[id(alias[0])] = (alias[0], kind, copied)
     for child in self._attached:
       child_spec, child_handles = child.compose()
       frame = handles[id(child.attachment_frame)][2]
@@ -340,6 +420,8 @@ class Entity(abc.ABC):
     frame = self._attachment_frame
     if frame is None:
       return None
+    if pymjcf.is_element(frame):
+      return pymjcf.freejoint(frame)
     for joint in frame.joints:
       if joint.type == mujoco.mjtJoint.mjJNT_FREE:
         return joint
@@ -442,7 +524,11 @@ class Entity(abc.ABC):
 
   def configure_joints(self, physics, position):
     """Writes qpos of this entity's own joints (not its children's)."""
-    joints = list(self.mjcf_model.joints)
+    model = self.mjcf_model
+    if pymjcf.is_root(model):
+      joints = pymjcf.own_joints(model)
+    else:
+      joints = list(model.joints)
     return physics.bind(joints).set(qpos=position)
 
 
@@ -475,3 +561,107 @@ class ModelWrapperEntity(Entity):
   @property
   def mjcf_model(self):
     return self._spec
+
+
+def _raise_with_spec_hint(error: AttributeError, where: str):
+  """Re-raises a PyMJCF call on an MjSpec object with what to use instead."""
+  obj = getattr(error, 'obj', None)
+  name = getattr(error, 'name', None)
+  if obj is None or not type(obj).__name__.startswith('Mjs'):
+    if not isinstance(obj, mujoco.MjSpec):
+      return
+  hint = pymjcf.spec_hint(name)
+  if hint is None:
+    return
+  raise AttributeError(
+      f'{where}: {type(obj).__name__} has no {name!r}, a PyMJCF (dm_control '
+      f'mjcf) name. On a mujoco.MjSpec use {hint}; or build the entity on '
+      'PyMJCF (an mjcf.RootElement as mjcf_model), which composes as well.'
+  ) from error
+
+
+class DmControlEntity(Entity):
+  """A dm_control `composer.Entity` (walker, arena, prop) in a composition.
+
+  `Entity.attach` wraps a dm_control entity in one of these; build one
+  yourself to keep a handle on it (`DmControlEntity(ant.Ant())`).
+
+  Carried: the entity's PyMJCF model, as it stands when the environment is
+  built (its PyMJCF elements bind, observe and vary like MjSpec handles),
+  and its attributes: any name this class does not define is read from the
+  dm_control entity (`walker.actuators`, `walker.end_effectors`,
+  `walker.observable_joints`, `arena.ground_geoms`, ...). Its observables of
+  type `MJCFFeature` become this entity's observables (enabled as they
+  were, with their index, update interval, buffer size, delay and
+  aggregator).
+
+  Not carried: the entity's hooks (`initialize_episode`, `before_step`, ...:
+  NumPy code that writes a stateful physics in place, which cannot run on
+  a traced, pure physics), its `Generic` and camera observables, and the
+  corruptors of its observables. Composer's frame and pose methods
+  (`root_body`, `get_pose`, `set_pose`, `shift_pose`, `set_velocity`,
+  `configure_joints`, `attach`) are this class's, acting on the wrapped
+  model. Port a hook into a subclass when you need it.
+
+  Args:
+    entity: a dm_control `composer.Entity` that is not attached (use
+      `Entity.attach`, not dm_control's).
+  """
+
+  @staticmethod
+  def accepts(obj) -> bool:
+    """Whether `obj` is a dm_control `composer.Entity`."""
+    module = sys.modules.get('dm_control.composer.entity')
+    return module is not None and isinstance(obj, module.Entity)
+
+  def _build(self, entity):  # pylint: disable=arguments-differ
+    if not self.accepts(entity):
+      raise TypeError(
+          'DmControlEntity wraps a dm_control composer.Entity, got '
+          f'{type(entity).__name__}.'
+      )
+    if entity.parent is not None:
+      raise ValueError(
+          f'dm_control entity {entity.mjcf_model.model!r} is attached to '
+          f"{entity.parent.mjcf_model.model!r} with dm_control's attach: "
+          "attach it with this package's Entity.attach instead."
+      )
+    self._entity = entity
+
+  @property
+  def mjcf_model(self):
+    return self._entity.mjcf_model
+
+  @property
+  def entity(self):
+    """The wrapped dm_control entity."""
+    return self._entity
+
+  def __getattr__(self, name):
+    # Only names this class lacks get here (dm_control's own attributes).
+    if name.startswith('__') or '_entity' not in self.__dict__:
+      raise AttributeError(name)
+    return getattr(self.__dict__['_entity'], name)
+
+  def _build_observables(self):
+    from mjx_composer.observation import observable  # pylint: disable=g-import-not-at-top
+
+    observables = observable.Observables(self)
+    for name, obs in self._entity.observables.as_dict(
+        fully_qualified=False
+    ).items():
+      if type(obs).__name__ != 'MJCFFeature':
+        continue
+      # pylint: disable=protected-access
+      ours = observable.MJCFFeature(
+          obs._kind,
+          obs._mjcf_element,
+          update_interval=obs.update_interval,
+          buffer_size=obs.buffer_size,
+          delay=obs.delay,
+          aggregator=obs.aggregator,
+          index=obs._index,
+      )
+      ours.enabled = obs.enabled
+      observables.add_observable(name, ours, enabled=obs.enabled)
+    return observables

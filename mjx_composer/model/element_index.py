@@ -3,7 +3,9 @@
 Hooks, observables and variators refer to elements by the MjSpec handles their
 entities keep (`mujoco.MjsBody`, `MjsGeom`, `MjsSite`, `MjsJoint`,
 `MjsActuator`, `MjsSensor`, `MjsTendon`, `MjsCamera`, `MjsLight`,
-`MjsEquality`) or by fully qualified names (`'arm/hand'`). `Environment`
+`MjsEquality`), by the PyMJCF elements (`dm_control.mjcf.Element`) of
+entities built on PyMJCF (`model/pymjcf.py`), or by fully qualified names
+(`'arm/hand'`). `Environment`
 builds one `ElementIndex` when it compiles; `Physics` carries it as static
 data, so every element resolves to a static integer index (or slice) while
 tracing, and nothing on the device looks a name up.
@@ -21,6 +23,8 @@ from typing import Any, Iterable, Sequence
 import mujoco
 from mujoco import mjx
 import numpy as np
+
+from mjx_composer.model import pymjcf
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,13 +119,21 @@ _DATA_ALIASES = {'tendon': {'length': 'ten_length'}}
 
 
 def element_kind(element) -> Kind:
-  """The `Kind` of an MjSpec element handle, or a clear TypeError."""
+  """The `Kind` of an MjSpec or PyMJCF element, or a clear TypeError."""
   for cls, kind in _KINDS.items():
     if isinstance(element, cls):
       return kind
+  if pymjcf.is_element(element):
+    name = pymjcf.kind_name(element)
+    if name is not None:
+      return KINDS_BY_NAME[name]
+    raise TypeError(
+        f'Cannot bind {pymjcf.describe(element)}: only PyMJCF '
+        f'{", ".join(pymjcf.BINDABLE_NAMESPACES)} elements can be bound.'
+    )
   raise TypeError(
       f'Cannot bind {element!r}: expected an MjSpec element handle '
-      f'({", ".join(c.__name__ for c in _KINDS)}).'
+      f'({", ".join(c.__name__ for c in _KINDS)}) or a PyMJCF element.'
   )
 
 
@@ -170,6 +182,8 @@ class ElementIndex:
     """
     out = {name: {} for name in KINDS_BY_NAME}
     for handle, kind_name, full_name in self._handles.values():
+      if pymjcf.is_element(handle):
+        continue  # An alias of the MjSpec handle it was converted to.
       kind = KINDS_BY_NAME[kind_name]
       idx = mujoco.mj_name2id(self.mj_model, kind.obj, full_name)
       if idx < 0:
@@ -182,6 +196,15 @@ class ElementIndex:
   def full_name(self, element) -> str:
     """Fully qualified compiled name of an element handle."""
     entry = self._handles.get(id(element))
+    if (entry is None or entry[0] is not element) and pymjcf.is_element(
+        element
+    ):
+      raise ValueError(
+          f'Element {_describe(element)} is not part of the compiled model: '
+          'its PyMJCF model is not the model of an entity attached to the '
+          "task's root entity, or it was added after the environment was "
+          'built (add elements before building the Environment).'
+      )
     if entry is None or entry[0] is not element:
       raise ValueError(
           f'Element {_describe(element)} is not part of the compiled model: '
@@ -383,6 +406,8 @@ def _element_index(ids: Sequence[int], is_seq: bool):
 
 
 def _describe(element) -> str:
+  if pymjcf.is_element(element):
+    return pymjcf.describe(element)
   name = getattr(element, 'name', '')
   return f'{type(element).__name__}({name!r})' if name else repr(element)
 

@@ -5,6 +5,7 @@ import copy
 import mujoco
 import numpy as np
 
+from mjx_composer.model import pymjcf
 from mjx_composer.observation.observable import base
 
 # MjSpec handle types that can be bound. Spec-level helper types (compiler
@@ -18,7 +19,7 @@ _ELEMENT_TYPES = tuple(
 
 
 def _is_element(obj) -> bool:
-  return isinstance(obj, _ELEMENT_TYPES)
+  return isinstance(obj, _ELEMENT_TYPES) or pymjcf.is_element(obj)
 
 
 class MJCFFeature(base.Observable):
