@@ -579,3 +579,76 @@ def test_distribution_boundary_parameters_numpy_accepts_are_kept():
   assert 1.0 < float(distributions.Uniform(2.0, 1.0)(key=key)) <= 2.0
   # Unbounded variation parameters cannot be checked at construction.
   distributions.Normal(0.0, distributions.Normal())
+
+
+class _GroupedSwing(conftest.SwingTask):
+  """The swing task with a flattened and a dict-valued observation group."""
+
+  def observation_groups(self):
+    group = composer.ObservationGroup
+    return {
+        'policy': group(keys=['tip'], flatten=True),
+        'raw': group(keys=['tip']),
+    }
+
+
+@functools.lru_cache(maxsize=None)
+def _brax_envs():
+  """(ungrouped, grouped) swing environments that Brax can wrap."""
+  options = composer.ExecutionOptions(auto_reset='same_step')
+  return (
+      conftest.make_swing_env(time_limit=0.05, options=options),
+      composer.Environment(_GroupedSwing(), time_limit=0.05, options=options),
+  )
+
+
+@pytest.mark.parametrize(
+    'obs_key, error, match',
+    [
+        ([], ValueError, r'obs_key=\[\] selects no observation.*Pass None'),
+        (('tip', 'tip'), ValueError, r"obs_key=.*names \['tip'\] more than"),
+        (3, TypeError, r'obs_key must be None, a string.*got 3'),
+        (['tip', 4], TypeError, r'obs_key must be None, a string'),
+        ('nope', ValueError, r"obs_key: no observation \['nope'\].*'tip'"),
+    ],
+)
+def test_brax_env_refuses_a_bad_obs_key(obs_key, error, match):
+  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+  with pytest.raises(error, match=match):
+    brax_adapter.BraxEnv(_brax_envs()[0], obs_key=obs_key)
+
+
+def test_brax_env_refuses_a_group_that_is_not_flattened():
+  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+  grouped = _brax_envs()[1]
+  for obs_key in (None, 'raw', ['policy', 'raw']):
+    with pytest.raises(
+        ValueError, match=r"\['raw'\] are not flattened.*flatten=True"
+    ):
+      brax_adapter.BraxEnv(grouped, obs_key=obs_key)
+  assert brax_adapter.BraxEnv(grouped, obs_key='policy').observation_size == 3
+
+
+def test_brax_env_default_obs_key_works_with_brax_networks():
+  """Without groups, Brax's default networks (policy_obs_key='state') fit.
+
+  Before, obs_key=None gave Brax a dict without 'state' and Brax's network
+  factory failed with KeyError: 'state'.
+  """
+  from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
+  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+  brax_env = brax_adapter.BraxEnv(_brax_envs()[0])
+  assert brax_env.observation_size == 3
+  with pytest.raises(KeyError, match='state'):  # The reference: Brax.
+    ppo_networks.make_ppo_networks({'tip': (3,)}, brax_env.action_size)
+  networks = ppo_networks.make_ppo_networks(
+      brax_env.observation_size, brax_env.action_size
+  )
+  params = networks.policy_network.init(jax.random.key(0))
+  obs = brax_env.reset(jax.random.key(1)).obs
+  assert obs.shape == (3,)
+  logits = networks.policy_network.apply(None, params, obs[None])
+  assert logits.shape == (1, 2 * brax_env.action_size)

@@ -135,11 +135,15 @@ class BraxEnv(brax_base.Env):
   Args:
     environment: an `mjx_composer.Environment` built with
       `auto_reset='same_step'`.
-    obs_key: which observation Brax sees. None: the whole observation (an
-      array, or a dict of arrays such as the observation groups, for
-      `make_ppo_networks(policy_obs_key=..., value_obs_key=...)`); a string:
-      one entry (a group such as 'policy', or an observable) as an array; a
-      sequence of strings: those entries concatenated into one array.
+    obs_key: which observation Brax sees. None: the whole observation: with
+      observation groups, the dict of groups (each flattened), for
+      `make_ppo_networks(policy_obs_key=..., value_obs_key=...)`; without
+      them, every observable concatenated into one array (Brax's networks
+      would otherwise look for a 'state' entry that is not there). A string:
+      one entry (a flattened group such as 'policy', or an observable) as an
+      array; a non-empty sequence of distinct strings: those entries
+      concatenated into one array. Checked against the observation spec
+      when the adapter is built.
     episode_length: the number of steps Brax's evaluator unrolls. Defaults to
       the environment's time limit in control steps; required if that is
       infinite.
@@ -164,7 +168,7 @@ class BraxEnv(brax_base.Env):
           'LAST step and must see the next episode start in the same step.'
       )
     self._env = environment
-    self._obs_key = obs_key
+    self._obs_key, self._concatenate_all = _check_obs_key(environment, obs_key)
     spec = environment.action_spec()
     if len(spec.shape) != 1:
       raise ValueError(
@@ -292,6 +296,8 @@ class BraxEnv(brax_base.Env):
     """The part of a composer observation that Brax sees, flattened."""
     key = self._obs_key
     if key is None:
+      if self._concatenate_all:
+        return jnp.concatenate([_flat(v) for v in jax.tree.leaves(observation)])
       if isinstance(observation, Mapping):
         return {k: _flat(v) for k, v in observation.items()}
       return _flat(observation)
@@ -355,6 +361,78 @@ class BraxEnv(brax_base.Env):
         metrics=metrics,
         info=info,
     )
+
+
+def _check_obs_key(environment, obs_key):
+  """`(obs_key, concatenate_all)`, or an error naming `obs_key` and the fix.
+
+  `concatenate_all` is True where `obs_key=None` meets an observation that
+  is not an array or a dict of observation groups (the observables of a
+  task without groups): Brax's networks need one array there.
+  """
+  spec = environment.observation_spec()
+  is_dict = isinstance(spec, Mapping)
+  if obs_key is None:
+    if not is_dict:
+      return None, not hasattr(spec, 'shape')  # A list of dicts: concatenate.
+    observable_keys = set(environment.observation_updater.keys)
+    if all(
+        k in observable_keys and not isinstance(v, Mapping)
+        for k, v in spec.items()
+    ):
+      return None, True  # No groups: the observables, concatenated.
+    nested = [k for k, v in spec.items() if isinstance(v, Mapping)]
+    if nested:
+      raise ValueError(
+          f'BraxEnv(obs_key=None): observation group(s) {nested} are not '
+          'flattened (their observation is a dict of observables), which '
+          "Brax's networks cannot take. Declare them with "
+          'ObservationGroup(..., flatten=True), or pass obs_key naming the '
+          'flattened groups or observables to use.'
+      )
+    return None, False
+  if isinstance(obs_key, str):
+    keys = [obs_key]
+  elif isinstance(obs_key, Sequence) and all(
+      isinstance(k, str) for k in obs_key
+  ):
+    keys = list(obs_key)
+  else:
+    raise TypeError(
+        f'BraxEnv: obs_key must be None, a string or a sequence of strings, '
+        f"got {obs_key!r}. Pass e.g. obs_key='policy'."
+    )
+  if not keys:
+    raise ValueError(
+        'BraxEnv: obs_key=[] selects no observation. Pass None for the whole '
+        'observation, or name at least one entry.'
+    )
+  duplicated = sorted({k for k in keys if keys.count(k) > 1})
+  if duplicated:
+    raise ValueError(
+        f'BraxEnv: obs_key={obs_key!r} names {duplicated} more than once, '
+        'which would feed the same values twice. Name each entry once.'
+    )
+  if not is_dict:
+    raise ValueError(
+        f'BraxEnv: obs_key={obs_key!r} selects from a dict, but the '
+        'observation is an array: pass obs_key=None.'
+    )
+  missing = [k for k in keys if k not in spec]
+  if missing:
+    raise ValueError(
+        f'BraxEnv: obs_key: no observation {missing}; the observation has '
+        f'{sorted(spec)}. Pass some of those.'
+    )
+  nested = [k for k in keys if isinstance(spec[k], Mapping)]
+  if nested:
+    raise ValueError(
+        f'BraxEnv: obs_key={obs_key!r}: group(s) {nested} are not flattened '
+        '(their observation is a dict of observables), so they cannot be '
+        'one array for Brax. Declare them with ObservationGroup(..., '
+        'flatten=True).'
+    )
+  return obs_key, False
 
 
 def composer_state(state: brax_base.State):
