@@ -48,6 +48,7 @@ LAYER_OF = {
     'entities': 'bundled',
     'initializers': 'bundled',
     'tasks': 'bundled',
+    'locomotion': 'bundled',
     # Entry points: may import anything.
     'cli': 'entry',
     '__main__': 'entry',

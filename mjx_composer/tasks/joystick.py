@@ -60,6 +60,7 @@ import numpy as np
 from mjx_composer import task
 from mjx_composer.entities import arenas
 from mjx_composer.entities import go1 as go1_lib
+from mjx_composer.locomotion import commands as commands_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
 from mjx_composer.tasks import locomotion
@@ -194,6 +195,14 @@ class Joystick(task.Task):
     self._home = jnp.asarray(self._go1.home_joint_positions)
     self._action_scale = float(action_scale)
     self._command_interval = int(command_interval or 0)
+    # Playground's command: U(-a, a), then its keep-or-zero resampling.
+    amplitude = np.asarray(COMMAND_AMPLITUDE, np.float64)
+    self._command = commands_lib.VelocityCommand(
+        *[(-a, a) for a in amplitude],
+        resample_interval=self._command_interval,
+        keep_probability=0.5,
+        zero_probability=tuple(1.0 - np.asarray(COMMAND_KEEP, np.float64)),
+    )
     self._randomize = bool(randomize)
     self._pushes = locomotion.Pushes(push_interval, push_magnitude)
     self._terminate_on_fall = bool(terminate_on_fall)
@@ -244,7 +253,7 @@ class Joystick(task.Task):
     )
     self._task_obs = {
         'last_action': state('action'),
-        'command': state('command'),
+        'command': self._command.observable(),
         'feet_air_time': state('air_time'),
         'last_push': state('push'),
     }
@@ -276,6 +285,11 @@ class Joystick(task.Task):
   @property
   def command_interval(self):
     return self._command_interval
+
+  @property
+  def command(self):
+    """The `VelocityCommand` (its entries are in the task state)."""
+    return self._command
 
   @property
   def task_observables(self):
@@ -314,8 +328,8 @@ class Joystick(task.Task):
   def initial_task_state(self):
     zeros = lambda *shape: jnp.zeros(shape, jnp.float32)
     return {
+        **self._command.initial_state(),
         'step': jnp.zeros((), jnp.int32),
-        'command': zeros(3),
         'action': zeros(12),
         'previous_action': zeros(12),
         'air_time': zeros(4),
@@ -328,12 +342,7 @@ class Joystick(task.Task):
 
   def sample_command(self, key, command):
     """Playground's resampling: keep (p=1/2), else new, entries zeroed."""
-    new_key, zero_key, keep_key = jax.random.split(key, 3)
-    amplitude = jnp.asarray(COMMAND_AMPLITUDE, jnp.float32)
-    new = jax.random.uniform(new_key, (3,), minval=-amplitude, maxval=amplitude)
-    nonzero = jax.random.bernoulli(zero_key, jnp.asarray(COMMAND_KEEP))
-    change = jax.random.bernoulli(keep_key, 0.5, (3,))
-    return jnp.where(change, new * nonzero, command)
+    return self._command.resample(key, command)[0]
 
   def initialize_episode(self, physics, key):
     keys = jax.random.split(key, 6)
@@ -361,34 +370,22 @@ class Joystick(task.Task):
     physics = physics.bind(list(go1.joints)).set(qpos=joints)
     # The actuators hold the initial pose until the first action.
     physics = physics.set_control(joints)
-    amplitude = jnp.asarray(COMMAND_AMPLITUDE, jnp.float32)
-    command = jax.random.uniform(
-        jax.random.fold_in(key, 7), (3,), minval=-amplitude, maxval=amplitude
-    )
     state = self.initial_task_state()
-    state.update(command=command, start_xy=xy)
-    return physics.update_task_state(**state)
+    state.update(start_xy=xy)
+    physics = physics.update_task_state(**state)
+    return self._command.reset(physics, jax.random.fold_in(key, 7))
 
   def before_step(self, physics, action, key):
     command_key, push_key = jax.random.split(key)
     state = physics.task_state
     step = state['step']
-    if self._command_interval > 0:
-      due = jnp.logical_and(step > 0, step % self._command_interval == 0)
-      command = jnp.where(
-          due,
-          self.sample_command(command_key, state['command']),
-          state['command'],
-      )
-    else:
-      command = state['command']
+    physics = self._command.step(physics, command_key)
     physics = physics.set_control(self._home + self._action_scale * action)
     physics, kick = self._pushes.apply(
         physics, self._go1.freejoint, step, push_key
     )
     return physics.update_task_state(
         step=step + 1,
-        command=command,
         previous_action=state['action'],
         action=jnp.asarray(action, jnp.float32),
         push=kick,
