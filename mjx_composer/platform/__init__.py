@@ -15,6 +15,7 @@ import os
 
 from mjx_composer.platform import compilation_cache as _compilation_cache
 from mjx_composer.platform import cpu_linalg as _cpu_linalg
+from mjx_composer.platform import internals as _internals
 from mjx_composer.platform import prng_lowering as _prng_lowering
 
 
@@ -79,7 +80,11 @@ def safe_defaults() -> None:
   single Cholesky on the CPU may run slower than with LAPACK; switch it off
   with the environment variable or `cpu_linalg.enable(enabled=False)`.
 
+  Also MJX's missing ray-geom functions (`internals.add_missing_ray_functions`:
+  a touch sensor on a cylinder site), with MuJoCo's semantics.
+
   The other settings of `configure` change speed, not correctness, and
   write to disk (the cache): a user asks for them.
   """
+  _internals.add_missing_ray_functions()
   _cpu_linalg.enable()

@@ -3,11 +3,11 @@
 The package needs a few things that JAX, MJX and MuJoCo Warp do not export:
 a lowering rule of JAX's Cholesky primitive, JAX's dead-code elimination of
 a jaxpr, JAX's partitioner setting, MJX's implementation data
-(`mjx.Data._impl`, `mjx.Option._impl`), MJX's collision tables and
-quaternion math, and MuJoCo Warp's default constraint rows. This module is
-the only one that imports a private module (`jax._src`, `mujoco.mjx._src`,
-`mujoco.mjx.third_party.mujoco_warp._src`) or reads an `_impl` field; every
-other module calls the names below. When JAX, MuJoCo or MuJoCo Warp is
+(`mjx.Data._impl`, `mjx.Option._impl`), MJX's collision tables, ray-geom
+table and quaternion math, and MuJoCo Warp's default constraint rows. This
+module is the only one that imports a private module (`jax._src`,
+`mujoco.mjx._src`, `mujoco.mjx.third_party.mujoco_warp._src`) or reads an
+`_impl` field; every other module calls the names below. When JAX, MuJoCo or MuJoCo Warp is
 upgraded, this file is the one to revisit (`tests/test_layers.py` keeps
 private imports out of the rest of the package).
 
@@ -19,11 +19,14 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+import jax.numpy as jnp
+
 # pylint: disable=protected-access
 from jax._src.interpreters import mlir as _mlir
 from jax._src.lax import linalg as _linalg
 from mujoco.mjx._src import collision_driver as _collision_driver
 from mujoco.mjx._src import math as _mjx_math
+from mujoco.mjx._src import ray as _mjx_ray
 from mujoco.mjx.warp import types as _warp_types
 
 try:  # JAX's own configuration objects, beside the public `jax.config`.
@@ -148,6 +151,55 @@ quat_normalize = _mjx_math.normalize
 quat_rotate = _mjx_math.rotate
 quat_mul = _mjx_math.quat_mul
 quat_to_mat = _mjx_math.quat_to_mat
+
+
+def _ray_cylinder(size, pnt, vec):
+  """Distance along `vec` from `pnt` to a cylinder's surface (`inf`: none).
+
+  The cylinder's frame: radius `size[0]`, half-height `size[1]` along z. As
+  MuJoCo's `mju_rayGeom`: the nearest intersection at a distance >= 0 with
+  the round side (between the flat sides) or a flat side (within the
+  radius), so a ray from inside meets the surface on its way out.
+  """
+  radius, half_height = size[0], size[1]
+  minval = _mjx_ray.mujoco.mjMINVAL
+  # Round side: |pnt_xy + t vec_xy| = radius, i.e. a t^2 + 2 b t + c = 0.
+  a = vec[0] * vec[0] + vec[1] * vec[1]
+  b = vec[0] * pnt[0] + vec[1] * pnt[1]
+  c = pnt[0] * pnt[0] + pnt[1] * pnt[1] - radius * radius
+  det = b * b - a * c
+  root = jnp.sqrt(jnp.maximum(det, 0.0))
+  safe_a = jnp.where(a < minval, 1.0, a)
+  side = jnp.stack([(-b - root) / safe_a, (-b + root) / safe_a])
+  side_hit = (det >= minval) & (a >= minval) & (side >= 0)
+  side_hit &= jnp.abs(pnt[2] + side * vec[2]) <= half_height
+  # Flat sides: z = +-half_height, within the radius.
+  safe_vz = jnp.where(jnp.abs(vec[2]) < minval, 1.0, vec[2])
+  caps = (jnp.stack([half_height, -half_height]) - pnt[2]) / safe_vz
+  xy = pnt[:2] + caps[:, None] * vec[:2]
+  caps_hit = (jnp.abs(vec[2]) >= minval) & (caps >= 0)
+  caps_hit &= jnp.sum(xy * xy, axis=-1) <= radius * radius
+  return jnp.min(
+      jnp.concatenate(
+          [
+              jnp.where(side_hit, side, jnp.inf),
+              jnp.where(caps_hit, caps, jnp.inf),
+          ]
+      )
+  )
+
+
+def add_missing_ray_functions() -> None:
+  """Fills `mujoco.mjx._src.ray._RAY_FUNC` where MJX lacks a geom type.
+
+  MJX's table of ray-geom functions serves `mjx.ray` and the touch sensor,
+  which counts the contacts whose force ray meets its site's volume. MJX
+  3.17 has no cylinder entry, so a touch sensor on a cylinder site (as
+  composer's tutorial builds its button) fails to trace with a `KeyError`;
+  this adds `_ray_cylinder`, MuJoCo's semantics. An entry MJX has is never
+  replaced.
+  """
+  _mjx_ray._RAY_FUNC.setdefault(_mjx_ray.GeomType.CYLINDER, _ray_cylinder)
 
 
 # -- MuJoCo Warp ----------------------------------------------------------------
