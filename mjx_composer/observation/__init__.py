@@ -1,6 +1,9 @@
 """Observations: observables, the pure batched updater, groups, flattening."""
 
+from mjx_composer.observation import contact_sensor
+from mjx_composer.observation import contacts
 from mjx_composer.observation import observable
+from mjx_composer.observation.contact_sensor import ContactSensor
 from mjx_composer.observation.flatten import Flattener
 from mjx_composer.observation.flatten import flatten_spec
 from mjx_composer.observation.groups import ObservationGroup

@@ -110,7 +110,7 @@ class ContactSensor:
 
   # -- state -----------------------------------------------------------------
 
-  def update(self, physics, dt) -> 'physics':
+  def update(self, physics, dt):
     """Advances the times by one update of `dt` seconds; returns the physics.
 
     Call once per control step, from `after_step` (or once per sub-step from
