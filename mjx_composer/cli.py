@@ -1,10 +1,13 @@
-"""The `mjx-composer` command line: `mjx-composer demo|list [options]`.
+"""The `mjx-composer` command line: `mjx-composer demo|list|train|play|export`.
 
 `demo` builds a registered task (`mjx_composer.tasks.registry`: the bundled
 ones, or yours), runs N worlds for T control steps on the default JAX device
 (the CPU unless a GPU build of JAX is installed) with a random policy, shows
 progress, and prints throughput and episode statistics. `list` prints the
-registered tasks, one a line.
+registered tasks, one a line. `train`, `play` and `export` train a
+registered task with Brax's PPO into a run folder, watch the trained policy
+and export it as ONNX (`mjx_composer.training`; `pip install
+'mjx-composer[train]'`).
 
 Compiled programs are kept in JAX's persistent compilation cache
 (`mjx_composer.platform.compilation_cache`), so a second run with the same
@@ -24,7 +27,7 @@ from mjx_composer import environment
 from mjx_composer import platform
 from mjx_composer.tasks import registry
 
-_COMMANDS = ('demo', 'list')
+_COMMANDS = ('demo', 'list', 'train', 'play', 'export')
 
 
 def make_rollout(env, num_worlds, chunk):
@@ -217,19 +220,205 @@ def list_tasks(argv=None):
   return 0
 
 
+_USAGE = """\
+usage: mjx-composer demo [--task NAME] [--worlds N] [--steps T] [--time-limit S]
+                         [--seed K] [--impl jax|warp] [--no-compilation-cache]
+       mjx-composer list                       (the task names)
+       mjx-composer train TASK [--config FILE] [--run-dir DIR] [--SETTING VALUE ...]
+       mjx-composer train --resume RUN [--num-timesteps N ...]
+       mjx-composer play RUN [--worlds N] [--steps T] [--out DIR]
+       mjx-composer export RUN --format onnx [--out FILE]
+'train --help' lists the settings and TASK's defaults."""
+
+
+def _error(message):
+  print(f'error: {message}', file=sys.stderr)
+  return 2
+
+
+def _split_task(argv):
+  """`(task or None, rest)`: a leading argument that is not a flag is TASK."""
+  if argv and not argv[0].startswith('-'):
+    return argv[0], argv[1:]
+  return None, list(argv)
+
+
+def resolve_train_config(argv):
+  """`(config, run folder, resume)` of `mjx-composer train` arguments.
+
+  The settings are resolved in layers: the task's defaults (or, with
+  `--resume RUN`, the run's config), then `--config FILE`, then the flags.
+  A new run's folder is created (`--run-dir`, default
+  `runs/<task>_<time>`).
+
+  Raises:
+    RunFolderError, ValueError: for an unknown task, a bad config file or
+      setting, or a run folder that cannot be created or resumed.
+  """
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer.training import config as config_lib
+  from mjx_composer.training import run_folder
+  from mjx_composer.training import trainer
+  # pylint: enable=g-import-not-at-top
+
+  task, rest = _split_task(argv)
+  front = argparse.ArgumentParser(add_help=False)
+  front.add_argument('--config', default=None)
+  front.add_argument('--run-dir', default=None)
+  front.add_argument('--resume', default=None, metavar='RUN')
+  known, rest = front.parse_known_args(rest)
+  if known.resume:
+    if known.run_dir:
+      raise ValueError('--resume RUN continues RUN: leave out --run-dir.')
+    run = run_folder.open_run(known.resume)
+    saved = run.read_config()
+    if task is not None and task != saved.task:
+      raise run_folder.RunFolderError(
+          f'The run {known.resume!r} trains task {saved.task!r}, not '
+          f'{task!r}: resume it with its own task, or start a new run.'
+      )
+    base = saved
+  else:
+    if task is None:
+      if any(flag in rest for flag in ('-h', '--help')):
+        task = 'reach'
+      else:
+        raise ValueError(
+            'mjx-composer train TASK: name a task (mjx-composer list), or '
+            'continue a run with --resume RUN.'
+        )
+    registry.entry(task)
+    base = config_lib.defaults(task)
+  if known.config:
+    base = base.replace(**config_lib.load_file(known.config))
+  config = config_lib.parse_flags(rest, base)
+  if config.task != base.task:
+    raise ValueError(
+        f'The task is the first argument ({base.task!r}); --task '
+        f'{config.task!r} contradicts it.'
+    )
+  if known.resume:
+    trainer.check_resume_changes(saved, config)
+    if config != saved:
+      run.write_config(config)
+    return config, run, True
+  path = known.run_dir or run_folder.default_path(task)
+  return config, run_folder.create(path, config), False
+
+
+def train(argv=None):
+  """`mjx-composer train`: trains a registered task into a run folder."""
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer.training import run_folder
+  from mjx_composer.training import trainer
+  # pylint: enable=g-import-not-at-top
+
+  try:
+    config, run, resume = resolve_train_config(list(argv or []))
+  except (run_folder.RunFolderError, ValueError, KeyError) as e:
+    return _error(e.args[0] if e.args else e)
+  try:
+    trainer.train(config, run, resume=resume)
+  except (run_folder.RunFolderError, ValueError) as e:
+    return _error(e)
+  return 0
+
+
+def play(argv=None):
+  """`mjx-composer play RUN`: videos and episode statistics of a policy."""
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer.training import play as play_lib
+  from mjx_composer.training import run_folder
+  # pylint: enable=g-import-not-at-top
+
+  parser = argparse.ArgumentParser(
+      prog='mjx-composer play',
+      description=(
+          "Run a trained run's newest policy, deterministic and sampled, "
+          'write a video of each (the worlds tiled) and print episode '
+          'statistics.'
+      ),
+  )
+  parser.add_argument('run', help='the run folder')
+  parser.add_argument('--worlds', type=int, default=4)
+  parser.add_argument(
+      '--steps', type=int, default=None, help='default: one episode'
+  )
+  parser.add_argument('--out', default=None, help='default: RUN/videos')
+  parser.add_argument('--seed', type=int, default=1)
+  parser.add_argument('--no-video', action='store_true', help='statistics only')
+  args = parser.parse_args(argv)
+  try:
+    result = play_lib.play(
+        args.run,
+        worlds=args.worlds,
+        steps=args.steps,
+        out=args.out,
+        seed=args.seed,
+        render=not args.no_video,
+    )
+  except (run_folder.RunFolderError, ValueError) as e:
+    return _error(e)
+  for mode, stats in result.items():
+    line = (
+        f'{mode:<14} step {stats["step"]:,}: {stats["episodes"]} episodes '
+        f'ended, mean reward per step {stats["mean_reward_per_step"]:.4f}'
+    )
+    if stats['episodes']:
+      line += (
+          f', mean return {stats["mean_return"]:.3f}, mean length '
+          f'{stats["mean_length"]:.1f} steps'
+      )
+    print(line + (f'; video {stats["video"]}' if 'video' in stats else ''))
+  return 0
+
+
+def export(argv=None):
+  """`mjx-composer export RUN --format onnx`: the policy for deployment."""
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer.training import export as export_lib
+  from mjx_composer.training import run_folder
+  # pylint: enable=g-import-not-at-top
+
+  parser = argparse.ArgumentParser(
+      prog='mjx-composer export',
+      description=(
+          "Write a run's newest deterministic policy as ONNX, with metadata "
+          '(observation names, shapes and order, action bounds, control '
+          'timestep, default joint positions).'
+      ),
+  )
+  parser.add_argument('run', help='the run folder')
+  parser.add_argument('--format', choices=('onnx',), default='onnx')
+  parser.add_argument('--out', default=None, help='default: RUN/policy.onnx')
+  args = parser.parse_args(argv)
+  try:
+    path, meta = export_lib.export_onnx(args.run, args.out)
+  except (run_folder.RunFolderError, ValueError) as e:
+    return _error(e)
+  print(
+      f'Wrote {path}: observation {meta["observation_group"]!r} '
+      f'({meta["observation_size"]} values: '
+      f'{", ".join(meta["observation_names"])}) -> '
+      f'{meta["action_size"]} actions, control timestep '
+      f'{meta["control_timestep"]:g}s.'
+  )
+  return 0
+
+
 def main(argv=None):
   argv = list(sys.argv[1:] if argv is None else argv)
   if not argv or argv[0] not in _COMMANDS:
-    print(
-        'usage: mjx-composer demo [--task NAME] [--worlds N] [--steps T] '
-        '[--time-limit S] [--seed K] [--impl jax|warp] '
-        '[--no-compilation-cache]\n'
-        '       mjx-composer list   (the task names)'
-    )
+    print(_USAGE)
     return 2
-  if argv[0] == 'list':
-    return list_tasks(argv[1:])
-  return demo(argv[1:])
+  command = {
+      'demo': demo,
+      'list': list_tasks,
+      'train': train,
+      'play': play,
+      'export': export,
+  }[argv[0]]
+  return command(argv[1:])
 
 
 if __name__ == '__main__':

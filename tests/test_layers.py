@@ -44,6 +44,7 @@ LAYER_OF = {
     'environment': 'environment',
     'host': 'host',
     'adapters': 'adapters',
+    'training': 'training',
     # Bundled parts: built with the authoring API like a user's own.
     'entities': 'bundled',
     'initializers': 'bundled',
@@ -68,6 +69,17 @@ ALLOWED = {
     'host': {'host', 'environment', 'runtime'} | _BELOW_AUTHORING,
     'adapters': {'adapters', 'environment', 'runtime'} | _BELOW_AUTHORING,
     'bundled': {'bundled'} | _BELOW_AUTHORING,
+    # Training from the command line: runs Brax through the adapter, renders
+    # with host/, builds tasks by name through the registry.
+    'training': {
+        'training',
+        'host',
+        'adapters',
+        'bundled',
+        'environment',
+        'runtime',
+    }
+    | _BELOW_AUTHORING,
     'entry': set(LAYER_OF.values()),
 }
 

@@ -1,0 +1,92 @@
+"""The environment and the networks a run trains, rebuilt from its config.
+
+`make_environment` builds the task's `Environment` and its `BraxEnv` as
+training uses them (same-step auto-reset, the task's observation groups);
+`network_factory` is Brax's PPO networks for the config (the policy sees
+the 'policy' group, the critic `config.critic_obs`); `make_policy` turns a
+checkpoint's parameters into `policy(obs, key) -> (action, extras)`.
+"""
+
+from __future__ import annotations
+
+import functools
+
+from mjx_composer import environment as environment_lib
+from mjx_composer.adapters import brax as brax_adapter
+from mjx_composer.tasks import registry
+from mjx_composer.training import config as config_lib
+
+POLICY_GROUP = 'policy'
+
+
+def make_environment(config: config_lib.TrainConfig, impl=None):
+  """`(env, brax_env)`: the config's task as an `Environment` and `BraxEnv`.
+
+  Args:
+    config: the run's config (task, time limit, impl).
+    impl: overrides `config.impl` (e.g. 'jax' on several devices).
+  """
+  env = registry.make_environment(
+      config.task,
+      time_limit=config.time_limit,
+      options=environment_lib.ExecutionOptions(
+          auto_reset='same_step', impl=impl or config.impl
+      ),
+  )
+  brax_env = brax_adapter.BraxEnv(env)
+  size = brax_env.observation_size
+  needed = {POLICY_GROUP, config.critic_obs}
+  if not isinstance(size, dict) or not needed <= set(size):
+    raise ValueError(
+        f'Task {config.task!r} gives observations {size}; training needs the '
+        f'observation groups {sorted(needed)} (Task.observation_groups). '
+        "Pass --critic-obs policy if the task has no 'critic' group."
+    )
+  return env, brax_env
+
+
+def network_factory(config: config_lib.TrainConfig):
+  """Brax's `make_ppo_networks` with the config's sizes and groups."""
+  from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
+
+  return functools.partial(
+      ppo_networks.make_ppo_networks,
+      policy_obs_key=POLICY_GROUP,
+      value_obs_key=config.critic_obs,
+      policy_hidden_layer_sizes=tuple(config.policy_layers),
+      value_hidden_layer_sizes=tuple(config.value_layers),
+      init_noise_std=config.init_noise_std,
+  )
+
+
+def make_networks(config: config_lib.TrainConfig, observation_size, actions):
+  """The PPO networks `ppo.train` builds for this config."""
+  from brax.training.acme import running_statistics  # pylint: disable=g-import-not-at-top
+  from brax.training import types as brax_types  # pylint: disable=g-import-not-at-top
+
+  preprocess = (
+      running_statistics.normalize
+      if config.normalize
+      else brax_types.identity_observation_preprocessor
+  )
+  return network_factory(config)(
+      {k: tuple(v) for k, v in observation_size.items()},
+      actions,
+      preprocess_observations_fn=preprocess,
+  )
+
+
+def make_policy(config: config_lib.TrainConfig, checkpoint, deterministic=True):
+  """`policy(obs, key) -> (action, extras)` of a checkpoint's parameters.
+
+  Deterministic: the mode of the action distribution (tanh of its mean);
+  otherwise a sample.
+  """
+  from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
+
+  networks = make_networks(
+      config, checkpoint.observation_size, checkpoint.action_size
+  )
+  return ppo_networks.make_inference_fn(networks)(
+      checkpoint.params, deterministic=deterministic
+  )
