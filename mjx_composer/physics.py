@@ -20,9 +20,24 @@ taken from an entity's own spec, or fully qualified names. They are resolved to
 static integer indices while tracing, through the `ElementIndex` built once when
 the environment compiles; nothing on the device looks a name up.
 
+Shapes are dm_control's: `physics.bind(...)` and `physics.named` give the
+rotation matrices `xmat`, `ximat`, `geom_xmat`, `site_xmat` and `cam_xmat` as
+flat 9-vectors (`(9,)` for one element, `(n, 9)` for a list), as
+`dm_control.mujoco.Physics.bind` does; `physics.data` is the raw `mjx.Data`,
+whose matrices are `(n, 3, 3)`.
+
+Fields that MJX computes only when a sensor needs them (`subtree_linvel`,
+`subtree_angmom`: `mjx.subtree_vel`; `cacc`, `cfrc_int`, `cfrc_ext`:
+`mjx.rne_postconstraint`) are computed from the data when read through a
+binding, so they hold what MuJoCo's `mj_forward` followed by
+`mj_subtreeVel` / `mj_rnePostConstraint` gives on the same state.
+
 Unlike dm_control there is no lazy "dirty" forward: after writing positions or
-velocities, call `physics.forward()` (or `physics.kinematics()`) before reading
-derived quantities such as `xpos`.
+velocities (`qpos`, `qvel`, `act`, `ctrl`, `qfrc_applied`, `xfrc_applied`),
+call `physics.forward()` (or `physics.kinematics()`) before reading derived
+quantities such as `xpos`. A binding read of a derived quantity after such a
+write, with no forward pass between, raises at trace time (`StaleReadError`)
+where dm_control would have run `mj_forward` first.
 """
 
 from __future__ import annotations
@@ -38,8 +53,78 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer.model import element_index
+from mjx_composer.platform import internals
 
 _MODEL_FIELD_NAMES = tuple(f.name for f in dataclasses.fields(mjx.Model))
+
+# Rotation matrices MJX keeps as `(n, 3, 3)` and MuJoCo's `mjData` (so
+# dm_control's bindings) as `(n, 9)`: bindings give and take them flat.
+FLAT_MATRIX_FIELDS = frozenset(
+    {'xmat', 'ximat', 'geom_xmat', 'site_xmat', 'cam_xmat'}
+)
+# `mjData` fields that MJX keeps in its implementation data (`data._impl`),
+# computed by every forward pass.
+_IMPL_FIELDS = frozenset({'cinert', 'crb', 'actuator_velocity', 'ten_velocity'})
+# `mjData` fields that MJX computes only where a sensor needs them, and the
+# public MJX function that computes them from a forwarded `mjx.Data` (what
+# MuJoCo's `mj_subtreeVel` / `mj_rnePostConstraint` compute).
+ON_DEMAND_FIELDS = {
+    'subtree_linvel': mjx.subtree_vel,
+    'subtree_angmom': mjx.subtree_vel,
+    'cacc': mjx.rne_postconstraint,
+    'cfrc_int': mjx.rne_postconstraint,
+    'cfrc_ext': mjx.rne_postconstraint,
+}
+# What dm_control's bindings mark dirty when written (its
+# `MJDATA_TRIGGERS_DIRTY`): its next read of anything else runs `mj_forward`.
+STATE_INPUT_FIELDS = frozenset(
+    {'qpos', 'qvel', 'act', 'ctrl', 'qfrc_applied', 'xfrc_applied'}
+)
+# Data fields no forward pass computes: a binding reads them as they are.
+_NOT_DERIVED = STATE_INPUT_FIELDS | {
+    'time',
+    'mocap_pos',
+    'mocap_quat',
+    'eq_active',
+    'qacc_warmstart',
+    'userdata',
+    'plugin_state',
+    'history',
+}
+# The stage of MuJoCo's forward pass that computes each derived field a
+# binding can read (1 position, 2 velocity; every other derived field 3,
+# acceleration), as `mjModel.sensor_needstage` numbers them.
+_FIELD_STAGE = {
+    **dict.fromkeys(
+        (
+            'xpos', 'xquat', 'xmat', 'xipos', 'ximat', 'xanchor', 'xaxis',
+            'geom_xpos', 'geom_xmat', 'site_xpos', 'site_xmat', 'cam_xpos',
+            'cam_xmat', 'subtree_com', 'cinert', 'crb', 'cdof', 'ten_length',
+            'actuator_length', 'qfrc_gravcomp',
+        ),
+        1,
+    ),
+    **dict.fromkeys(
+        (
+            'cvel', 'cdof_dot', 'ten_velocity', 'actuator_velocity',
+            'subtree_linvel', 'subtree_angmom', 'qfrc_bias', 'qfrc_passive',
+            'qfrc_fluid',
+        ),
+        2,
+    ),
+}  # fmt: skip
+# The first stage that a write of each input makes stale: positions change
+# everything, velocities the velocity and acceleration stages, the rest
+# (controls, activations, applied forces) the acceleration stage only.
+_INPUT_STAGE = {'qpos': 1, 'qvel': 2}
+
+
+class StaleReadError(ValueError):
+  """A binding read a derived quantity after a write with no forward pass.
+
+  dm_control's bindings run `mj_forward` lazily before such a read; here
+  the hook must call `physics.forward()` (or `physics.kinematics()`) itself.
+  """
 
 
 @struct.dataclass
@@ -114,7 +199,13 @@ class Physics:
   # -- dm_control-style accessors -------------------------------------------
 
   def bind(self, elements) -> 'Binding':
-    """A view of one element (or a list of elements of one kind)."""
+    """A view of one element (or a list of elements of one kind).
+
+    An empty list binds nothing, as in dm_control: every attribute reads as
+    an empty array of shape `(0,)`, and `set` changes nothing.
+    """
+    if isinstance(elements, (list, tuple)) and not elements:
+      return EmptyBinding(self)
     kind, ids, is_seq = self.index.resolve(elements)
     return Binding(self, kind, tuple(ids), is_seq)
 
@@ -140,7 +231,9 @@ class Physics:
           f'{self.data.ctrl.shape[0]} actuators: pass an array of shape '
           f'{self.data.ctrl.shape}.'
       )
-    return self.replace(data=self.data.replace(ctrl=control))
+    return self._written(
+        self.replace(data=self.data.replace(ctrl=control)), 'ctrl'
+    )
 
   def forward(self) -> 'Physics':
     """Recomputes every derived quantity (`mjx.forward`)."""
@@ -157,9 +250,11 @@ class Physics:
 
   def update_task_state(self, **values) -> 'Physics':
     """Returns a copy with entries of the (dict) task state replaced."""
-    return self.replace(
-        task_state=_updated(
-            self.task_state, values, 'Task.initial_task_state()'
+    return self._derived(
+        self.replace(
+            task_state=_updated(
+                self.task_state, values, 'Task.initial_task_state()'
+            )
         )
     )
 
@@ -174,7 +269,7 @@ class Physics:
     new[key] = _updated(
         new[key], values, f'{type(entity).__name__}' '.initial_state()'
     )
-    return self.replace(entity_states=new)
+    return self._derived(self.replace(entity_states=new))
 
   # -- state that outlives an episode, and initialization failures ---------
 
@@ -198,7 +293,7 @@ class Physics:
     """
     persistent = dict(self.persistent or {})
     persistent[name] = value
-    return self.replace(persistent=persistent)
+    return self._derived(self.replace(persistent=persistent))
 
   def schedule_before_step(self, name: str, hook) -> 'Physics':
     """Registers `hook(physics, key) -> physics` to run at every control step.
@@ -239,25 +334,138 @@ class Physics:
         if self.initialization_failed is None
         else self.initialization_failed
     )
-    return self.replace(
-        initialization_failed=jnp.logical_or(
-            previous, jnp.asarray(failed, bool)
+    return self._derived(
+        self.replace(
+            initialization_failed=jnp.logical_or(
+                previous, jnp.asarray(failed, bool)
+            )
         )
     )
 
+  # -- what bindings read and write -------------------------------------------
+
   def read(self, address: element_index.Address) -> jax.Array:
-    source = self.data if address.source == 'data' else self.model
-    return getattr(source, address.field)[address.index]
+    """The value at `address`, in dm_control's shape (`FLAT_MATRIX_FIELDS`
+    flat; `ON_DEMAND_FIELDS` computed from the data)."""
+    if address.source == 'data':
+      self._check_fresh(address.field, address.index)
+    value = self.field(address.source, address.field)[address.index]
+    if address.field in FLAT_MATRIX_FIELDS:
+      value = value.reshape(value.shape[:-2] + (9,))
+    return value
+
+  def field(self, source: str, name: str) -> jax.Array:
+    """The whole `source` ('data' or 'model') field `name`, in MJX's shape.
+
+    Reads fields that MJX keeps in its implementation data, and computes
+    `ON_DEMAND_FIELDS` (`mjx.subtree_vel`, `mjx.rne_postconstraint` on this
+    data: what MuJoCo's `mj_subtreeVel` / `mj_rnePostConstraint` give).
+    """
+    if source == 'model':
+      return getattr(self.model, name)
+    if name in ON_DEMAND_FIELDS or name in _IMPL_FIELDS:
+      if self.data.impl == mjx.Impl.WARP:
+        raise NotImplementedError(
+            f'data.{name} cannot be read on MuJoCo Warp '
+            "(ExecutionOptions(impl='warp')): MJX keeps it only in its "
+            "JAX implementation's data. Use impl='jax', or a sensor that "
+            'measures it (e.g. a subtreelinvel sensor for subtree_linvel).'
+        )
+      data = self.data
+      if name in ON_DEMAND_FIELDS:
+        data = ON_DEMAND_FIELDS[name](self.model, data)
+      return getattr(internals.data_impl(data), name)
+    return getattr(self.data, name)
 
   def write(self, address: element_index.Address, value) -> 'Physics':
+    """A new `Physics` with `value` written at `address`."""
+    if address.field in ON_DEMAND_FIELDS or address.field in _IMPL_FIELDS:
+      raise AttributeError(
+          f'data.{address.field} is computed by the forward pass and cannot '
+          'be written.'
+      )
     source = self.data if address.source == 'data' else self.model
     old = getattr(source, address.field)
     target_shape = jax.eval_shape(lambda a: a[address.index], old).shape
-    value = jnp.broadcast_to(jnp.asarray(value, dtype=old.dtype), target_shape)
+    value = jnp.asarray(value, dtype=old.dtype)
+    if address.field in FLAT_MATRIX_FIELDS:
+      flat = target_shape[:-2] + (9,)
+      value = jnp.broadcast_to(
+          value.reshape(value.shape[:-2] + (9,))
+          if value.shape[-2:] == (3, 3)
+          else value,
+          flat,
+      )
+      value = value.reshape(target_shape)
+    value = jnp.broadcast_to(value, target_shape)
     new = old.at[address.index].set(value)
     if address.source == 'data':
-      return self.replace(data=self.data.replace(**{address.field: new}))
-    return self.replace(model=self.model.replace(**{address.field: new}))
+      return self._written(
+          self.replace(data=self.data.replace(**{address.field: new})),
+          address.field,
+      )
+    return self._derived(
+        self.replace(model=self.model.replace(**{address.field: new}))
+    )
+
+  # -- writes a hook must keep, and reads a write makes stale ---------------
+  #
+  # Two trace-time records kept beside the pytree (plain attributes, not
+  # fields: a `jax.tree` round trip drops them, which can only silence a
+  # check, never raise a false one):
+  #
+  # * `_wrote_result`: a write was called on this very object, so its
+  #   result was a new `Physics` (`wrote_to_result`; the hooks' runner
+  #   refuses a hook that returns the object it received after that).
+  # * `_unsynced`: the `STATE_INPUT_FIELDS` written since the data was last
+  #   replaced by anything but such a write (a forward pass, a step, the
+  #   environment's reset forward); `read` refuses derived fields then.
+
+  def _derived(self, new: 'Physics') -> 'Physics':
+    object.__setattr__(self, '_wrote_result', True)
+    object.__setattr__(new, '_unsynced', self.unsynced_writes)
+    return new
+
+  def _written(self, new: 'Physics', field: str) -> 'Physics':
+    new = self._derived(new)
+    if field in STATE_INPUT_FIELDS:
+      object.__setattr__(new, '_unsynced', self.unsynced_writes | {field})
+    return new
+
+  @property
+  def unsynced_writes(self) -> frozenset:
+    """The `STATE_INPUT_FIELDS` written through bindings (or `set_control`)
+    since this physics' derived quantities were last computed."""
+    return getattr(self, '_unsynced', frozenset())
+
+  def wrote_to_result(self) -> bool:
+    """Whether a write method (a binding's `set`, `set_control`,
+    `update_task_state`, ...) was called on this very object: its change
+    lives only in the `Physics` that call returned."""
+    return getattr(self, '_wrote_result', False)
+
+  def forget_writes(self) -> None:
+    """Clears `wrote_to_result` (the hooks' runner, before each hook)."""
+    object.__setattr__(self, '_wrote_result', False)
+
+  def _check_fresh(self, field: str, index):
+    unsynced = self.unsynced_writes
+    if not unsynced or field in _NOT_DERIVED:
+      return
+    stale_from = min(_INPUT_STAGE.get(name, 3) for name in unsynced)
+    if field == 'sensordata':
+      stage = _sensor_stage(self.index.mj_model, index)
+    else:
+      stage = _FIELD_STAGE.get(field, 3)
+    if stage >= stale_from:
+      raise StaleReadError(
+          f'This physics wrote {sorted(unsynced)} and then read {field!r}, '
+          'which is derived from them, with no forward pass between: it '
+          'would read the value from before the write. dm_control runs '
+          'mj_forward before such a read; here call `physics = '
+          'physics.forward()` (or `physics.kinematics()` for positions '
+          'only) after the write and read from the result.'
+      )
 
 
 def changed_model_fields(before: mjx.Model, after: mjx.Model) -> list[str]:
@@ -340,6 +548,16 @@ class PhysicsCarry(WorldFields):
     return self.initialization_failed
 
 
+def _sensor_stage(mj_model, index) -> int:
+  """The last forward-pass stage that `sensordata[index]` needs (1-3)."""
+  rows = np.arange(mj_model.nsensordata)[index].reshape(-1)
+  if not rows.size:
+    return 1
+  # The sensor of each row: the last sensor starting at or before it.
+  sensors = np.searchsorted(mj_model.sensor_adr, rows, side='right') - 1
+  return int(np.max(mj_model.sensor_needstage[sensors]))
+
+
 def _entity_key(entity, entity_states) -> str:
   key = entity.full_identifier
   if entity_states is None or key not in entity_states:
@@ -415,6 +633,38 @@ class Binding:
     return physics
 
 
+class EmptyBinding:
+  """The binding of an empty list of elements (dm_control's `_EmptyBinding`).
+
+  Every attribute reads as an empty float array of shape `(0,)`; `set`
+  returns the physics unchanged.
+  """
+
+  __slots__ = ('_physics',)
+
+  def __init__(self, physics: Physics):
+    object.__setattr__(self, '_physics', physics)
+
+  def __getattr__(self, attr: str) -> jax.Array:
+    if attr.startswith('_'):
+      raise AttributeError(attr)
+    return jnp.zeros((0,), self._physics.data.qpos.dtype)
+
+  def __setattr__(self, attr, value):
+    raise AttributeError(
+        'Physics is immutable: use `physics = physics.bind(el).set('
+        f'{attr}=value)` instead of assigning to a binding.'
+    )
+
+  @property
+  def element_ids(self) -> tuple:
+    return ()
+
+  def set(self, **values) -> Physics:
+    del values
+    return self._physics
+
+
 class _NamedAccess:
   """`physics.named.data` / `physics.named.model`."""
 
@@ -452,5 +702,9 @@ class _NamedField:
     return self._physics.read(address)
 
   def __array__(self, dtype=None):
-    source = getattr(self._physics, self._source)
-    return np.asarray(getattr(source, self._field), dtype=dtype)
+    value = np.asarray(
+        self._physics.field(self._source, self._field), dtype=dtype
+    )
+    if self._field in FLAT_MATRIX_FIELDS:
+      value = value.reshape(value.shape[:-2] + (9,))
+    return value

@@ -352,7 +352,7 @@ class Go1(robot.Robot):
 
   def gravity(self, physics):
     """World gravity's direction in the IMU frame, `xmat.T @ (0, 0, -1)`."""
-    return -physics.bind(self._imu).xmat[2]
+    return -physics.bind(self._imu).xmat[6:]
 
   def foot_velocities(self, physics):
     """World linear velocities of the foot sites (4, 3), `FEET` order."""

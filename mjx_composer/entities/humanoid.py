@@ -75,8 +75,9 @@ class HumanoidObservables(observable.Observables):
 
   @define.observable
   def torso_vertical(self):
-    """The world's z axis in the torso frame (row 2 of its xmat)."""
-    return observable.MJCFFeature('xmat', self._entity.torso)[2]
+    """The world's z axis in the torso frame (the last row of its flat
+    xmat)."""
+    return observable.MJCFFeature('xmat', self._entity.torso)[6:]
 
   @define.observable
   def center_of_mass_velocity(self):
@@ -220,11 +221,11 @@ class Humanoid(robot.Robot):
     """Hand and foot positions relative to the torso, torso frame (12,)."""
     torso = physics.bind(self._torso)
     limbs = physics.bind(list(self._extremity_bodies)).xpos
-    return jnp.ravel((limbs - torso.xpos) @ torso.xmat)
+    return jnp.ravel((limbs - torso.xpos) @ torso.xmat.reshape(3, 3))
 
   def upright(self, physics):
-    """The torso z axis' projection on the world's z axis (xmat[2, 2])."""
-    return physics.bind(self._torso).xmat[2, 2]
+    """The torso z axis' projection on the world's z axis (xmat[8])."""
+    return physics.bind(self._torso).xmat[8]
 
   def head_height(self, physics):
     return physics.bind(self._head).xpos[2]

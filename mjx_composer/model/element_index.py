@@ -85,13 +85,26 @@ _DATA_PER_ELEMENT = {
         'subtree_com',
         'cvel',
         'xfrc_applied',
+        # Kept by MJX in `data._impl`; `Physics.field` reads or computes them.
+        'cinert',
+        'crb',
+        'subtree_linvel',
+        'subtree_angmom',
+        'cacc',
+        'cfrc_int',
+        'cfrc_ext',
     ),
     'joint': ('xanchor', 'xaxis'),
     'geom': ('geom_xpos', 'geom_xmat'),
     'site': ('site_xpos', 'site_xmat'),
     'camera': ('cam_xpos', 'cam_xmat'),
-    'actuator': ('ctrl', 'actuator_force', 'actuator_length'),
-    'tendon': ('ten_length',),
+    'actuator': (
+        'ctrl',
+        'actuator_force',
+        'actuator_length',
+        'actuator_velocity',
+    ),
+    'tendon': ('ten_length', 'ten_velocity'),
     'equality': ('eq_active',),
 }
 # Joint fields addressed through `jnt_qposadr` (width 7/4/1/1 by joint type).
@@ -115,7 +128,7 @@ _DOF_DATA_FIELDS = (
 QPOS_WIDTH = {0: 7, 1: 4, 2: 1, 3: 1}  # mjtJoint: free, ball, slide, hinge
 DOF_WIDTH = {0: 6, 1: 3, 2: 1, 3: 1}
 # Data fields whose short binding name differs from the data field name.
-_DATA_ALIASES = {'tendon': {'length': 'ten_length'}}
+_DATA_ALIASES = {'tendon': {'length': 'ten_length', 'velocity': 'ten_velocity'}}
 
 
 def element_kind(element) -> Kind:

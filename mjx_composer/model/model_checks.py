@@ -10,7 +10,9 @@ MuJoCo into errors and warnings that say what to change:
   degrees of freedom (MJX's step fails with "Scan across Model with zero DoFs
   unsupported");
 * errors (`NotImplementedError`, as `mjx.put_model` raises, with the fix):
-  an integrator, solver or enable flag that MJX does not implement;
+  an integrator, solver or enable flag that MJX does not implement; a touch
+  sensor on a site whose shape MJX cannot ray cast (a cylinder: MJX would
+  fail while tracing the step, deep in its ray code);
 * one `MjxIgnoredOptionWarning` naming every option MJX's JAX backend accepts
   but ignores (e.g. `noslip_iterations > 0`: MJX has no noslip solver).
 """
@@ -107,6 +109,7 @@ def check_compiled_model(mj_model: mujoco.MjModel):
         'entity.attachment_frame.add_freejoint()).'
     )
   _check_rejected(opt)
+  _check_touch_sites(mj_model)
   ignored = ignored_options(mj_model)
   if ignored:
     warnings.warn(
@@ -116,6 +119,49 @@ def check_compiled_model(mj_model: mujoco.MjModel):
         + '. Leave them at their defaults to silence this warning.',
         MjxIgnoredOptionWarning,
         stacklevel=2,
+    )
+
+
+# The site shapes whose ray intersection MJX implements, so the shapes a
+# touch sensor's site may have (MJX finds the contacts inside the site's
+# volume by ray casting, `mjx._src.ray`). The cylinder's is the package's
+# (`platform.internals.add_missing_ray_functions`, run at import).
+TOUCH_SITE_TYPES = (
+    mujoco.mjtGeom.mjGEOM_SPHERE,
+    mujoco.mjtGeom.mjGEOM_CAPSULE,
+    mujoco.mjtGeom.mjGEOM_ELLIPSOID,
+    mujoco.mjtGeom.mjGEOM_CYLINDER,
+    mujoco.mjtGeom.mjGEOM_BOX,
+)
+
+
+def _check_touch_sites(mj_model):
+  """Touch sensors on sites of a shape MJX cannot ray cast, refused.
+
+  MJX would fail deep in its ray code while tracing the step
+  (`KeyError: np.int32(5)` for a cylinder).
+  """
+  supported = {int(t) for t in TOUCH_SITE_TYPES}
+  bad = []
+  for i in range(mj_model.nsensor):
+    if mj_model.sensor_type[i] != mujoco.mjtSensor.mjSENS_TOUCH:
+      continue
+    site = int(mj_model.sensor_objid[i])
+    site_type = int(mj_model.site_type[site])
+    if site_type not in supported:
+      sensor_name = mujoco.mj_id2name(mj_model, mujoco.mjtObj.mjOBJ_SENSOR, i)
+      site_name = mujoco.mj_id2name(mj_model, mujoco.mjtObj.mjOBJ_SITE, site)
+      bad.append(
+          f'touch sensor {sensor_name or i!r} on site {site_name or site!r} '
+          f'of type {mujoco.mjtGeom(site_type).name}'
+      )
+  if bad:
+    names = ', '.join(t.name for t in TOUCH_SITE_TYPES)
+    raise NotImplementedError(
+        'MJX computes touch sensors only on sites of type '
+        f'{names}: ' + '; '.join(bad) + '. Give the site one of those '
+        "shapes (a box or capsule of the cylinder's size, "
+        'site.type = mujoco.mjtGeom.mjGEOM_BOX), or remove the sensor.'
     )
 
 

@@ -74,6 +74,7 @@ from mjx_composer.observation import obs_buffer
 from mjx_composer.observation import obs_spec
 from mjx_composer.observation import plan
 from mjx_composer.observation.groups import ObservationGroup
+from mjx_composer.observation.observable import base as observable_base
 from mjx_composer.observation.plan import DEFAULT_BUFFER_SIZE
 from mjx_composer.observation.plan import DEFAULT_DELAY
 from mjx_composer.observation.plan import DEFAULT_UPDATE_INTERVAL
@@ -288,7 +289,9 @@ class Updater:
     if plan.VALUE in entry.streams:
       value = raw
       if entry.corruptor is not None:
-        value = entry.corruptor(raw, plan.fold(step_key, entry, plan.CORRUPTOR))
+        value = observable_base.corrupt(
+            entry.corruptor, raw, plan.fold(step_key, entry, plan.CORRUPTOR)
+        )
       samples[plan.VALUE] = self._conform(entry, value, plan.VALUE)
     return samples
 

@@ -24,11 +24,19 @@ Model fields: a device hook that writes a model field (a variator writing
 participant writes which field (an abstract trace of the hooks), so that the
 environment can report why a field is carried per world. Step hooks may
 update, never add, per-world fields and entries (`check_step_writes`).
+
+Porting checks, at trace time: a device hook whose parameter is named
+`random_state` is refused (it receives a JAX key); so is a hook that wrote
+to the `Physics` it received and then returned that very object
+(`Physics.wrote_to_result`): every write returns a new `Physics`, and
+dropping it (`walker.shift_pose(physics, ...)` without keeping the result)
+would lose the write silently.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from typing import Any, Callable
 
 import jax
@@ -214,7 +222,9 @@ class EnvironmentHooks:
     return physics
 
   def _call(self, participant, name, physics, key, action):
+    _check_takes_key(participant, name)
     hook_key = keys_lib.hook_key(key, participant.identity)
+    physics.forget_writes()
     if participant.takes_action:
       result = participant.hook(physics, action, hook_key)
     else:
@@ -224,7 +234,31 @@ class EnvironmentHooks:
           f'{participant.describe}.{name} returned {type(result).__name__}: '
           'device hooks are pure and must return the (new) Physics.'
       )
+    if result is physics and physics.wrote_to_result():
+      raise ValueError(
+          f'{participant.describe}.{name} wrote to the physics it received '
+          "(a binding's set, set_control, update_task_state, a method such "
+          'as walker.shift_pose(physics, ...) that returns the new Physics) '
+          'and then returned the physics it received, so the write is lost. '
+          'Every write returns a new Physics: keep it, `physics = '
+          'walker.shift_pose(physics, ...)`, and return the last one.'
+      )
     return result
+
+
+def _check_takes_key(participant, name):
+  """Refuses a device hook whose parameter is composer's `random_state`."""
+  try:
+    parameters = inspect.signature(participant.hook).parameters
+  except (TypeError, ValueError):
+    return
+  if 'random_state' in parameters:
+    raise TypeError(
+        f'{participant.describe}.{name} takes random_state: device hooks '
+        'receive a JAX PRNG key, not a numpy RandomState. Rename the '
+        'parameter to key, draw with jax.random (or pass key=... to '
+        'variations and initializers), and return the new Physics.'
+    )
 
 
 def check_step_writes(before, after, fields, hook_names):

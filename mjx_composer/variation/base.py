@@ -119,6 +119,37 @@ from mjx_composer.variation.rounds import evaluation_round
 Bounds = Tuple[np.ndarray, np.ndarray]
 
 
+class _NoRandomState:
+  """The default of `random_state=`: composer's argument was not passed."""
+
+  def __repr__(self):
+    return "NO_RANDOM_STATE"
+
+
+NO_RANDOM_STATE = _NoRandomState()
+
+
+def reject_random_state(random_state, where: str) -> None:
+  """Raises a `TypeError` where composer's `random_state=` was passed.
+
+  composer draws from a shared numpy `RandomState`; here every draw is a
+  pure function of a JAX PRNG key, so a ported call must pass `key=`.
+
+  Args:
+    random_state: the value passed as `random_state=` (`NO_RANDOM_STATE`
+      where none was).
+    where: what was called, for the message.
+  """
+  if random_state is NO_RANDOM_STATE:
+    return
+  raise TypeError(
+      f"{where} got random_state={random_state!r}: pass key=... instead, a "
+      "JAX PRNG key (key=jax.random.key(seed); a hook passes on the key it "
+      "receives). composer's numpy RandomState has no counterpart in a "
+      "jitted, batched step: every draw is a pure function of its key."
+  )
+
+
 class Variation(metaclass=abc.ABCMeta):
   """Abstract base class of variations (see the module docstring)."""
 
@@ -138,7 +169,15 @@ class Variation(metaclass=abc.ABCMeta):
     del initial_value
     return None
 
-  def sample(self, state, key, initial_value=None, current_value=None):
+  def sample(
+      self,
+      state,
+      key=None,
+      initial_value=None,
+      current_value=None,
+      *,
+      random_state=NO_RANDOM_STATE,
+  ):
     """Draws a value and advances the state.
 
     Args:
@@ -149,15 +188,31 @@ class Variation(metaclass=abc.ABCMeta):
       initial_value: original value of the thing being varied, or `None`.
       current_value: present value of the thing being varied, or `None`.
 
+      random_state: composer's numpy `RandomState` argument: passing it
+        raises a `TypeError` that says to pass `key=` instead.
+
     Returns:
       `(value, new_state)`, `new_state` with the structure of `state`.
     """
+    reject_random_state(random_state, f"{self!r}.sample")
     rounds.check_key(key, self)
     with evaluation_round(key):
       return self._sample(state, key, initial_value, current_value)
 
-  def __call__(self, initial_value=None, current_value=None, key=None):
-    """Returns a value drawn from a fresh state (see module docstring)."""
+  def __call__(
+      self,
+      initial_value=None,
+      current_value=None,
+      key=None,
+      *,
+      random_state=NO_RANDOM_STATE,
+  ):
+    """Returns a value drawn from a fresh state (see module docstring).
+
+    `random_state=` (composer's numpy `RandomState`) raises a `TypeError`
+    that says to pass `key=` instead.
+    """
+    reject_random_state(random_state, repr(self))
     value, _ = self.sample(
         self.initial_state(initial_value), key, initial_value, current_value
     )
@@ -377,7 +432,15 @@ def initial_state(structure, initial_value=None):
   return structure_initial_state(structure, initial_value, per_leaf=True)
 
 
-def sample(structure, state, key, initial_value=None, current_value=None):
+def sample(
+    structure,
+    state,
+    key=None,
+    initial_value=None,
+    current_value=None,
+    *,
+    random_state=NO_RANDOM_STATE,
+):
   """Evaluates a nested structure of variations and advances its state.
 
   Args:
@@ -392,9 +455,13 @@ def sample(structure, state, key, initial_value=None, current_value=None):
       leaf), or a single value handed to every leaf (composer's behaviour).
     current_value: like `initial_value`.
 
+    random_state: composer's numpy `RandomState`: raises a `TypeError` that
+      says to pass `key=`.
+
   Returns:
     `(values, new_state)`: `values` has the structure of `structure`.
   """
+  reject_random_state(random_state, "variation.sample")
   rounds.check_key(key, structure)
   with evaluation_round(key):
     return sample_structure(
@@ -402,7 +469,14 @@ def sample(structure, state, key, initial_value=None, current_value=None):
     )
 
 
-def evaluate(structure, initial_value=None, current_value=None, key=None):
+def evaluate(
+    structure,
+    initial_value=None,
+    current_value=None,
+    key=None,
+    *,
+    random_state=NO_RANDOM_STATE,
+):
   """Evaluates every variation in a nested structure (composer's `evaluate`).
 
   Stateful leaves are evaluated from a fresh state (see the module
@@ -416,10 +490,13 @@ def evaluate(structure, initial_value=None, current_value=None, key=None):
     current_value: like `initial_value`.
     key: a JAX PRNG key. Leaf `i` gets `jax.random.fold_in(key, i)`, so its
       value does not depend on the other leaves; a bare variation gets `key`.
+    random_state: composer's numpy `RandomState` argument: passing it
+      raises a `TypeError` that says to pass `key=` instead.
 
   Returns:
     The structure with every variation replaced by its value.
   """
+  reject_random_state(random_state, "variation.evaluate")
   state = initial_state(structure, initial_value)
   values, _ = sample(structure, state, key, initial_value, current_value)
   return values

@@ -11,7 +11,9 @@ arrive `delay` sub-steps after they are taken, reduced by an optional
 Differences from dm_control's composer:
 
 * A corruptor is a pure function `corruptor(value, key) -> value` of a JAX
-  PRNG key, not of a numpy `RandomState`.
+  PRNG key, not of a numpy `RandomState`; a `Variation` (composer's
+  `noises.Additive(distributions.Normal(scale=0.01))`) works as one too,
+  evaluated as `variation(value, value, key=key)`.
 * Reading an observable happens while tracing, so everything that selects
   *what* is read (element handles, names, indices) must be static.
 * The built-in aggregators are `jax.numpy` reductions over axis 0, and the
@@ -23,6 +25,8 @@ import abc
 from typing import Any, Callable
 
 import jax.numpy as jnp
+
+from mjx_composer.variation import base as variation_base
 
 
 class Aggregator:
@@ -93,8 +97,10 @@ class Observable(abc.ABC):
       int, or a `Variation` re-sampled for every sample). `None` means 0.
     aggregator: `None`, one of `AGGREGATORS` by name, or a callable reducing
       axis 0 (the buffer axis) of a `(buffer_size, *shape)` array.
-    corruptor: `None` or a pure `corruptor(value, key) -> value` applied to
-      every sample before it is buffered (so aggregators see noisy values).
+    corruptor: `None`, a pure `corruptor(value, key) -> value`, or a
+      `Variation` (a composer noise: `variation(value, value, key=key)`),
+      applied to every sample before it is buffered (so aggregators see
+      noisy values).
     enabled: whether the environment observes it. False on a new observable.
   """
 
@@ -193,7 +199,7 @@ class Observable(abc.ABC):
           'This observable has a corruptor, which needs a PRNG key: call it '
           'with `key=jax.random.key(...)`.'
       )
-    return lambda: corruptor(raw(), key)
+    return lambda: corrupt(corruptor, raw(), key)
 
   def __call__(self, physics, key=None):
     """Evaluates the (corrupted) observation once."""
@@ -268,3 +274,17 @@ class MujocoFeature(Observable):
     )
     field = getattr(physics.named.data, self._kind)
     return lambda: field[names]
+
+
+def corrupt(corruptor, value, key):
+  """`value` through an observable's `corruptor`, with `key`.
+
+  A plain corruptor is called `corruptor(value, key)`. A `Variation`
+  (composer's idiom, `corruptor=noises.Additive(distributions.Normal(
+  scale=0.01))`) takes its key as variations do, by keyword:
+  `corruptor(value, value, key=key)`, the sample being both its initial and
+  its current value (composer passes it as the initial value).
+  """
+  if isinstance(corruptor, variation_base.Variation):
+    return corruptor(value, value, key=key)
+  return corruptor(value, key)

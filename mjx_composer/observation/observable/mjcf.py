@@ -27,9 +27,12 @@ class MJCFFeature(base.Observable):
 
   `MJCFFeature('xpos', site)` reads `physics.bind(site).xpos` (shape (3,));
   with a list of elements the values are stacked. `kind` is any attribute a
-  binding has: data fields (`qpos`, `xpos`, `xmat`, `sensordata`, ...) or
-  model fields (`pos`, `size`, ...). Indexing, `feature[1:3]`, returns a copy
-  that reads `binding.<kind>[1:3]`.
+  binding has: data fields (`qpos`, `xpos`, `xmat`, `sensordata`,
+  `subtree_linvel`, ...) or model fields (`pos`, `size`, ...), in
+  dm_control's shapes (`xmat` is a flat `(9,)`, so `feature[6:]` is the
+  world z axis in the element's frame). Indexing, `feature[1:3]`, returns a
+  copy that reads `binding.<kind>[1:3]`. An empty list of elements, as
+  composer allows, gives an empty `(0,)` observable.
 
   Binding resolves the elements to static indices when the read is traced,
   so a sample costs one gather (composer re-binds once per episode instead).
@@ -55,12 +58,11 @@ class MJCFFeature(base.Observable):
       if (
           elements is None
           or isinstance(mjcf_element, str)
-          or not elements
           or not all(_is_element(e) for e in elements)
       ):
         raise ValueError(
             'expected an `mjcf.Element` (an MjSpec element handle such as '
-            '`mujoco.MjsSite`) or a non-empty iterable of them: got '
+            '`mujoco.MjsSite`) or an iterable of them: got '
             f'{type(mjcf_element).__name__} {mjcf_element!r}.'
         )
       mjcf_element = elements

@@ -1,0 +1,336 @@
+"""Bindings as composer binds: dm_control's shapes, fields MJX computes only on
+demand, empty bindings, and the errors a port meets (stale reads, dropped
+writes, `random_state=`, touch sensors MJX cannot compute).
+
+References: `dm_control.mjcf.Physics.bind` on the same MJCF, and MuJoCo's C
+library (`mj_forward`, `mj_rnePostConstraint`, `mj_subtreeVel`) on the same
+state.
+"""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from mujoco import mjx
+import numpy as np
+import pytest
+
+import mjx_composer as composer
+from mjx_composer import physics as physics_lib
+from mjx_composer.model import element_index
+from mjx_composer.model import model_checks
+from mjx_composer.observation.observable import mjcf as mjcf_observable
+from mjx_composer.platform import internals
+from mjx_composer.variation import distributions
+from mjx_composer.variation import noises
+from tests import conftest
+
+_XML = """
+<mujoco>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 .1"/>
+    <camera name="cam" pos="0 -2 1" xyaxes="1 0 0 0 .5 1"/>
+    <body name="torso" pos="0 0 0.5">
+      <freejoint name="root"/>
+      <geom name="torso_geom" type="box" size=".1 .08 .05"/>
+      <site name="imu" size=".01"/>
+      <site name="touch_site" type="box" size=".12 .1 .07"/>
+      <body name="leg" pos=".1 0 0">
+        <joint name="hip" type="hinge" axis="0 1 0" range="-1 1"/>
+        <geom name="leg_geom" type="capsule" fromto="0 0 0 0 0 -.3"
+              size=".03"/>
+        <site name="foot" pos="0 0 -.3"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor name="hip_motor" joint="hip" gear="10"/></actuator>
+  <sensor>
+    <accelerometer name="acc" site="imu"/>
+    <touch name="touch" site="touch_site"/>
+    <subtreelinvel name="com_vel" body="torso"/>
+    <framezaxis name="zaxis" objtype="site" objname="imu"/>
+  </sensor>
+</mujoco>
+"""
+
+# (kind, names): what the shapes test binds, one element and a list.
+_ELEMENTS = {
+    'body': ['torso', 'leg'],
+    'geom': ['torso_geom', 'leg_geom'],
+    'site': ['imu', 'foot'],
+    'camera': ['cam'],
+}
+_MATRICES = {
+    'body': ('xmat', 'ximat'),
+    'geom': ('xmat',),
+    'site': ('xmat',),
+    'camera': ('xmat',),
+}
+
+
+class _Scene:
+  """The MJCF compiled twice, by dm_control's PyMJCF and by MjSpec, at one
+  state after `mj_forward`."""
+
+  def __init__(self):
+    from dm_control import mjcf  # pylint: disable=g-import-not-at-top
+
+    self.mjcf_model = mjcf.from_xml_string(_XML)
+    self.dm_physics = mjcf.Physics.from_mjcf_model(self.mjcf_model)
+    self.spec = mujoco.MjSpec.from_string(_XML)
+    self.model = self.spec.compile()
+    self.data = mujoco.MjData(self.model)
+    quat = np.array([0.9, 0.1, -0.2, 0.3])
+    qpos = np.concatenate(
+        [[0.1, -0.2, 0.4], quat / np.linalg.norm(quat), [0.4]]
+    )
+    qvel = np.array([0.3, -0.1, 0.2, 1.0, -0.5, 0.7, 2.0])
+    for data in (self.data, self.dm_physics.data):
+      data.qpos[:] = qpos
+      data.qvel[:] = qvel
+      data.ctrl[:] = 0.3
+    mujoco.mj_forward(self.model, self.data)
+    self.dm_physics.forward()
+    handles = [
+        (kind, element)
+        for kind, element in element_index.iter_elements(self.spec)
+        if element.name
+    ]
+    self.index = element_index.ElementIndex(
+        self.model, {id(h): (h, kind, h.name) for kind, h in handles}
+    )
+    self.mjx_model = mjx.put_model(self.model)
+
+  def physics(self, data=None) -> physics_lib.Physics:
+    if data is None:
+      data = mjx.put_data(self.model, self.data)
+    return physics_lib.Physics(
+        model=self.mjx_model, data=data, index=self.index
+    )
+
+  def handle(self, kind, names):
+    """The MjSpec handle(s) of `kind` named `names` (a name or a list)."""
+    find = getattr(self.spec, kind)
+    return [find(n) for n in names] if isinstance(names, list) else find(names)
+
+  def dm_element(self, kind, name):
+    namespace = {'joint': 'joint', 'camera': 'camera'}.get(kind, kind)
+    return self.mjcf_model.find(namespace, name)
+
+
+@pytest.fixture(scope='module')
+def scene():
+  return _Scene()
+
+
+def test_matrices_bind_flat_as_in_dm_control(scene):
+  physics = scene.physics()
+  for kind, names in _ELEMENTS.items():
+    for attr in _MATRICES[kind]:
+      for selection in ([names[0]], names):
+        is_list = len(selection) > 1
+        ours_key = selection if is_list else selection[0]
+        dm_elements = [scene.dm_element(kind, n) for n in selection]
+        expected = np.asarray(
+            getattr(
+                scene.dm_physics.bind(
+                    dm_elements if is_list else dm_elements[0]
+                ),
+                attr,
+            )
+        )
+        ours = np.asarray(
+            getattr(physics.bind(scene.handle(kind, ours_key)), attr)
+        )
+        assert ours.shape == expected.shape, (kind, attr, selection)
+        np.testing.assert_allclose(
+            ours, expected, atol=1e-6, err_msg=f'{kind} {attr} {selection}'
+        )
+  # Named access gives the same shapes as dm_control's.
+  np.testing.assert_allclose(
+      physics.named.data.xmat['torso'],
+      scene.dm_physics.named.data.xmat['torso'],
+      atol=1e-6,
+  )
+  assert np.asarray(physics.named.data.site_xmat).shape == (
+      scene.model.nsite,
+      9,
+  )
+
+
+def test_flat_matrix_write_round_trips(scene):
+  physics = scene.physics()
+  flat = jnp.arange(9.0)
+  written = physics.named.data.set('xmat', 'leg', flat)
+  np.testing.assert_array_equal(written.named.data.xmat['leg'], flat)
+  np.testing.assert_array_equal(written.data.xmat[2], flat.reshape(3, 3))
+
+
+def test_mjcf_feature_last_row_of_xmat_is_world_z(scene):
+  """composer's `MJCFFeature('xmat', torso)[6:]`: shape (3,), dm_control's
+  values (the world z axis in the torso frame)."""
+  physics = scene.physics()
+  torso = scene.mjcf_model.find('body', 'torso')
+  expected = np.asarray(scene.dm_physics.bind(torso).xmat[6:])
+  feature = mjcf_observable.MJCFFeature('xmat', scene.spec.body('torso'))[6:]
+  value = feature(physics)
+  assert value.shape == (3,)
+  np.testing.assert_allclose(value, expected, atol=1e-6)
+
+
+_ON_DEMAND = (
+    'subtree_linvel',
+    'subtree_angmom',
+    'cacc',
+    'cfrc_int',
+    'cfrc_ext',
+)
+
+
+def test_fields_mjx_computes_on_demand_read_right(scene):
+  """What MuJoCo gives after mj_forward, mj_rnePostConstraint and
+  mj_subtreeVel, though MJX's data holds zeros there (as `mjx.forward`
+  leaves them where no sensor needs them)."""
+  reference = mujoco.MjData(scene.model)
+  reference.qpos[:] = scene.data.qpos
+  reference.qvel[:] = scene.data.qvel
+  reference.ctrl[:] = scene.data.ctrl
+  mujoco.mj_forward(scene.model, reference)
+  mujoco.mj_rnePostConstraint(scene.model, reference)
+  mujoco.mj_subtreeVel(scene.model, reference)
+  data = mjx.put_data(scene.model, scene.data)
+  impl = internals.data_impl(data)
+  data = internals.replace_data_impl(
+      data, **{f: jnp.zeros_like(getattr(impl, f)) for f in _ON_DEMAND}
+  )
+  bodies = scene.handle('body', ['torso', 'leg'])
+
+  @jax.jit
+  def read(data):
+    physics = scene.physics(data)
+    return {
+        f: (
+            getattr(physics.bind(bodies[0]), f),
+            getattr(physics.bind(bodies), f),
+            getattr(physics.named.data, f)['leg'],
+        )
+        for f in _ON_DEMAND
+    }
+
+  for field, (one, both, named) in read(data).items():
+    expected = getattr(reference, field)
+    np.testing.assert_allclose(one, expected[1], atol=2e-4, err_msg=field)
+    np.testing.assert_allclose(both, expected[1:3], atol=2e-4, err_msg=field)
+    np.testing.assert_allclose(named, expected[2], atol=2e-4, err_msg=field)
+
+
+def test_empty_binding_is_empty(scene):
+  physics = scene.physics()
+  binding = physics.bind([])
+  assert binding.sensordata.shape == (0,)
+  assert binding.xpos.shape == (0,)
+  assert binding.set(qpos=1.0) is physics
+  feature = mjcf_observable.MJCFFeature('sensordata', [])
+  assert feature(physics).shape == (0,)
+
+
+def test_write_then_derived_read_is_refused(scene):
+  """Refused while tracing, where dm_control would run mj_forward first."""
+  hip = scene.handle('joint', 'hip')
+  foot = scene.handle('site', 'foot')
+  torso = scene.handle('body', 'torso')
+  data = jax.eval_shape(lambda: mjx.put_data(scene.model, scene.data))
+
+  def trace(read):
+    jax.eval_shape(lambda data: read(scene.physics(data)), data)
+
+  with pytest.raises(physics_lib.StaleReadError, match='physics.forward'):
+    trace(lambda p: p.bind(hip).set(qpos=0.7).bind(foot).xpos)
+  trace(lambda p: p.bind(hip).set(qpos=0.7).bind(hip).qpos)  # an input
+  trace(lambda p: p.bind(hip).set(qpos=0.7).kinematics().bind(foot).xpos)
+  # A control changes only the acceleration stage: positions and velocities
+  # stay fresh, the accelerometer does not.
+  push = lambda p: p.set_control(jnp.ones(1))
+  trace(lambda p: push(p).bind(foot).xpos)
+  trace(lambda p: push(p).bind(torso).subtree_linvel)
+  trace(lambda p: push(p).named.data.sensordata['zaxis'])
+  with pytest.raises(physics_lib.StaleReadError):
+    trace(lambda p: push(p).named.data.sensordata['acc'])
+  with pytest.raises(physics_lib.StaleReadError):
+    trace(lambda p: push(p).bind(foot).set(pos=jnp.ones(3)).bind(torso).cacc)
+
+
+def test_touch_sensor_on_a_cylinder_site_is_refused_at_build():
+  xml = _XML.replace(
+      'name="touch_site" type="box"', 'name="touch_site" type="cylinder"'
+  )
+  model = mujoco.MjModel.from_xml_string(xml)
+  with pytest.raises(
+      NotImplementedError, match="touch.*'touch_site'.*CYLINDER"
+  ):
+    model_checks.check_compiled_model(model)
+
+
+def test_variation_as_a_corruptor():
+  """composer's idiom: `corruptor=noises.Additive(distributions.Normal(...))`
+  builds, and the noise is the variation's draw with the corruptor's key."""
+  tip = composer.observation.observable.Generic(
+      lambda physics: physics.named.data.site_xpos['pendulum/tip'],
+      corruptor=noises.Additive(distributions.Normal(scale=0.01)),
+  )
+  tip.enabled = True
+
+  class Noisy(conftest.SwingTask):
+
+    @property
+    def task_observables(self):
+      return {'tip': tip}
+
+  task = Noisy()
+  env = composer.Environment(task)
+  state = env.reset(jax.random.key(0))
+  clean = env.physics(state).bind(task.pendulum.tip).xpos
+  noise = np.asarray(state.observation['tip']).reshape(3) - np.asarray(clean)
+  assert 0 < np.max(np.abs(noise)) < 0.1
+
+
+def test_random_state_is_refused_with_key_hint():
+  rs = np.random.RandomState(0)
+  normal = distributions.Normal(scale=0.01)
+  for call in (
+      lambda: normal(random_state=rs),
+      lambda: composer.variation.evaluate(normal, random_state=rs),
+      lambda: normal.sample(None, random_state=rs),
+  ):
+    with pytest.raises(TypeError, match='pass key='):
+      call()
+
+
+def test_hook_with_random_state_parameter_is_refused():
+
+  class Ported(conftest.SwingTask):
+
+    def after_step(self, physics, random_state):  # pylint: disable=arguments-renamed
+      del random_state
+      return physics
+
+  env = composer.Environment(Ported())
+  state = jax.eval_shape(env.reset, jax.random.key(0))
+  with pytest.raises(TypeError, match='takes random_state.*key'):
+    jax.eval_shape(env.step, state, jnp.zeros(1))
+
+
+def test_dropped_write_is_refused():
+  """`entity.set_pose(physics, ...)` without keeping its result, returning
+  the physics the hook received: the write would be lost."""
+
+  class Forgetful(conftest.SwingTask):
+
+    def after_step(self, physics, key):
+      del key
+      self.ball.set_pose(physics, position=jnp.array([0.0, 0.0, 1.0]))
+      return physics
+
+  env = composer.Environment(Forgetful())
+  state = jax.eval_shape(env.reset, jax.random.key(0))
+  with pytest.raises(ValueError, match='write is lost'):
+    jax.eval_shape(env.step, state, jnp.zeros(1))
