@@ -110,13 +110,30 @@ class ContactSensor:
 
   # -- state -----------------------------------------------------------------
 
-  def update(self, physics, dt):
+  def update(self, physics, dt, touching=None):
     """Advances the times by one update of `dt` seconds; returns the physics.
 
     Call once per control step, from `after_step` (or once per sub-step from
     `after_substep`, with the physics timestep).
+
+    Args:
+      physics: one world's `Physics`, its task state holding the sensor's
+        entries.
+      dt: seconds since the last update (the task's `control_timestep`).
+      touching: None: the rows' flags from the contacts (`measure`); else a
+        `(rows,)` bool array of flags computed elsewhere, e.g. from MuJoCo
+        contact sensors' `sensordata`, which is the way under
+        `ExecutionOptions(impl='warp')`, where `measure` is refused.
     """
-    touching = self.measure(physics).touching
+    if touching is None:
+      touching = self.measure(physics).touching
+    else:
+      touching = jnp.asarray(touching, bool)
+      if touching.shape != (self.num_rows,):
+        raise ValueError(
+            f'{_OWNER} {self.name!r}: touching must have shape '
+            f'({self.num_rows},), one flag per row, got {touching.shape}.'
+        )
     state = physics.task_state
     missing = [k for k in self.initial_state() if k not in (state or {})]
     if missing:
