@@ -652,3 +652,72 @@ def test_brax_env_default_obs_key_works_with_brax_networks():
   assert obs.shape == (3,)
   logits = networks.policy_network.apply(None, params, obs[None])
   assert logits.shape == (1, 2 * brax_env.action_size)
+
+
+# -- HostEnvironment: seeds and failed initializations -----------------------
+
+
+@pytest.mark.parametrize(
+    'seed, error, match',
+    [
+        ('abc', TypeError, r"seed must be an int, got 'abc' \(str\).*seed=0"),
+        (1.5, TypeError, r'seed must be an int, got 1.5 \(float\)'),
+        (None, TypeError, r'seed must be an int, got None'),
+        (True, TypeError, r'seed must be an int, got True'),
+        (2**70, ValueError, r'seed must be in \[0, 2\*\*63\).*got 1180591'),
+        (-1, ValueError, r'seed must be in \[0, 2\*\*63\).*got -1'),
+    ],
+)
+@pytest.mark.parametrize('num_worlds', [None, 2])
+def test_host_environment_refuses_a_bad_seed(seed, error, match, num_worlds):
+  with pytest.raises(error, match=match):
+    composer.HostEnvironment(
+        _pendulum_environment(), num_worlds=num_worlds, seed=seed
+    )
+
+
+def test_host_environment_accepts_the_largest_seed():
+  env = composer.HostEnvironment(_pendulum_environment(), seed=2**63 - 1)
+  assert env.reset().first()
+
+
+class _FlakyInitialization(composer.NullTask):
+  """Fails an episode's initialization with probability `p` per attempt."""
+
+  def __init__(self, p):
+    arena = composer.Arena()
+    arena.attach(conftest.Pendulum())
+    super().__init__(arena)
+    self.p = p
+
+  def initialize_episode(self, physics, key):
+    return physics.fail_initialization(jax.random.uniform(key) < self.p)
+
+
+@functools.lru_cache(maxsize=None)
+def _flaky_environment(p, attempts):
+  return composer.Environment(
+      _FlakyInitialization(p), time_limit=0.1, max_reset_attempts=attempts
+  )
+
+
+@pytest.mark.parametrize('num_worlds', [None, 3])
+def test_host_reset_raises_when_every_attempt_fails(num_worlds):
+  """composer's reset raises EpisodeInitializationError after its retries."""
+  env = composer.HostEnvironment(
+      _flaky_environment(1.0, 3), num_worlds=num_worlds
+  )
+  where = r' in world\(s\) \[0, 1, 2\]' if num_worlds else ''
+  with pytest.raises(
+      composer.EpisodeInitializationError,
+      match=rf'all 3 attempt\(s\).*failed{where}.*max_reset_attempts',
+  ):
+    env.reset()
+
+
+def test_host_reset_succeeds_when_a_retry_succeeds():
+  env = composer.HostEnvironment(_flaky_environment(0.9, 200), num_worlds=3)
+  env.reset()  # Each world fails all 200 attempts with probability 7e-10.
+  failures = np.asarray(env.state.metrics['init_failures'])
+  assert not np.any(np.asarray(env.state.metrics['init_failed']))
+  assert failures.sum() > 0  # Retries happened, and one succeeded.

@@ -33,7 +33,62 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_composer import environment as environment_lib
 from mjx_composer.platform import sharding
+
+# numpy's and composer's seeds are non-negative; JAX takes int64 seeds.
+_SEED_MAX = 2**63 - 1
+
+
+def check_seed(seed):
+  """Returns `seed` as an int, or raises naming `seed` and the fix.
+
+  `jax.random.key` refuses strings, floats and integers past 64 bits deep
+  inside JAX; refuse them here, with the range that works.
+  """
+  if isinstance(seed, (bool, np.bool_)) or not isinstance(
+      seed, (int, np.integer)
+  ):
+    raise TypeError(
+        f'seed must be an int, got {seed!r} ({type(seed).__name__}). Pass an '
+        f'int in [0, 2**63), e.g. seed=0.'
+    )
+  if not 0 <= int(seed) <= _SEED_MAX:
+    raise ValueError(
+        f'seed must be in [0, 2**63) (a JAX key holds 64 bits), got {seed!r}. '
+        'Pass a smaller non-negative int, e.g. seed % 2**63.'
+    )
+  return int(seed)
+
+
+def _raise_if_initialization_failed(state, what):
+  """composer's `EpisodeInitializationError` where every attempt failed.
+
+  Inside the jitted reset nothing can raise: `metrics['init_failed']` marks
+  the worlds whose last attempt failed too, and `metrics['init_failures']`
+  counts their failed attempts. On the host, a reset that returns such a
+  world raises as composer's environment does after its retries.
+  """
+  failed, failures = jax.device_get(
+      (state.metrics['init_failed'], state.metrics['init_failures'])
+  )
+  failed = np.atleast_1d(np.asarray(failed) > 0)
+  if not failed.any():
+    return
+  attempts = int(np.max(np.atleast_1d(failures)[failed]))
+  worlds = np.flatnonzero(failed).tolist()
+  where = (
+      f' in world(s) {worlds[:10]}'
+      if np.ndim(state.metrics['init_failed'])
+      else ''
+  )
+  raise environment_lib.EpisodeInitializationError(
+      f'{what}: all {attempts} attempt(s) to initialize the episode failed'
+      f"{where}: the task's initialize_episode (e.g. a PropPlacer or an "
+      'initializer) reported failure every time. Raise '
+      'Environment(max_reset_attempts=...), or make the initial state '
+      'easier to find (e.g. more max_attempts_per_prop, fewer props).'
+  )
 
 
 class BatchedTimeStep(NamedTuple):
@@ -94,7 +149,7 @@ class _HostLoop:
   def __init__(self, environment, seed, num_worlds, mesh=None):
     self._env = environment
     self._num_worlds = num_worlds
-    self._key = jax.random.key(seed)
+    self._key = jax.random.key(check_seed(seed))
     self._auto_reset = _auto_reset_mode(environment)
     self._mesh = mesh
     if mesh is not None:
@@ -175,7 +230,7 @@ class HostEnvironment(_HostLoop, dm_env.Environment):
     environment: the `mjx_composer.Environment`.
     num_worlds: None for this single-world environment; an int for a
       `BatchedHostEnvironment` of that many worlds.
-    seed: an int seed for the episodes' keys.
+    seed: an int seed for the episodes' keys, in [0, 2**63).
     mesh: only for a batch (see `BatchedHostEnvironment`).
   """
 
@@ -198,8 +253,15 @@ class HostEnvironment(_HostLoop, dm_env.Environment):
     super().__init__(environment, seed, None)
 
   def reset(self) -> dm_env.TimeStep:
+    """Starts an episode.
+
+    Raises:
+      EpisodeInitializationError: when every one of the environment's
+        `max_reset_attempts` attempts failed, as composer's reset does.
+    """
     self._state = self._new_state()
     self._pending_first = False
+    _raise_if_initialization_failed(self._state, 'HostEnvironment.reset')
     return self._timestep()
 
   def step(self, action) -> dm_env.TimeStep:
@@ -314,8 +376,16 @@ class BatchedHostEnvironment(_HostLoop):
     return self._mesh
 
   def reset(self) -> BatchedTimeStep:
-    """Starts a new episode in every world."""
+    """Starts a new episode in every world.
+
+    Raises:
+      EpisodeInitializationError: when, in some world, every one of the
+        environment's `max_reset_attempts` attempts failed (as composer's
+        reset does). The auto-resets inside `step` cannot raise: they report
+        it in `metrics['init_failed']`.
+    """
     self._state = self._new_state()
+    _raise_if_initialization_failed(self._state, 'BatchedHostEnvironment.reset')
     return self._timestep()
 
   def step(self, actions) -> BatchedTimeStep:
