@@ -355,9 +355,34 @@ def test_sensor_times_follow_mujoco_trajectory(scripted):
       np.testing.assert_allclose(state.reward[world], landing, atol=1e-6)
 
 
-def test_bad_sets_raise_early_with_the_fix():
+@pytest.fixture(scope='module')
+def plain():
+  """A task and its environment's initial physics (nothing compiled)."""
   task = DropTask()
-  physics = _build(task).initial_physics()
+  return task, _build(task).initial_physics()
+
+
+def test_sensor_update_with_given_flags(plain):
+  """Flags from elsewhere (contact sensors, under 'warp') drive the times."""
+  task, physics = plain
+  physics = physics.replace(task_state=task.sensor.initial_state())
+  flags = np.array(
+      [[1, 0], [1, 0], [0, 0], [0, 1], [1, 1], [0, 1], [0, 0], [1, 0]], bool
+  )
+  dt = 0.02
+  expected = [_times(list(flags[:, row]), dt) for row in range(2)]
+  for k, touching in enumerate(flags):
+    physics = task.sensor.update(physics, dt, touching=touching)
+    for row in range(2):
+      for entry, values in expected[row].items():
+        got = np.asarray(getattr(task.sensor, entry)(physics))[row]
+        np.testing.assert_allclose(got, values[k], atol=1e-6, err_msg=entry)
+  with pytest.raises(ValueError, match='one flag per row'):
+    task.sensor.update(physics, dt, touching=[True])
+
+
+def test_bad_sets_raise_early_with_the_fix(plain):
+  task, physics = plain
   with pytest.raises(ValueError, match='share geoms'):
     contacts.between(physics, task.box, task.arena)  # The arena holds the box.
   with pytest.raises(KeyError, match="No geom or body named 'nope'"):
