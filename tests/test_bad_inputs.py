@@ -2,6 +2,7 @@
 
 import functools
 import math
+import re
 import subprocess
 import sys
 import warnings
@@ -721,3 +722,64 @@ def test_host_reset_succeeds_when_a_retry_succeeds():
   failures = np.asarray(env.state.metrics['init_failures'])
   assert not np.any(np.asarray(env.state.metrics['init_failed']))
   assert failures.sum() > 0  # Retries happened, and one succeeded.
+
+
+# -- sharding: arrays on other devices than the program's mesh ---------------
+
+_SHARDING_SCRIPT = r"""
+import json
+import jax
+import numpy as np
+from mjx_composer.platform import sharding
+
+d = jax.devices()
+a, b = sharding.world_mesh(d[:2]), sharding.world_mesh(d[2:])
+program = sharding.per_device(lambda states, actions: states + actions, a)
+x = np.arange(12, dtype=np.float32).reshape(4, 3)
+on = lambda mesh: sharding.put_worlds(x, mesh)
+cases = {
+    'states_of_another_mesh': (on(b), on(a)),
+    'both_of_another_mesh': (on(b), on(b)),
+    'actions_on_one_device': (on(a), jax.device_put(x, d[0])),
+    'actions_on_every_device': (on(a), on(sharding.world_mesh(d))),
+    'numpy_actions': (on(a), x),
+    'placed': (on(a), on(a)),
+}
+out = {}
+for name, args in cases.items():
+  try:
+    out[name] = np.asarray(program(*args)).tolist()
+  except ValueError as error:
+    out[name] = str(error)
+try:
+  program.lower(on(b), on(a))
+  out['lower'] = 'lowered'
+except ValueError as error:
+  out['lower'] = str(error)
+print(json.dumps(out))
+"""
+
+
+def test_a_program_refuses_arrays_of_another_mesh(tmp_path):
+  """jax.jit said "Received incompatible devices", naming no fix."""
+  out = conftest.run_script(
+      _SHARDING_SCRIPT,
+      None,
+      tmp_path,
+      env={'XLA_FLAGS': '--xla_force_host_platform_device_count=4'},
+  )
+  expected = (np.arange(12).reshape(4, 3) * 2).tolist()
+  assert out['placed'] == expected
+  assert out['numpy_actions'] == expected  # jax.jit moves numpy arrays.
+  for name, where, devices in [
+      ('states_of_another_mesh', r'args\[0\]', r'\[2, 3\]'),
+      ('both_of_another_mesh', r'args\[0\]', r'\[2, 3\]'),
+      ('actions_on_one_device', r'args\[1\]', r'\[0\]'),
+      ('actions_on_every_device', r'args\[1\]', r'\[0, 1, 2, 3\]'),
+      ('lower', r'args\[0\]', r'\[2, 3\]'),
+  ]:
+    assert re.search(
+        rf'{where} is on devices {devices}, but this program runs on the '
+        r'devices \[0, 1\] of its mesh: .*sharding.put_worlds',
+        out[name],
+    ), (name, out[name])

@@ -399,6 +399,7 @@ class WorldProgram:
 
   def __call__(self, *args):
     check_num_worlds(count_worlds(args), self.mesh)
+    check_devices(args, self.mesh)
     with partitioner.scope(self.mesh.devices.flat):
       return self.jitted(*args)
 
@@ -409,8 +410,44 @@ class WorldProgram:
     call after it reuses the compiled program.
     """
     check_num_worlds(count_worlds(args), self.mesh)
+    check_devices(args, self.mesh)
     with partitioner.scope(self.mesh.devices.flat):
       return _ScopedLowered(self.jitted.lower(*args), self.mesh)
+
+
+def check_devices(args, mesh: Mesh) -> None:
+  """Refuses arrays committed to other devices than `mesh`'s.
+
+  A `WorldProgram` runs on its mesh's devices. States sharded for another
+  mesh (another program's outputs), or actions committed to one device
+  while the states are spread over several, would make `jax.jit` fail with
+  "Received incompatible devices", naming neither the argument nor the fix.
+  Numpy arrays and uncommitted JAX arrays are moved by `jax.jit` and pass.
+
+  Raises:
+    ValueError: naming the first such array (its path in the arguments),
+      its devices, the mesh's, and `put_worlds`.
+  """
+  expected = set(mesh.devices.flat)
+  leaves = jax.tree_util.tree_flatten_with_path(args)[0]
+  for path, x in leaves:
+    if (
+        not isinstance(x, jax.Array)
+        or isinstance(x, jax.core.Tracer)
+        or not x.committed
+    ):
+      continue
+    devices = x.sharding.device_set
+    if devices != expected:
+      ids = lambda ds: sorted(d.id for d in ds)
+      where = 'args' + jax.tree_util.keystr(path)
+      raise ValueError(
+          f'{where} is on devices {ids(devices)}, but this program runs on '
+          f'the devices {ids(expected)} of its mesh: place the batch on the '
+          'mesh with sharding.put_worlds(tree, mesh) (the states and the '
+          "actions alike), or use the program built for the array's mesh "
+          '(sharding.batched_step(env, mesh)).'
+      )
 
 
 class _ScopedLowered:
