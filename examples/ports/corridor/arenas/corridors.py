@@ -72,11 +72,13 @@ class Corridor(composer.Arena, metaclass=abc.ABCMeta):
 class EmptyCorridor(Corridor):
   """An empty corridor with planes around the perimeter."""
 
-  def _build(self,
-             corridor_width=4,
-             corridor_length=40,
-             visible_side_planes=True,
-             name='empty_corridor'):
+  def _build(
+      self,
+      corridor_width=4,
+      corridor_length=40,
+      visible_side_planes=True,
+      name='empty_corridor',
+  ):
     """Builds the corridor.
 
     Args:
@@ -97,27 +99,56 @@ class EmptyCorridor(Corridor):
 
     self._mjcf_root.visual.map.znear = 0.0005
     self._mjcf_root.asset.add(
-        'texture', type='skybox', builtin='gradient',
-        rgb1=[0.4, 0.6, 0.8], rgb2=[0, 0, 0], width=100, height=600)
+        'texture',
+        type='skybox',
+        builtin='gradient',
+        rgb1=[0.4, 0.6, 0.8],
+        rgb2=[0, 0, 0],
+        width=100,
+        height=600,
+    )
     self._mjcf_root.visual.headlight.set_attributes(
-        ambient=[0.4, 0.4, 0.4], diffuse=[0.8, 0.8, 0.8],
-        specular=[0.1, 0.1, 0.1])
+        ambient=[0.4, 0.4, 0.4],
+        diffuse=[0.8, 0.8, 0.8],
+        specular=[0.1, 0.1, 0.1],
+    )
 
     alpha = _DEFAULT_ALPHA if visible_side_planes else 0.0
     self._ground_plane = self._mjcf_root.worldbody.add(
-        'geom', type='plane', rgba=[0.5, 0.5, 0.5, 1], size=[1, 1, 1])
+        'geom', type='plane', rgba=[0.5, 0.5, 0.5, 1], size=[1, 1, 1]
+    )
     self._left_plane = self._mjcf_root.worldbody.add(
-        'geom', type='plane', xyaxes=[1, 0, 0, 0, 0, 1], size=[1, 1, 1],
-        rgba=[1, 0, 0, alpha], group=_SIDE_WALLS_GEOM_GROUP)
+        'geom',
+        type='plane',
+        xyaxes=[1, 0, 0, 0, 0, 1],
+        size=[1, 1, 1],
+        rgba=[1, 0, 0, alpha],
+        group=_SIDE_WALLS_GEOM_GROUP,
+    )
     self._right_plane = self._mjcf_root.worldbody.add(
-        'geom', type='plane', xyaxes=[-1, 0, 0, 0, 0, 1], size=[1, 1, 1],
-        rgba=[1, 0, 0, alpha], group=_SIDE_WALLS_GEOM_GROUP)
+        'geom',
+        type='plane',
+        xyaxes=[-1, 0, 0, 0, 0, 1],
+        size=[1, 1, 1],
+        rgba=[1, 0, 0, alpha],
+        group=_SIDE_WALLS_GEOM_GROUP,
+    )
     self._near_plane = self._mjcf_root.worldbody.add(
-        'geom', type='plane', xyaxes=[0, 1, 0, 0, 0, 1], size=[1, 1, 1],
-        rgba=[1, 0, 0, alpha], group=_SIDE_WALLS_GEOM_GROUP)
+        'geom',
+        type='plane',
+        xyaxes=[0, 1, 0, 0, 0, 1],
+        size=[1, 1, 1],
+        rgba=[1, 0, 0, alpha],
+        group=_SIDE_WALLS_GEOM_GROUP,
+    )
     self._far_plane = self._mjcf_root.worldbody.add(
-        'geom', type='plane', xyaxes=[0, -1, 0, 0, 0, 1], size=[1, 1, 1],
-        rgba=[1, 0, 0, alpha], group=_SIDE_WALLS_GEOM_GROUP)
+        'geom',
+        type='plane',
+        xyaxes=[0, -1, 0, 0, 0, 1],
+        size=[1, 1, 1],
+        rgba=[1, 0, 0, alpha],
+        group=_SIDE_WALLS_GEOM_GROUP,
+    )
 
     self._current_corridor_length = None
     self._current_corridor_width = None
@@ -133,33 +164,52 @@ class EmptyCorridor(Corridor):
         `Variation` objects.
     """
     self._walls_body.geom.clear()
-    corridor_width = variation.evaluate(self._corridor_width,
-                                        random_state=random_state)
-    corridor_length = variation.evaluate(self._corridor_length,
-                                         random_state=random_state)
+    corridor_width = variation.evaluate(
+        self._corridor_width, random_state=random_state
+    )
+    corridor_length = variation.evaluate(
+        self._corridor_length, random_state=random_state
+    )
     self._current_corridor_length = corridor_length
     self._current_corridor_width = corridor_width
 
     self._ground_plane.pos = [corridor_length / 2, 0, 0]
     self._ground_plane.size = [
-        corridor_length / 2 + _CORRIDOR_X_PADDING, corridor_width / 2, 1]
+        corridor_length / 2 + _CORRIDOR_X_PADDING,
+        corridor_width / 2,
+        1,
+    ]
 
     self._left_plane.pos = [
-        corridor_length / 2, corridor_width / 2, _SIDE_WALL_HEIGHT / 2]
+        corridor_length / 2,
+        corridor_width / 2,
+        _SIDE_WALL_HEIGHT / 2,
+    ]
     self._left_plane.size = [
-        corridor_length / 2 + _CORRIDOR_X_PADDING, _SIDE_WALL_HEIGHT / 2, 1]
+        corridor_length / 2 + _CORRIDOR_X_PADDING,
+        _SIDE_WALL_HEIGHT / 2,
+        1,
+    ]
 
     self._right_plane.pos = [
-        corridor_length / 2, -corridor_width / 2, _SIDE_WALL_HEIGHT / 2]
+        corridor_length / 2,
+        -corridor_width / 2,
+        _SIDE_WALL_HEIGHT / 2,
+    ]
     self._right_plane.size = [
-        corridor_length / 2 + _CORRIDOR_X_PADDING, _SIDE_WALL_HEIGHT / 2, 1]
+        corridor_length / 2 + _CORRIDOR_X_PADDING,
+        _SIDE_WALL_HEIGHT / 2,
+        1,
+    ]
 
-    self._near_plane.pos = [
-        -_CORRIDOR_X_PADDING, 0, _SIDE_WALL_HEIGHT / 2]
+    self._near_plane.pos = [-_CORRIDOR_X_PADDING, 0, _SIDE_WALL_HEIGHT / 2]
     self._near_plane.size = [corridor_width / 2, _SIDE_WALL_HEIGHT / 2, 1]
 
     self._far_plane.pos = [
-        corridor_length + _CORRIDOR_X_PADDING, 0, _SIDE_WALL_HEIGHT / 2]
+        corridor_length + _CORRIDOR_X_PADDING,
+        0,
+        _SIDE_WALL_HEIGHT / 2,
+    ]
     self._far_plane.size = [corridor_width / 2, _SIDE_WALL_HEIGHT / 2, 1]
 
   @property
@@ -179,15 +229,17 @@ class GapsCorridor(EmptyCorridor):
   """A corridor that consists of multiple platforms separated by gaps."""
 
   # pylint: disable=arguments-renamed
-  def _build(self,
-             platform_length=1.,
-             gap_length=2.5,
-             corridor_width=4,
-             corridor_length=40,
-             ground_rgba=(0.5, 0.5, 0.5, 1),
-             visible_side_planes=False,
-             aesthetic='default',
-             name='gaps_corridor'):
+  def _build(
+      self,
+      platform_length=1.0,
+      gap_length=2.5,
+      corridor_width=4,
+      corridor_length=40,
+      ground_rgba=(0.5, 0.5, 0.5, 1),
+      visible_side_planes=False,
+      aesthetic='default',
+      name='gaps_corridor',
+  ):
     """Builds the corridor.
 
     Args:
@@ -210,7 +262,8 @@ class GapsCorridor(EmptyCorridor):
         corridor_width=corridor_width,
         corridor_length=corridor_length,
         visible_side_planes=visible_side_planes,
-        name=name)
+        name=name,
+    )
 
     self._platform_length = platform_length
     self._gap_length = gap_length
@@ -224,19 +277,29 @@ class GapsCorridor(EmptyCorridor):
       self._mjcf_root.compiler.texturedir = texturedir
 
       self._ground_texture = self._mjcf_root.asset.add(
-          'texture', name='aesthetic_texture', file=ground_info.file,
-          type=ground_info.type)
+          'texture',
+          name='aesthetic_texture',
+          file=ground_info.file,
+          type=ground_info.type,
+      )
       self._ground_material = self._mjcf_root.asset.add(
-          'material', name='aesthetic_material', texture=self._ground_texture,
-          texuniform='true')
+          'material',
+          name='aesthetic_material',
+          texture=self._ground_texture,
+          texuniform='true',
+      )
       # remove existing skybox
       for texture in self._mjcf_root.asset.find_all('texture'):
         if texture.type == 'skybox':
           texture.remove()
       self._skybox = self._mjcf_root.asset.add(
-          'texture', name='aesthetic_skybox', file=sky_info.file,
-          type='skybox', gridsize=sky_info.gridsize,
-          gridlayout=sky_info.gridlayout)
+          'texture',
+          name='aesthetic_skybox',
+          file=sky_info.file,
+          type='skybox',
+          gridsize=sky_info.gridsize,
+          gridlayout=sky_info.gridlayout,
+      )
 
     self._ground_body = self._mjcf_root.worldbody.add('body', name='ground')
 
@@ -266,7 +329,7 @@ class GapsCorridor(EmptyCorridor):
     self._ground_body.geom.clear()
 
     # Make the first platform larger.
-    platform_length = 3. * _CORRIDOR_X_PADDING
+    platform_length = 3.0 * _CORRIDOR_X_PADDING
     platform_pos = [
         platform_length / 2,
         0,
@@ -284,7 +347,8 @@ class GapsCorridor(EmptyCorridor):
           name='start_floor',
           pos=platform_pos,
           size=platform_size,
-          material=self._ground_material)
+          material=self._ground_material,
+      )
     else:
       self._ground_body.add(
           'geom',
@@ -292,15 +356,17 @@ class GapsCorridor(EmptyCorridor):
           rgba=variation.evaluate(self._ground_rgba, random_state),
           name='start_floor',
           pos=platform_pos,
-          size=platform_size)
+          size=platform_size,
+      )
 
     current_x = platform_length
     platform_id = 0
     while current_x < self._current_corridor_length:
       platform_length = variation.evaluate(
-          self._platform_length, random_state=random_state)
+          self._platform_length, random_state=random_state
+      )
       platform_pos = [
-          current_x + platform_length / 2.,
+          current_x + platform_length / 2.0,
           0,
           -_WALL_THICKNESS,
       ]
@@ -316,7 +382,8 @@ class GapsCorridor(EmptyCorridor):
             name='floor_{}'.format(platform_id),
             pos=platform_pos,
             size=platform_size,
-            material=self._ground_material)
+            material=self._ground_material,
+        )
       else:
         self._ground_body.add(
             'geom',
@@ -324,13 +391,15 @@ class GapsCorridor(EmptyCorridor):
             rgba=variation.evaluate(self._ground_rgba, random_state),
             name='floor_{}'.format(platform_id),
             pos=platform_pos,
-            size=platform_size)
+            size=platform_size,
+        )
 
       platform_id += 1
 
       # Move x to start of the next platform.
       current_x += platform_length + variation.evaluate(
-          self._gap_length, random_state=random_state)
+          self._gap_length, random_state=random_state
+      )
 
   @property
   def ground_geoms(self):
@@ -341,17 +410,19 @@ class WallsCorridor(EmptyCorridor):
   """A corridor obstructed by multiple walls aligned against the two sides."""
 
   # pylint: disable=arguments-renamed
-  def _build(self,
-             wall_gap=2.5,
-             wall_width=2.5,
-             wall_height=2.0,
-             swap_wall_side=True,
-             wall_rgba=(1, 1, 1, 1),
-             corridor_width=4,
-             corridor_length=40,
-             visible_side_planes=False,
-             include_initial_padding=True,
-             name='walls_corridor'):
+  def _build(
+      self,
+      wall_gap=2.5,
+      wall_width=2.5,
+      wall_height=2.0,
+      swap_wall_side=True,
+      wall_rgba=(1, 1, 1, 1),
+      corridor_width=4,
+      corridor_length=40,
+      visible_side_planes=False,
+      include_initial_padding=True,
+      name='walls_corridor',
+  ):
     """Builds the corridor.
 
     Args:
@@ -380,7 +451,8 @@ class WallsCorridor(EmptyCorridor):
         corridor_width=corridor_width,
         corridor_length=corridor_length,
         visible_side_planes=visible_side_planes,
-        name=name)
+        name=name,
+    )
 
     self._wall_height = wall_height
     self._wall_rgba = wall_rgba
@@ -406,17 +478,21 @@ class WallsCorridor(EmptyCorridor):
     """
     super().regenerate(random_state)
 
-    wall_x = variation.evaluate(
-        self._wall_gap, random_state=random_state) - _CORRIDOR_X_PADDING
+    wall_x = (
+        variation.evaluate(self._wall_gap, random_state=random_state)
+        - _CORRIDOR_X_PADDING
+    )
     if self._include_initial_padding:
-      wall_x += 2*_CORRIDOR_X_PADDING
+      wall_x += 2 * _CORRIDOR_X_PADDING
     wall_side = 0
     wall_id = 0
     while wall_x < self._current_corridor_length:
       wall_width = variation.evaluate(
-          self._wall_width, random_state=random_state)
+          self._wall_width, random_state=random_state
+      )
       wall_height = variation.evaluate(
-          self._wall_height, random_state=random_state)
+          self._wall_height, random_state=random_state
+      )
       wall_rgba = variation.evaluate(self._wall_rgba, random_state=random_state)
       if variation.evaluate(self._swap_wall_side, random_state=random_state):
         wall_side = 1 - wall_side
@@ -424,7 +500,7 @@ class WallsCorridor(EmptyCorridor):
       wall_pos = [
           wall_x,
           (2 * wall_side - 1) * (self._current_corridor_width - wall_width) / 2,
-          wall_height / 2
+          wall_height / 2,
       ]
       wall_size = [_WALL_THICKNESS / 2, wall_width / 2, wall_height / 2]
       self._walls_body.add(
@@ -433,7 +509,8 @@ class WallsCorridor(EmptyCorridor):
           name='wall_{}'.format(wall_id),
           pos=wall_pos,
           size=wall_size,
-          rgba=wall_rgba)
+          rgba=wall_rgba,
+      )
 
       wall_id += 1
       wall_x += variation.evaluate(self._wall_gap, random_state=random_state)

@@ -15,7 +15,6 @@
 
 """Corridor-based locomotion tasks."""
 
-
 from dm_control import composer
 from dm_control.composer import variation
 from dm_control.utils import rewards
@@ -30,16 +29,18 @@ class RunThroughCorridor(composer.Task):
   control signals used to achieve this.
   """
 
-  def __init__(self,
-               walker,
-               arena,
-               walker_spawn_position=(0, 0, 0),
-               walker_spawn_rotation=None,
-               target_velocity=3.0,
-               contact_termination=True,
-               terminate_at_height=-0.5,
-               physics_timestep=0.005,
-               control_timestep=0.025):
+  def __init__(
+      self,
+      walker,
+      arena,
+      walker_spawn_position=(0, 0, 0),
+      walker_spawn_rotation=None,
+      target_velocity=3.0,
+      contact_termination=True,
+      terminate_at_height=-0.5,
+      physics_timestep=0.005,
+      control_timestep=0.025,
+  ):
     """Initializes this task.
 
     Args:
@@ -83,7 +84,8 @@ class RunThroughCorridor(composer.Task):
     self._terminate_at_height = terminate_at_height
 
     self.set_timesteps(
-        physics_timestep=physics_timestep, control_timestep=control_timestep)
+        physics_timestep=physics_timestep, control_timestep=control_timestep
+    )
 
   @property
   def root_entity(self):
@@ -92,37 +94,45 @@ class RunThroughCorridor(composer.Task):
   def initialize_episode_mjcf(self, random_state):
     self._arena.regenerate(random_state)
     self._arena.mjcf_model.visual.map.znear = 0.00025
-    self._arena.mjcf_model.visual.map.zfar = 4.
+    self._arena.mjcf_model.visual.map.zfar = 4.0
 
   def initialize_episode(self, physics, random_state):
     self._walker.reinitialize_pose(physics, random_state)
     if self._walker_spawn_rotation:
       rotation = variation.evaluate(
-          self._walker_spawn_rotation, random_state=random_state)
+          self._walker_spawn_rotation, random_state=random_state
+      )
       quat = [np.cos(rotation / 2), 0, 0, np.sin(rotation / 2)]
     else:
       quat = None
     self._walker.shift_pose(
         physics,
         position=variation.evaluate(
-            self._walker_spawn_position, random_state=random_state),
+            self._walker_spawn_position, random_state=random_state
+        ),
         quaternion=quat,
-        rotate_velocity=True)
+        rotate_velocity=True,
+    )
 
     self._failure_termination = False
     walker_foot_geoms = set(self._walker.ground_contact_geoms)
     walker_nonfoot_geoms = [
-        geom for geom in self._walker.mjcf_model.find_all('geom')
-        if geom not in walker_foot_geoms]
+        geom
+        for geom in self._walker.mjcf_model.find_all('geom')
+        if geom not in walker_foot_geoms
+    ]
     self._walker_nonfoot_geomids = set(
-        physics.bind(walker_nonfoot_geoms).element_id)
+        physics.bind(walker_nonfoot_geoms).element_id
+    )
     self._ground_geomids = set(
-        physics.bind(self._arena.ground_geoms).element_id)
+        physics.bind(self._arena.ground_geoms).element_id
+    )
 
   def _is_disallowed_contact(self, contact):
     set1, set2 = self._walker_nonfoot_geomids, self._ground_geomids
-    return ((contact.geom1 in set1 and contact.geom2 in set2) or
-            (contact.geom1 in set2 and contact.geom2 in set1))
+    return (contact.geom1 in set1 and contact.geom2 in set2) or (
+        contact.geom1 in set2 and contact.geom2 in set1
+    )
 
   def before_step(self, physics, action, random_state):
     self._walker.apply_action(physics, action, random_state)
@@ -135,17 +145,21 @@ class RunThroughCorridor(composer.Task):
           self._failure_termination = True
           break
     if self._terminate_at_height is not None:
-      if any(physics.bind(self._walker.end_effectors).xpos[:, -1] <
-             self._terminate_at_height):
+      if any(
+          physics.bind(self._walker.end_effectors).xpos[:, -1]
+          < self._terminate_at_height
+      ):
         self._failure_termination = True
 
   def get_reward(self, physics):
     walker_xvel = physics.bind(self._walker.root_body).subtree_linvel[0]
     xvel_term = rewards.tolerance(
-        walker_xvel, (self._vel, self._vel),
+        walker_xvel,
+        (self._vel, self._vel),
         margin=self._vel,
         sigmoid='linear',
-        value_at_margin=0.0)
+        value_at_margin=0.0,
+    )
     return xvel_term
 
   def should_terminate_episode(self, physics):
@@ -153,6 +167,6 @@ class RunThroughCorridor(composer.Task):
 
   def get_discount(self, physics):
     if self._failure_termination:
-      return 0.
+      return 0.0
     else:
-      return 1.
+      return 1.0

@@ -52,8 +52,9 @@ class Ant(legacy_base.Walker):
         geom.set_attributes(rgba=marker_rgba)
 
     # Initialize previous action.
-    self._prev_action = np.zeros(shape=self.action_spec.shape,
-                                 dtype=self.action_spec.dtype)
+    self._prev_action = np.zeros(
+        shape=self.action_spec.shape, dtype=self.action_spec.dtype
+    )
 
   def initialize_episode(self, physics, random_state):
     self._prev_action = np.zeros_like(self._prev_action)
@@ -77,8 +78,10 @@ class Ant(legacy_base.Walker):
 
   @property
   def marker_geoms(self):
-    return [self._mjcf_root.find('geom', 'front_left_leg_geom'),
-            self._mjcf_root.find('geom', 'front_right_leg_geom')]
+    return [
+        self._mjcf_root.find('geom', 'front_left_leg_geom'),
+        self._mjcf_root.find('geom', 'front_right_leg_geom'),
+    ]
 
   @composer.cached_property
   def actuators(self):
@@ -103,10 +106,12 @@ class Ant(legacy_base.Walker):
 
   @property
   def _foot_bodies(self):
-    return (self._mjcf_root.find('body', 'front_left_foot'),
-            self._mjcf_root.find('body', 'front_right_foot'),
-            self._mjcf_root.find('body', 'back_right_foot'),
-            self._mjcf_root.find('body', 'back_left_foot'))
+    return (
+        self._mjcf_root.find('body', 'front_left_foot'),
+        self._mjcf_root.find('body', 'front_right_foot'),
+        self._mjcf_root.find('body', 'back_right_foot'),
+        self._mjcf_root.find('body', 'back_left_foot'),
+    )
 
   @composer.cached_property
   def end_effectors(self):
@@ -121,7 +126,7 @@ class Ant(legacy_base.Walker):
     return self._mjcf_root.find('camera', 'egocentric')
 
   def aliveness(self, physics):
-    return (physics.bind(self.root_body).xmat[-1] - 1.) / 2.
+    return (physics.bind(self.root_body).xmat[-1] - 1.0) / 2.0
 
   @composer.cached_property
   def ground_contact_geoms(self):
@@ -158,12 +163,20 @@ class AntObservables(legacy_base.WalkerObservables):
     for body in appendages:
       self._entity.appendages_sensors.append(
           self._entity.mjcf_model.sensor.add(
-              'framepos', name=body.name + '_appendage',
-              objtype='xbody', objname=body,
-              reftype='xbody', refname=self._entity.root_body))
+              'framepos',
+              name=body.name + '_appendage',
+              objtype='xbody',
+              objname=body,
+              reftype='xbody',
+              refname=self._entity.root_body,
+          )
+      )
+
     def appendages_ego_pos(physics):
       return np.reshape(
-          physics.bind(self._entity.appendages_sensors).sensordata, -1)
+          physics.bind(self._entity.appendages_sensors).sensordata, -1
+      )
+
     return observable.Generic(appendages_ego_pos)
 
   @composer.observable
@@ -174,12 +187,20 @@ class AntObservables(legacy_base.WalkerObservables):
     for body in bodies:
       self._entity.bodies_quats_sensors.append(
           self._entity.mjcf_model.sensor.add(
-              'framequat', name=body.name + '_ego_body_quat',
-              objtype='xbody', objname=body,
-              reftype='xbody', refname=self._entity.root_body))
+              'framequat',
+              name=body.name + '_ego_body_quat',
+              objtype='xbody',
+              objname=body,
+              reftype='xbody',
+              refname=self._entity.root_body,
+          )
+      )
+
     def bodies_ego_orientation(physics):
       return np.reshape(
-          physics.bind(self._entity.bodies_quats_sensors).sensordata, -1)
+          physics.bind(self._entity.bodies_quats_sensors).sensordata, -1
+      )
+
     return observable.Generic(bodies_ego_orientation)
 
   @composer.observable
@@ -190,18 +211,31 @@ class AntObservables(legacy_base.WalkerObservables):
     for body in bodies:
       self._entity.bodies_pos_sensors.append(
           self._entity.mjcf_model.sensor.add(
-              'framepos', name=body.name + '_ego_body_pos',
-              objtype='xbody', objname=body,
-              reftype='xbody', refname=self._entity.root_body))
+              'framepos',
+              name=body.name + '_ego_body_pos',
+              objtype='xbody',
+              objname=body,
+              reftype='xbody',
+              refname=self._entity.root_body,
+          )
+      )
+
     def bodies_ego_pos(physics):
       return np.reshape(
-          physics.bind(self._entity.bodies_pos_sensors).sensordata, -1)
+          physics.bind(self._entity.bodies_pos_sensors).sensordata, -1
+      )
+
     return observable.Generic(bodies_ego_pos)
 
   @property
   def proprioception(self):
-    return ([self.joints_pos, self.joints_vel,
-             self.body_height, self.end_effectors_pos,
-             self.appendages_pos, self.world_zaxis,
-             self.bodies_quats, self.bodies_pos] +
-            self._collect_from_attachments('proprioception'))
+    return [
+        self.joints_pos,
+        self.joints_vel,
+        self.body_height,
+        self.end_effectors_pos,
+        self.appendages_pos,
+        self.world_zaxis,
+        self.bodies_quats,
+        self.bodies_pos,
+    ] + self._collect_from_attachments('proprioception')

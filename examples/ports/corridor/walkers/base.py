@@ -34,8 +34,9 @@ def _make_readonly_float64_copy(value):
     return out
 
 
-class WalkerPose(collections.namedtuple(
-    'WalkerPose', ('qpos', 'xpos', 'xquat'))):
+class WalkerPose(
+    collections.namedtuple('WalkerPose', ('qpos', 'xpos', 'xquat'))
+):
   """A named tuple representing a walker's joint and Cartesian pose."""
 
   __slots__ = ()
@@ -57,12 +58,15 @@ class WalkerPose(collections.namedtuple(
         cls,
         qpos=_make_readonly_float64_copy(qpos) if qpos is not None else None,
         xpos=_make_readonly_float64_copy(xpos),
-        xquat=_make_readonly_float64_copy(xquat))
+        xquat=_make_readonly_float64_copy(xquat),
+    )
 
   def __eq__(self, other):
-    return (np.all(self.qpos == other.qpos) and
-            np.all(self.xpos == other.xpos) and
-            np.all(self.xquat == other.xquat))
+    return (
+        np.all(self.qpos == other.qpos)
+        and np.all(self.xpos == other.xpos)
+        and np.all(self.xquat == other.xquat)
+    )
 
 
 class Walker(composer.Robot, metaclass=abc.ABCMeta):
@@ -137,16 +141,19 @@ class Walker(composer.Robot, metaclass=abc.ABCMeta):
     if not self.actuators:
       minimum, maximum = (), ()
     else:
-      minimum, maximum = zip(*[
-          a.ctrlrange if a.ctrlrange is not None else (-1., 1.)
-          for a in self.actuators
-      ])
+      minimum, maximum = zip(
+          *[
+              a.ctrlrange if a.ctrlrange is not None else (-1.0, 1.0)
+              for a in self.actuators
+          ]
+      )
     return specs.BoundedArray(
         shape=(len(self.actuators),),
         dtype=float,
         minimum=minimum,
         maximum=maximum,
-        name='\t'.join([actuator.name for actuator in self.actuators]))
+        name='\t'.join([actuator.name for actuator in self.actuators]),
+    )
 
   def apply_action(self, physics, action, random_state):
     """Apply action to walker's actuators."""
@@ -163,18 +170,21 @@ class WalkerObservables(composer.Observables):
 
   @composer.observable
   def sensors_gyro(self):
-    return observable.MJCFFeature('sensordata',
-                                  self._entity.mjcf_model.sensor.gyro)
+    return observable.MJCFFeature(
+        'sensordata', self._entity.mjcf_model.sensor.gyro
+    )
 
   @composer.observable
   def sensors_accelerometer(self):
-    return observable.MJCFFeature('sensordata',
-                                  self._entity.mjcf_model.sensor.accelerometer)
+    return observable.MJCFFeature(
+        'sensordata', self._entity.mjcf_model.sensor.accelerometer
+    )
 
   @composer.observable
   def sensors_framequat(self):
-    return observable.MJCFFeature('sensordata',
-                                  self._entity.mjcf_model.sensor.framequat)
+    return observable.MJCFFeature(
+        'sensordata', self._entity.mjcf_model.sensor.framequat
+    )
 
   # Semantic groupings of Walker observables.
   def _collect_from_attachments(self, attribute_name):
@@ -185,15 +195,15 @@ class WalkerObservables(composer.Observables):
 
   @property
   def proprioception(self):
-    return ([self.joints_pos] +
-            self._collect_from_attachments('proprioception'))
+    return [self.joints_pos] + self._collect_from_attachments('proprioception')
 
   @property
   def kinematic_sensors(self):
-    return ([self.sensors_gyro,
-             self.sensors_accelerometer,
-             self.sensors_framequat] +
-            self._collect_from_attachments('kinematic_sensors'))
+    return [
+        self.sensors_gyro,
+        self.sensors_accelerometer,
+        self.sensors_framequat,
+    ] + self._collect_from_attachments('kinematic_sensors')
 
   @property
   def dynamic_sensors(self):

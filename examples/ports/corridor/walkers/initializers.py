@@ -39,7 +39,8 @@ class UprightInitializer(WalkerInitializer):
       walker.configure_joints(physics, qpos)
     walker.set_pose(physics, position=xpos, quaternion=xquat)
     walker.set_velocity(
-        physics, velocity=np.zeros(3), angular_velocity=np.zeros(3))
+        physics, velocity=np.zeros(3), angular_velocity=np.zeros(3)
+    )
 
 
 class RandomlySampledInitializer(WalkerInitializer):
@@ -52,7 +53,8 @@ class RandomlySampledInitializer(WalkerInitializer):
   def initialize_pose(self, physics, walker, random_state):
     random_initalizer_idx = np.random.randint(0, self.num_initializers)
     self._initializers[random_initalizer_idx].initialize_pose(
-        physics, walker, random_state)
+        physics, walker, random_state
+    )
 
 
 class NoOpInitializer(WalkerInitializer):
@@ -60,6 +62,3 @@ class NoOpInitializer(WalkerInitializer):
 
   def initialize_pose(self, physics, walker, random_state):
     pass
-
-
-

@@ -65,7 +65,7 @@ class Walker(base.Walker):
       alive. In walkers for which the concept of aliveness does not make sense,
       the default implementation is to always return 0.0.
     """
-    return 0.
+    return 0.0
 
   @property
   @abc.abstractmethod
@@ -92,7 +92,8 @@ class Walker(base.Walker):
       self._end_effector_geom_ids |= set(physics.bind(eff_geom).element_id)
     self._body_geom_ids = set(
         physics.bind(geom).element_id
-        for geom in self.mjcf_model.find_all('geom'))
+        for geom in self.mjcf_model.find_all('geom')
+    )
     self._body_geom_ids.difference_update(self._end_effector_geom_ids)
 
   @property
@@ -143,14 +144,15 @@ class Walker(base.Walker):
     contacts = {}
     forcetorque = np.zeros(6)
     for i, contact in enumerate(physics.data.contact):
-      if ((contact.geom1 in geom_ids) or
-          (contact.geom2 in geom_ids)) and contact.dist < contact.includemargin:
-        mjlib.mj_contactForce(physics.model.ptr, physics.data.ptr, i,
-                              forcetorque)
-        contacts[(contact.geom1, contact.geom2)] = (forcetorque[0]
-                                                    + contacts.get(
-                                                        (contact.geom1,
-                                                         contact.geom2), 0.))
+      if (
+          (contact.geom1 in geom_ids) or (contact.geom2 in geom_ids)
+      ) and contact.dist < contact.includemargin:
+        mjlib.mj_contactForce(
+            physics.model.ptr, physics.data.ptr, i, forcetorque
+        )
+        contacts[(contact.geom1, contact.geom2)] = forcetorque[
+            0
+        ] + contacts.get((contact.geom1, contact.geom2), 0.0)
     return contacts
 
   @property
@@ -228,12 +230,20 @@ class WalkerObservables(base.WalkerObservables):
         objtype = 'xbody'
       self._entity.end_effectors_pos_sensors.append(
           self._entity.mjcf_model.sensor.add(
-              'framepos', name=effector.name + '_end_effector',
-              objtype=objtype, objname=effector,
-              reftype='xbody', refname=self._entity.root_body))
+              'framepos',
+              name=effector.name + '_end_effector',
+              objtype=objtype,
+              objname=effector,
+              reftype='xbody',
+              refname=self._entity.root_body,
+          )
+      )
+
     def relative_pos_in_egocentric_frame(physics):
       return np.reshape(
-          physics.bind(self._entity.end_effectors_pos_sensors).sensordata, -1)
+          physics.bind(self._entity.end_effectors_pos_sensors).sensordata, -1
+      )
+
     return observable.Generic(relative_pos_in_egocentric_frame)
 
   @composer.observable
@@ -243,26 +253,31 @@ class WalkerObservables(base.WalkerObservables):
 
   @composer.observable
   def sensors_velocimeter(self):
-    return observable.MJCFFeature('sensordata',
-                                  self._entity.mjcf_model.sensor.velocimeter)
+    return observable.MJCFFeature(
+        'sensordata', self._entity.mjcf_model.sensor.velocimeter
+    )
 
   @composer.observable
   def sensors_force(self):
-    return observable.MJCFFeature('sensordata',
-                                  self._entity.mjcf_model.sensor.force)
+    return observable.MJCFFeature(
+        'sensordata', self._entity.mjcf_model.sensor.force
+    )
 
   @composer.observable
   def sensors_torque(self):
-    return observable.MJCFFeature('sensordata',
-                                  self._entity.mjcf_model.sensor.torque)
+    return observable.MJCFFeature(
+        'sensordata', self._entity.mjcf_model.sensor.torque
+    )
 
   @composer.observable
   def sensors_touch(self):
     return observable.MJCFFeature(
         'sensordata',
         self._entity.mjcf_model.sensor.touch,
-        corruptor=
-        lambda v, random_state: np.array(v > _TOUCH_THRESHOLD, dtype=float))
+        corruptor=lambda v, random_state: np.array(
+            v > _TOUCH_THRESHOLD, dtype=float
+        ),
+    )
 
   @composer.observable
   def sensors_rangefinder(self):
@@ -271,12 +286,14 @@ class WalkerObservables(base.WalkerObservables):
       raw = np.array(raw)
       raw[raw == -1.0] = np.inf
       return _RANGEFINDER_SCALE * np.tanh(raw / _RANGEFINDER_SCALE)
+
     return observable.Generic(tanh_rangefinder)
 
   @composer.observable
   def egocentric_camera(self):
-    return observable.MJCFCamera(self._entity.egocentric_camera,
-                                 width=64, height=64)
+    return observable.MJCFCamera(
+        self._entity.egocentric_camera, width=64, height=64
+    )
 
   @composer.observable
   def position(self):
@@ -286,12 +303,14 @@ class WalkerObservables(base.WalkerObservables):
   def orientation(self):
     return observable.MJCFFeature('xmat', self._entity.root_body)
 
-  def add_egocentric_vector(self,
-                            name,
-                            world_frame_observable,
-                            enabled=True,
-                            origin_callable=None,
-                            **kwargs):
+  def add_egocentric_vector(
+      self,
+      name,
+      world_frame_observable,
+      enabled=True,
+      origin_callable=None,
+      **kwargs,
+  ):
 
     def _egocentric(physics, origin_callable=origin_callable):
       vec = world_frame_observable.observation_callable(physics)()
@@ -306,8 +325,8 @@ class WalkerObservables(base.WalkerObservables):
 
     def _egocentric(physics):
       return self._entity.transform_xmat_to_egocentric_frame(
-          physics,
-          xmat_observable.observation_callable(physics)())
+          physics, xmat_observable.observation_callable(physics)()
+      )
 
     self._observables[name] = observable.Generic(_egocentric, **kwargs)
     self._observables[name].enabled = enabled
@@ -321,51 +340,66 @@ class WalkerObservables(base.WalkerObservables):
 
   @property
   def proprioception(self):
-    return ([self.joints_pos, self.joints_vel,
-             self.body_height, self.end_effectors_pos, self.world_zaxis] +
-            self._collect_from_attachments('proprioception'))
+    return [
+        self.joints_pos,
+        self.joints_vel,
+        self.body_height,
+        self.end_effectors_pos,
+        self.world_zaxis,
+    ] + self._collect_from_attachments('proprioception')
 
   @property
   def kinematic_sensors(self):
-    return ([self.sensors_gyro, self.sensors_velocimeter,
-             self.sensors_accelerometer] +
-            self._collect_from_attachments('kinematic_sensors'))
+    return [
+        self.sensors_gyro,
+        self.sensors_velocimeter,
+        self.sensors_accelerometer,
+    ] + self._collect_from_attachments('kinematic_sensors')
 
   @property
   def dynamic_sensors(self):
-    return ([self.sensors_force, self.sensors_torque, self.sensors_touch] +
-            self._collect_from_attachments('dynamic_sensors'))
+    return [
+        self.sensors_force,
+        self.sensors_torque,
+        self.sensors_touch,
+    ] + self._collect_from_attachments('dynamic_sensors')
 
   # Convenience observables for defining rewards and terminations.
   @composer.observable
   def veloc_strafe(self):
     return observable.MJCFFeature(
-        'sensordata', self._entity.mjcf_model.sensor.velocimeter)[1]
+        'sensordata', self._entity.mjcf_model.sensor.velocimeter
+    )[1]
 
   @composer.observable
   def veloc_up(self):
     return observable.MJCFFeature(
-        'sensordata', self._entity.mjcf_model.sensor.velocimeter)[2]
+        'sensordata', self._entity.mjcf_model.sensor.velocimeter
+    )[2]
 
   @composer.observable
   def veloc_forward(self):
     return observable.MJCFFeature(
-        'sensordata', self._entity.mjcf_model.sensor.velocimeter)[0]
+        'sensordata', self._entity.mjcf_model.sensor.velocimeter
+    )[0]
 
   @composer.observable
   def gyro_backward_roll(self):
     return observable.MJCFFeature(
-        'sensordata', self._entity.mjcf_model.sensor.gyro)[0]
+        'sensordata', self._entity.mjcf_model.sensor.gyro
+    )[0]
 
   @composer.observable
   def gyro_rightward_roll(self):
     return observable.MJCFFeature(
-        'sensordata', self._entity.mjcf_model.sensor.gyro)[1]
+        'sensordata', self._entity.mjcf_model.sensor.gyro
+    )[1]
 
   @composer.observable
   def gyro_anticlockwise_spin(self):
     return observable.MJCFFeature(
-        'sensordata', self._entity.mjcf_model.sensor.gyro)[2]
+        'sensordata', self._entity.mjcf_model.sensor.gyro
+    )[2]
 
   @composer.observable
   def torso_xvel(self):
