@@ -22,8 +22,8 @@ build it: it is converted to an MjSpec each time the tree is composed
 sites, geoms, actuators, sensors, cameras) bind, observe, vary and host
 attachments like MjSpec handles. PyMJCF and MjSpec entities attach to each
 other in either direction. A dm_control `composer.Entity` itself (its
-walkers, arenas and props) attaches through `DmControlEntity`, which
-`attach` applies to it.
+walkers, arenas and props) attaches wrapped in
+`entities.dm_control_entity.DmControlEntity`.
 
 Hooks. The build-time hooks `initialize_episode_mjcf(random_state)` and
 `after_compile(physics, random_state)` run once on the host when the
@@ -37,7 +37,7 @@ it in `Task.initial_task_state` instead).
 from __future__ import annotations
 
 import abc
-import sys
+import warnings
 import weakref
 from typing import Iterator
 
@@ -72,7 +72,9 @@ class Entity(abc.ABC):
     try:
       self._build(*args, **kwargs)
     except AttributeError as e:
-      _raise_with_spec_hint(e, f'{type(self).__name__}._build')
+      hinted = pymjcf.spec_attribute_error(e, f'{type(self).__name__}._build')
+      if hinted is not None:
+        raise hinted from e
       raise
     spec = self.mjcf_model
     if pymjcf.is_root(spec):
@@ -196,9 +198,8 @@ class Entity(abc.ABC):
     """Attaches `entity` below this one and returns its attachment frame.
 
     Args:
-      entity: an entity with no parent, or a dm_control `composer.Entity`
-        (wrapped in a `DmControlEntity`, reachable as the frame's entity:
-        `self.attached_entity(frame)`).
+      entity: an entity with no parent (a dm_control `composer.Entity`
+        attaches wrapped: `entities.dm_control_entity.DmControlEntity`).
       attach_site: an `MjsSite` or `MjsBody` of this entity's own spec (a
         PyMJCF `site` or `body` of its own PyMJCF model); the frame takes the
         site's pose. Defaults to `self.attachment_site`.
@@ -211,12 +212,16 @@ class Entity(abc.ABC):
       (`frame.add('freejoint')`), named `"<entity name>/"` once composed.
     """
     if not isinstance(entity, Entity):
-      if not DmControlEntity.accepts(entity):
+      if pymjcf.is_dm_control_entity(entity):
         raise TypeError(
-            'Can only attach an Entity (or a dm_control composer.Entity), '
-            f'got {type(entity).__name__}.'
+            f'{type(entity).__name__} is a dm_control composer.Entity: wrap '
+            'it to attach it, attach(DmControlEntity(entity)) with '
+            '`from mjx_composer.entities.dm_control_entity import '
+            'DmControlEntity`.'
         )
-      entity = DmControlEntity(entity)
+      raise TypeError(
+          f'Can only attach an Entity, got {type(entity).__name__}.'
+      )
     if entity is self or any(e is self for e in entity.iter_entities()):
       raise ValueError('Cannot attach an entity to itself or its descendant.')
     if entity.parent is not None:
@@ -235,7 +240,7 @@ class Entity(abc.ABC):
     spec = self.mjcf_model
     site = self.attachment_site if attach_site is None else attach_site
     if pymjcf.is_root(spec) or pymjcf.is_element(site):
-      frame = self._pymjcf_frame(spec, site)
+      frame = pymjcf.attachment_frame(spec, site, self.name)
     elif isinstance(site, mujoco.MjsSite):
       if not any(s is site for s in spec.sites):
         raise ValueError(
@@ -262,37 +267,6 @@ class Entity(abc.ABC):
     entity._attachment_frame = frame  # pylint: disable=protected-access
     self._attached.append(entity)
     return frame
-
-  def _pymjcf_frame(self, model, site):
-    """An attachment frame at a PyMJCF site or body of this PyMJCF model."""
-    if not pymjcf.is_root(model):
-      raise TypeError(
-          f'attach_site {pymjcf.describe(site)} is a PyMJCF element, but '
-          f"{self.name!r}'s model is an MjSpec: pass one of its MjsSite or "
-          'MjsBody handles.'
-      )
-    if not pymjcf.is_element(site) or site.tag not in (
-        'site',
-        'body',
-        'worldbody',
-    ):
-      raise TypeError(
-          f"{self.name!r}'s model is a PyMJCF model: attach_site must be "
-          f'one of its PyMJCF sites or bodies, got {site!r}.'
-      )
-    if site.root is not model:
-      raise ValueError(
-          f'attach_site {pymjcf.describe(site)} is not an element of '
-          f"{self.name!r}'s own PyMJCF model."
-      )
-    return pymjcf.add_frame(site)
-
-  def attached_entity(self, frame) -> Entity:
-    """The entity attached below this one at attachment frame `frame`."""
-    for child in self._attached:
-      if child.attachment_frame is frame:
-        return child
-    raise ValueError(f'{frame!r} is no attachment frame of {self.name!r}.')
 
   def detach(self):
     """Detaches this entity from its parent, restoring the parent's spec."""
@@ -374,7 +348,15 @@ class Entity(abc.ABC):
       child_spec, child_handles = child.compose()
       frame = handles[id(child.attachment_frame)][2]
       counts = composition_checks.count_elements(spec)
-      spec.attach(child_spec, prefix=child.name + '/', frame=frame.add_frame())
+      with warnings.catch_warnings():
+        # A spec converted from PyMJCF carries its assets (meshes, textures)
+        # in an asset dict; attaching is what compiling needs, once.
+        warnings.filterwarnings(
+            'ignore', message='Attaching a child without asset dict'
+        )
+        spec.attach(
+            child_spec, prefix=child.name + '/', frame=frame.add_frame()
+        )
       composition_checks.check_attach(child, child_spec, counts, spec)
       # The child's own worldbody stands for its attachment frame.
       child_world = child.mjcf_model.worldbody
@@ -561,107 +543,3 @@ class ModelWrapperEntity(Entity):
   @property
   def mjcf_model(self):
     return self._spec
-
-
-def _raise_with_spec_hint(error: AttributeError, where: str):
-  """Re-raises a PyMJCF call on an MjSpec object with what to use instead."""
-  obj = getattr(error, 'obj', None)
-  name = getattr(error, 'name', None)
-  if obj is None or not type(obj).__name__.startswith('Mjs'):
-    if not isinstance(obj, mujoco.MjSpec):
-      return
-  hint = pymjcf.spec_hint(name)
-  if hint is None:
-    return
-  raise AttributeError(
-      f'{where}: {type(obj).__name__} has no {name!r}, a PyMJCF (dm_control '
-      f'mjcf) name. On a mujoco.MjSpec use {hint}; or build the entity on '
-      'PyMJCF (an mjcf.RootElement as mjcf_model), which composes as well.'
-  ) from error
-
-
-class DmControlEntity(Entity):
-  """A dm_control `composer.Entity` (walker, arena, prop) in a composition.
-
-  `Entity.attach` wraps a dm_control entity in one of these; build one
-  yourself to keep a handle on it (`DmControlEntity(ant.Ant())`).
-
-  Carried: the entity's PyMJCF model, as it stands when the environment is
-  built (its PyMJCF elements bind, observe and vary like MjSpec handles),
-  and its attributes: any name this class does not define is read from the
-  dm_control entity (`walker.actuators`, `walker.end_effectors`,
-  `walker.observable_joints`, `arena.ground_geoms`, ...). Its observables of
-  type `MJCFFeature` become this entity's observables (enabled as they
-  were, with their index, update interval, buffer size, delay and
-  aggregator).
-
-  Not carried: the entity's hooks (`initialize_episode`, `before_step`, ...:
-  NumPy code that writes a stateful physics in place, which cannot run on
-  a traced, pure physics), its `Generic` and camera observables, and the
-  corruptors of its observables. Composer's frame and pose methods
-  (`root_body`, `get_pose`, `set_pose`, `shift_pose`, `set_velocity`,
-  `configure_joints`, `attach`) are this class's, acting on the wrapped
-  model. Port a hook into a subclass when you need it.
-
-  Args:
-    entity: a dm_control `composer.Entity` that is not attached (use
-      `Entity.attach`, not dm_control's).
-  """
-
-  @staticmethod
-  def accepts(obj) -> bool:
-    """Whether `obj` is a dm_control `composer.Entity`."""
-    module = sys.modules.get('dm_control.composer.entity')
-    return module is not None and isinstance(obj, module.Entity)
-
-  def _build(self, entity):  # pylint: disable=arguments-differ
-    if not self.accepts(entity):
-      raise TypeError(
-          'DmControlEntity wraps a dm_control composer.Entity, got '
-          f'{type(entity).__name__}.'
-      )
-    if entity.parent is not None:
-      raise ValueError(
-          f'dm_control entity {entity.mjcf_model.model!r} is attached to '
-          f"{entity.parent.mjcf_model.model!r} with dm_control's attach: "
-          "attach it with this package's Entity.attach instead."
-      )
-    self._entity = entity
-
-  @property
-  def mjcf_model(self):
-    return self._entity.mjcf_model
-
-  @property
-  def entity(self):
-    """The wrapped dm_control entity."""
-    return self._entity
-
-  def __getattr__(self, name):
-    # Only names this class lacks get here (dm_control's own attributes).
-    if name.startswith('__') or '_entity' not in self.__dict__:
-      raise AttributeError(name)
-    return getattr(self.__dict__['_entity'], name)
-
-  def _build_observables(self):
-    from mjx_composer.observation import observable  # pylint: disable=g-import-not-at-top
-
-    observables = observable.Observables(self)
-    for name, obs in self._entity.observables.as_dict(
-        fully_qualified=False
-    ).items():
-      if type(obs).__name__ != 'MJCFFeature':
-        continue
-      # pylint: disable=protected-access
-      ours = observable.MJCFFeature(
-          obs._kind,
-          obs._mjcf_element,
-          update_interval=obs.update_interval,
-          buffer_size=obs.buffer_size,
-          delay=obs.delay,
-          aggregator=obs.aggregator,
-          index=obs._index,
-      )
-      ours.enabled = obs.enabled
-      observables.add_observable(name, ours, enabled=obs.enabled)
-    return observables

@@ -70,6 +70,12 @@ def is_root(obj) -> bool:
   return module is not None and isinstance(obj, module.RootElement)
 
 
+def is_dm_control_entity(obj) -> bool:
+  """Whether `obj` is a dm_control `composer.Entity` (walker, arena, prop)."""
+  module = sys.modules.get('dm_control.composer.entity')
+  return module is not None and isinstance(obj, module.Entity)
+
+
 def is_model(obj) -> bool:
   """Whether `obj` is an entity model: an MjSpec or a PyMJCF root."""
   return isinstance(obj, mujoco.MjSpec) or is_root(obj)
@@ -161,13 +167,38 @@ def to_spec(root, frame_names: dict[int, str] | None = None):
   return spec, aliases
 
 
-def add_frame(site):
+def attachment_frame(model, site, owner: str):
   """Adds an (unnamed) attachment frame body at a PyMJCF site or body.
 
   The frame takes a site's pose (`pos`, `quat` and the alternative
   orientations); under a body it sits at the body's origin. Its composed
   name (`"<child>/"`) is set in the converted spec (`to_spec`).
+
+  Args:
+    model: the parent entity's own model (an MjSpec or a PyMJCF root).
+    site: the PyMJCF site or body to attach at.
+    owner: the parent entity's name, for messages.
+
+  Raises:
+    TypeError: `model` is an MjSpec, or `site` is no PyMJCF site or body.
+    ValueError: `site` belongs to another PyMJCF model.
   """
+  if not is_root(model):
+    raise TypeError(
+        f'attach_site {describe(site)} is a PyMJCF element, but '
+        f"{owner!r}'s model is an MjSpec: pass one of its MjsSite or "
+        'MjsBody handles.'
+    )
+  if not is_element(site) or site.tag not in ('site', 'body', 'worldbody'):
+    raise TypeError(
+        f"{owner!r}'s model is a PyMJCF model: attach_site must be one of "
+        f'its PyMJCF sites or bodies, got {site!r}.'
+    )
+  if site.root is not model:
+    raise ValueError(
+        f"attach_site {describe(site)} is not an element of {owner!r}'s "
+        'own PyMJCF model.'
+    )
   if site.tag == 'site':
     attributes = {
         key: getattr(site, key)
@@ -191,9 +222,31 @@ def own_joints(root) -> list:
   return root.find_all('joint', exclude_attachments=True)
 
 
-def spec_hint(name: str) -> str | None:
-  """What to use on an MjSpec instead of a PyMJCF method `name`, if known."""
-  return _SPEC_HINTS.get(name)
+def spec_attribute_error(error: AttributeError, where: str):
+  """A PyMJCF name asked of an MjSpec object, with what to use instead.
+
+  Args:
+    error: an `AttributeError` raised while building an entity.
+    where: what raised it, for the message (`'Ant._build'`).
+
+  Returns:
+    A new `AttributeError` when `error` is a PyMJCF name (`find_all`,
+    `add`, ...) asked of a `mujoco.MjSpec` or an `Mjs*` element, else None.
+  """
+  obj = getattr(error, 'obj', None)
+  name = getattr(error, 'name', None)
+  is_spec_object = isinstance(obj, mujoco.MjSpec) or (
+      type(obj).__module__.startswith('mujoco')
+      and type(obj).__name__.startswith('Mjs')
+  )
+  hint = _SPEC_HINTS.get(name)
+  if not is_spec_object or hint is None:
+    return None
+  return AttributeError(
+      f'{where}: {type(obj).__name__} has no {name!r}, a PyMJCF (dm_control '
+      f'mjcf) name. On a mujoco.MjSpec use {hint}; or build the entity on '
+      'PyMJCF (an mjcf.RootElement as mjcf_model), which composes as well.'
+  )
 
 
 _SPEC_HINTS = {

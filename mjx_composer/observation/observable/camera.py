@@ -35,6 +35,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer.model import pymjcf
 from mjx_composer.observation.observable import base
 
 # MuJoCo shows geom groups 0-2 by default (`mjvOption.geomgroup`).
@@ -208,10 +209,13 @@ class MJCFCamera(_Camera):
       depth=False,
       segmentation=False,
   ):
-    if not isinstance(mjcf_element, mujoco.MjsCamera):
+    if not isinstance(mjcf_element, mujoco.MjsCamera) and not (
+        pymjcf.is_element(mjcf_element)
+        and pymjcf.kind_name(mjcf_element) == 'camera'
+    ):
       raise ValueError(
           'MJCFCamera expects a `mujoco.MjsCamera` (e.g. '
-          '`spec.worldbody.add_camera(...)`), got '
+          '`spec.worldbody.add_camera(...)`) or a PyMJCF camera, got '
           f'{type(mjcf_element).__name__} {mjcf_element!r}.'
       )
     self._mjcf_element = mjcf_element

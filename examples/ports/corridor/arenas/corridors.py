@@ -17,8 +17,8 @@
 
 import abc
 
-from dm_control import composer
 from dm_control.composer import variation
+import mjx_composer as composer
 from dm_control.locomotion.arenas import assets as locomotion_arenas_assets
 
 _SIDE_WALLS_GEOM_GROUP = 3

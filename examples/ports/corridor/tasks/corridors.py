@@ -15,9 +15,11 @@
 
 """Corridor-based locomotion tasks."""
 
-from dm_control import composer
-from dm_control.composer import variation
-from dm_control.utils import rewards
+import jax
+import jax.numpy as jnp
+import mjx_composer as composer
+from mjx_composer import variation
+from mjx_composer.tasks import locomotion as rewards
 import numpy as np
 
 
@@ -96,60 +98,67 @@ class RunThroughCorridor(composer.Task):
     self._arena.mjcf_model.visual.map.znear = 0.00025
     self._arena.mjcf_model.visual.map.zfar = 4.0
 
-  def initialize_episode(self, physics, random_state):
-    self._walker.reinitialize_pose(physics, random_state)
-    if self._walker_spawn_rotation:
-      rotation = variation.evaluate(
-          self._walker_spawn_rotation, random_state=random_state
-      )
-      quat = [np.cos(rotation / 2), 0, 0, np.sin(rotation / 2)]
-    else:
-      quat = None
-    self._walker.shift_pose(
-        physics,
-        position=variation.evaluate(
-            self._walker_spawn_position, random_state=random_state
-        ),
-        quaternion=quat,
-        rotate_velocity=True,
-    )
+  def initial_task_state(self):
+    return {'failure_termination': jnp.array(False)}
 
-    self._failure_termination = False
+  def after_compile(self, physics, random_state):
+    # The geom ids are the same in every world: found once, at build.
     walker_foot_geoms = set(self._walker.ground_contact_geoms)
     walker_nonfoot_geoms = [
         geom
         for geom in self._walker.mjcf_model.find_all('geom')
         if geom not in walker_foot_geoms
     ]
-    self._walker_nonfoot_geomids = set(
-        physics.bind(walker_nonfoot_geoms).element_id
+    self._walker_nonfoot_geomids = np.array(
+        physics.bind(walker_nonfoot_geoms).element_ids
     )
-    self._ground_geomids = set(
-        physics.bind(self._arena.ground_geoms).element_id
+    self._ground_geomids = np.array(
+        physics.bind(self._arena.ground_geoms).element_ids
+    )
+
+  def initialize_episode(self, physics, key):
+    pose_key, rotation_key, position_key = jax.random.split(key, 3)
+    physics = self._walker.reinitialize_pose(physics, pose_key)
+    if self._walker_spawn_rotation:
+      rotation = variation.evaluate(
+          self._walker_spawn_rotation, key=rotation_key
+      )
+      quat = [jnp.cos(rotation / 2), 0, 0, jnp.sin(rotation / 2)]
+    else:
+      quat = None
+    return self._walker.shift_pose(
+        physics,
+        position=variation.evaluate(
+            self._walker_spawn_position, key=position_key
+        ),
+        quaternion=quat,
+        rotate_velocity=True,
     )
 
   def _is_disallowed_contact(self, contact):
     set1, set2 = self._walker_nonfoot_geomids, self._ground_geomids
-    return (contact.geom1 in set1 and contact.geom2 in set2) or (
-        contact.geom1 in set2 and contact.geom2 in set1
+    # Every candidate contact of MJX, masked to those MuJoCo would report.
+    active = contact.dist < contact.includemargin
+    return active & (
+        (jnp.isin(contact.geom1, set1) & jnp.isin(contact.geom2, set2))
+        | (jnp.isin(contact.geom1, set2) & jnp.isin(contact.geom2, set1))
     )
 
-  def before_step(self, physics, action, random_state):
-    self._walker.apply_action(physics, action, random_state)
+  def before_step(self, physics, action, key):
+    return self._walker.apply_action(physics, action, key)
 
-  def after_step(self, physics, random_state):
-    self._failure_termination = False
+  def after_step(self, physics, key):
+    failure_termination = jnp.array(False)
     if self._contact_termination:
-      for c in physics.data.contact:
-        if self._is_disallowed_contact(c):
-          self._failure_termination = True
-          break
+      failure_termination |= jnp.any(
+          self._is_disallowed_contact(physics.data.contact)
+      )
     if self._terminate_at_height is not None:
-      if any(
+      failure_termination |= jnp.any(
           physics.bind(self._walker.end_effectors).xpos[:, -1]
           < self._terminate_at_height
-      ):
-        self._failure_termination = True
+      )
+    return physics.update_task_state(failure_termination=failure_termination)
 
   def get_reward(self, physics):
     walker_xvel = physics.bind(self._walker.root_body).subtree_linvel[0]
@@ -163,10 +172,7 @@ class RunThroughCorridor(composer.Task):
     return xvel_term
 
   def should_terminate_episode(self, physics):
-    return self._failure_termination
+    return physics.task_state['failure_termination']
 
   def get_discount(self, physics):
-    if self._failure_termination:
-      return 0.0
-    else:
-      return 1.0
+    return jnp.where(physics.task_state['failure_termination'], 0.0, 1.0)

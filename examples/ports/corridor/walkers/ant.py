@@ -16,14 +16,18 @@
 
 import os
 
-from dm_control import composer
+from corridor.walkers import base
+from corridor.walkers import legacy_base
+import dm_control
 from dm_control import mjcf
-from dm_control.composer.observation import observable
-from dm_control.locomotion.walkers import base
-from dm_control.locomotion.walkers import legacy_base
+import jax.numpy as jnp
+import mjx_composer as composer
+from mjx_composer.observation import observable
 import numpy as np
 
-_XML_DIRNAME = os.path.join(os.path.dirname(__file__), '../../third_party/ant')
+_XML_DIRNAME = os.path.join(
+    os.path.dirname(dm_control.__file__), 'third_party/ant'
+)
 _XML_FILENAME = 'ant.xml'
 
 
@@ -56,14 +60,17 @@ class Ant(legacy_base.Walker):
         shape=self.action_spec.shape, dtype=self.action_spec.dtype
     )
 
-  def initialize_episode(self, physics, random_state):
-    self._prev_action = np.zeros_like(self._prev_action)
+  def initial_state(self):
+    # The previous action is per-world state, zero at every episode's start.
+    return {'prev_action': jnp.zeros(self._prev_action.shape, jnp.float32)}
 
-  def apply_action(self, physics, action, random_state):
-    super().apply_action(physics, action, random_state)
+  def apply_action(self, physics, action, key):
+    physics = super().apply_action(physics, action, key)
 
     # Updates previous action.
-    self._prev_action[:] = action
+    return physics.update_entity_state(
+        self, prev_action=jnp.asarray(action, jnp.float32)
+    )
 
   def _build_observables(self):
     return AntObservables(self)
@@ -137,6 +144,7 @@ class Ant(legacy_base.Walker):
 
   @property
   def prev_action(self):
+    # Each world's previous action: physics.entity_state(self)['prev_action'].
     return self._prev_action
 
   @property

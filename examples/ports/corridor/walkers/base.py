@@ -18,8 +18,8 @@
 import abc
 import collections
 
-from dm_control import composer
-from dm_control.composer.observation import observable
+import mjx_composer as composer
+from mjx_composer.observation import observable
 
 from dm_env import specs
 import numpy as np
@@ -155,10 +155,10 @@ class Walker(composer.Robot, metaclass=abc.ABCMeta):
         name='\t'.join([actuator.name for actuator in self.actuators]),
     )
 
-  def apply_action(self, physics, action, random_state):
+  def apply_action(self, physics, action, key):
     """Apply action to walker's actuators."""
-    del random_state
-    physics.bind(self.actuators).ctrl = action
+    del key
+    return physics.bind(self.actuators).set(ctrl=action)
 
 
 class WalkerObservables(composer.Observables):

@@ -16,30 +16,31 @@
 """Initializers for the locomotion walkers."""
 
 import abc
-import numpy as np
+import jax
+import jax.numpy as jnp
 
 
 class WalkerInitializer(metaclass=abc.ABCMeta):
   """The abstract base class for a walker initializer."""
 
   @abc.abstractmethod
-  def initialize_pose(self, physics, walker, random_state):
+  def initialize_pose(self, physics, walker, key):
     raise NotImplementedError
 
 
 class UprightInitializer(WalkerInitializer):
   """An initializer that uses the walker-declared upright pose."""
 
-  def initialize_pose(self, physics, walker, random_state):
+  def initialize_pose(self, physics, walker, key):
     all_joints_binding = physics.bind(walker.mjcf_model.find_all('joint'))
     qpos, xpos, xquat = walker.upright_pose
     if qpos is None:
-      walker.configure_joints(physics, all_joints_binding.qpos0)
+      physics = walker.configure_joints(physics, all_joints_binding.qpos0)
     else:
-      walker.configure_joints(physics, qpos)
-    walker.set_pose(physics, position=xpos, quaternion=xquat)
-    walker.set_velocity(
-        physics, velocity=np.zeros(3), angular_velocity=np.zeros(3)
+      physics = walker.configure_joints(physics, qpos)
+    physics = walker.set_pose(physics, position=xpos, quaternion=xquat)
+    return walker.set_velocity(
+        physics, velocity=jnp.zeros(3), angular_velocity=jnp.zeros(3)
     )
 
 
@@ -50,15 +51,23 @@ class RandomlySampledInitializer(WalkerInitializer):
     self._initializers = initializers
     self.num_initializers = len(initializers)
 
-  def initialize_pose(self, physics, walker, random_state):
-    random_initalizer_idx = np.random.randint(0, self.num_initializers)
-    self._initializers[random_initalizer_idx].initialize_pose(
-        physics, walker, random_state
+  def initialize_pose(self, physics, walker, key):
+    index_key, key = jax.random.split(key)
+    random_initalizer_idx = jax.random.randint(
+        index_key, (), 0, self.num_initializers
+    )
+    return jax.lax.switch(
+        random_initalizer_idx,
+        [
+            lambda p, i=i: i.initialize_pose(p, walker, key)
+            for i in self._initializers
+        ],
+        physics,
     )
 
 
 class NoOpInitializer(WalkerInitializer):
   """An initializer that does nothing."""
 
-  def initialize_pose(self, physics, walker, random_state):
-    pass
+  def initialize_pose(self, physics, walker, key):
+    return physics

@@ -17,11 +17,11 @@
 
 import abc
 
-from dm_control import composer
-from dm_control.composer.observation import observable
-from dm_control.locomotion.walkers import base
-from dm_control.locomotion.walkers import initializers
-from dm_control.mujoco.wrapper.mjbindings import mjlib
+from corridor.walkers import base
+from corridor.walkers import initializers
+import jax.numpy as jnp
+import mjx_composer as composer
+from mjx_composer.observation import observable
 import numpy as np
 
 _RANGEFINDER_SCALE = 10.0
@@ -46,9 +46,10 @@ class Walker(base.Walker):
   def _build_observables(self):
     return WalkerObservables(self)
 
-  def reinitialize_pose(self, physics, random_state):
+  def reinitialize_pose(self, physics, key):
     for initializer in self._initializers:
-      initializer.initialize_pose(physics, self, random_state)
+      physics = initializer.initialize_pose(physics, self, key)
+    return physics
 
   def aliveness(self, physics):
     """A measure of the aliveness of the walker.
@@ -89,9 +90,9 @@ class Walker(base.Walker):
     self._end_effector_geom_ids = set()
     for eff_body in self.end_effectors:
       eff_geom = eff_body.find_all('geom')
-      self._end_effector_geom_ids |= set(physics.bind(eff_geom).element_id)
+      self._end_effector_geom_ids |= set(physics.bind(eff_geom).element_ids)
     self._body_geom_ids = set(
-        physics.bind(geom).element_id
+        physics.bind(geom).element_ids[0]
         for geom in self.mjcf_model.find_all('geom')
     )
     self._body_geom_ids.difference_update(self._end_effector_geom_ids)
@@ -141,19 +142,12 @@ class Walker(base.Walker):
     return self.collect_contacts(physics, self._body_geom_ids)
 
   def collect_contacts(self, physics, geom_ids):
-    contacts = {}
-    forcetorque = np.zeros(6)
-    for i, contact in enumerate(physics.data.contact):
-      if (
-          (contact.geom1 in geom_ids) or (contact.geom2 in geom_ids)
-      ) and contact.dist < contact.includemargin:
-        mjlib.mj_contactForce(
-            physics.model.ptr, physics.data.ptr, i, forcetorque
-        )
-        contacts[(contact.geom1, contact.geom2)] = forcetorque[
-            0
-        ] + contacts.get((contact.geom1, contact.geom2), 0.0)
-    return contacts
+    # A dict keyed by the geom pairs in contact changes shape from step to
+    # step: a traced step cannot build it.
+    raise NotImplementedError(
+        'collect_contacts returns a dict keyed by contacting geom pairs, '
+        'which a traced step cannot build: mask physics.data.contact instead.'
+    )
 
   @property
   @abc.abstractmethod
@@ -178,14 +172,11 @@ class Walker(base.Walker):
     """
     raise NotImplementedError
 
-  def after_substep(self, physics, random_state):
-    del random_state  # Unused.
-    # As of MuJoCo v2.0, updates to `mjData->subtree_linvel` will be skipped
-    # unless these quantities are needed by the simulation. We need these in
-    # order to calculate `torso_{x,y}vel`, so we therefore call `mj_subtreeVel`
-    # explicitly.
-    # TODO(b/123065920): Consider using a `subtreelinvel` sensor instead.
-    mjlib.mj_subtreeVel(physics.model.ptr, physics.data.ptr)
+  def after_substep(self, physics, key):
+    del key  # Unused.
+    # `physics.bind(body).subtree_linvel` computes the subtree velocities
+    # when it is read: no `mj_subtreeVel` call is needed.
+    return physics
 
   @composer.cached_property
   def mocap_joints(self):
@@ -274,18 +265,15 @@ class WalkerObservables(base.WalkerObservables):
     return observable.MJCFFeature(
         'sensordata',
         self._entity.mjcf_model.sensor.touch,
-        corruptor=lambda v, random_state: np.array(
-            v > _TOUCH_THRESHOLD, dtype=float
-        ),
+        corruptor=lambda v, key: jnp.asarray(v > _TOUCH_THRESHOLD, dtype=float),
     )
 
   @composer.observable
   def sensors_rangefinder(self):
     def tanh_rangefinder(physics):
       raw = physics.bind(self._entity.mjcf_model.sensor.rangefinder).sensordata
-      raw = np.array(raw)
-      raw[raw == -1.0] = np.inf
-      return _RANGEFINDER_SCALE * np.tanh(raw / _RANGEFINDER_SCALE)
+      raw = jnp.where(raw == -1.0, jnp.inf, raw)
+      return _RANGEFINDER_SCALE * jnp.tanh(raw / _RANGEFINDER_SCALE)
 
     return observable.Generic(tanh_rangefinder)
 
@@ -314,7 +302,7 @@ class WalkerObservables(base.WalkerObservables):
 
     def _egocentric(physics, origin_callable=origin_callable):
       vec = world_frame_observable.observation_callable(physics)()
-      origin_callable = origin_callable or (lambda physics: np.zeros(vec.size))
+      origin_callable = origin_callable or (lambda physics: jnp.zeros(vec.size))
       delta = vec - origin_callable(physics)
       return self._entity.transform_vec_to_egocentric_frame(physics, delta)
 
@@ -411,4 +399,6 @@ class WalkerObservables(base.WalkerObservables):
 
   @composer.observable
   def prev_action(self):
-    return observable.Generic(lambda _: self._entity.prev_action)
+    return observable.Generic(
+        lambda physics: physics.entity_state(self._entity)['prev_action']
+    )
