@@ -24,9 +24,9 @@ for each contact, pyramidal or elliptic cones), so after a step they are the
 forces of that step's last sub-step, as `physics.data.contact` after
 `mj_step` in composer.
 
-The arrays read are MJX's fixed-size contact list (`data._impl.contact`,
-through `platform.internals`): every candidate contact of every colliding
-geom pair has a slot, and the matching slots are selected by mask, so the
+The contacts come from MJX's fixed-size contact list (`contact_list`):
+every candidate contact of every colliding geom pair has a slot, and the
+matching slots are selected by mask, so the
 cost is one pass over the list whatever the sets. The contact positions come
 padded to a static size (`max_contacts`, by default every slot the two sets
 can fill) with a `valid` mask.
@@ -49,8 +49,12 @@ import mujoco
 import numpy as np
 
 from mjx_composer.model import element_index
-from mjx_composer.platform import backend
+from mjx_composer.observation import contact_list as contact_list_lib
 from mjx_composer.platform import internals
+
+# One world's candidate contacts and their forces (`contact_list` module).
+ContactList = contact_list_lib.ContactList
+contact_list = contact_list_lib.contact_list
 
 _GEOM = element_index.KINDS_BY_NAME['geom']
 _BODY = element_index.KINDS_BY_NAME['body']
@@ -192,119 +196,6 @@ def contact_slots(mj_model, first: np.ndarray, second: np.ndarray) -> int:
       per_pair = int(internals.collision_function(key).ncon)
     total += per_pair * int(matched.sum())
   return total
-
-
-# -- the contact list --------------------------------------------------------------
-
-
-@struct.dataclass
-class ContactList:
-  """One world's candidate contacts, one row per slot of MJX's contact list.
-
-  Attributes:
-    geom: `(n, 2)` int32 geom ids (MuJoCo's `geom1`, `geom2`).
-    active: `(n,)` bool: the contact is in the constraint solver.
-    dist: `(n,)` signed distance (negative: penetration).
-    pos: `(n, 3)` contact position, world frame.
-    normal: `(n, 3)` unit normal, pointing from `geom1` to `geom2`.
-    force: `(n, 3)` the force `geom1` exerts on `geom2`, world frame
-      (`mj_contactForce`'s normal and tangential parts, rotated out of the
-      contact frame); zero for inactive contacts.
-    normal_force: `(n,)` its normal component (non-negative).
-  """
-
-  geom: jax.Array
-  active: jax.Array
-  dist: jax.Array
-  pos: jax.Array
-  normal: jax.Array
-  force: jax.Array
-  normal_force: jax.Array
-
-
-def contact_list(physics) -> ContactList:
-  """The `ContactList` of one world's last forward pass.
-
-  Raises:
-    ValueError: at trace time, for data of MJX's 'warp' implementation
-      (module docstring).
-  """
-  data = physics.data
-  if backend.is_warp(data):
-    raise ValueError(
-        "Contact queries read MJX's per-world contact list, which the "
-        "'warp' implementation does not keep (its contacts live in one "
-        'buffer shared by the batch). Build the environment with '
-        "options=ExecutionOptions(impl='jax'), or declare MuJoCo contact "
-        'sensors (mjSENS_CONTACT, geom matching) and read their sensordata.'
-    )
-  impl = internals.data_impl(data)
-  contact = impl.contact
-  dim = np.asarray(contact.dim, np.int64)
-  adr = np.asarray(contact.efc_address, np.int64)
-  n = dim.size
-  dtype = data.qpos.dtype
-  if n == 0:
-    zeros = lambda *shape: jnp.zeros(shape, dtype)
-    return ContactList(
-        geom=jnp.zeros((0, 2), jnp.int32),
-        active=jnp.zeros((0,), bool),
-        dist=zeros(0),
-        pos=zeros(0, 3),
-        normal=zeros(0, 3),
-        force=zeros(0, 3),
-        normal_force=zeros(0),
-    )
-  frame = jnp.reshape(contact.frame, (n, 3, 3))
-  local = _local_forces(physics.mj_model, dim, adr, impl.efc_force, contact)
-  included = jnp.asarray(adr >= 0)
-  active = jnp.logical_and(included, contact.dist < contact.includemargin)
-  local = local * active[:, None]
-  # Rows of `frame` are the contact axes: normal, then two tangents.
-  force = jnp.einsum('ni,nij->nj', local, frame)
-  return ContactList(
-      geom=jnp.asarray(contact.geom, jnp.int32).reshape(n, 2),
-      active=active,
-      dist=contact.dist,
-      pos=contact.pos,
-      normal=frame[:, 0],
-      force=force,
-      normal_force=local[:, 0],
-  )
-
-
-def _local_forces(mj_model, dim, adr, efc_force, contact):
-  """`(n, 3)` normal and tangential forces in each contact's frame.
-
-  MuJoCo's decoding of the constraint forces (`mj_contactForce`): an
-  elliptic cone's rows are the force's components; a pyramidal cone's
-  2 (dim - 1) edge forces sum to the normal force, and each pair's
-  difference times the friction coefficient is a tangential component.
-  """
-  n = dim.size
-  start = np.maximum(adr, 0)
-  friction = contact.friction
-  if mj_model.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC:
-    normal = efc_force[start]
-    has_tangents = dim >= 3
-    t1 = efc_force[np.where(has_tangents, start + 1, start)]
-    t2 = efc_force[np.where(has_tangents, start + 2, start)]
-    mask = jnp.asarray(has_tangents, efc_force.dtype)
-    return jnp.stack([normal, t1 * mask, t2 * mask], axis=-1)
-  edges = np.where(dim == 1, 1, 2 * (dim - 1))
-  width = int(edges.max())
-  rows = start[:, None] + np.arange(width)[None]
-  in_contact = np.arange(width)[None] < edges[:, None]
-  rows = np.where(in_contact, rows, start[:, None])
-  pyramid = efc_force[rows] * jnp.asarray(in_contact, efc_force.dtype)
-  normal = jnp.sum(pyramid, axis=-1)
-  if width < 4:  # Only frictionless contacts: no tangential force.
-    zeros = jnp.zeros((n,), efc_force.dtype)
-    return jnp.stack([normal, zeros, zeros], axis=-1)
-  has_tangents = jnp.asarray(dim >= 3, efc_force.dtype)
-  t1 = (pyramid[:, 0] - pyramid[:, 1]) * friction[:, 0] * has_tangents
-  t2 = (pyramid[:, 2] - pyramid[:, 3]) * friction[:, 1] * has_tangents
-  return jnp.stack([normal, t1, t2], axis=-1)
 
 
 # -- queries ---------------------------------------------------------------------
@@ -498,7 +389,8 @@ def touching_pairs(physics, first, second=None, max_pairs=None) -> Any:
 
   Returns:
     `(pairs, valid)`: `(max_pairs, 2)` int32 geom ids (-1 where not valid)
-    and a `(max_pairs,)` bool mask, pairs in MJX's pair order.
+    and a `(max_pairs,)` bool mask; the touching pairs first, ordered by
+    geom ids.
   """
   index = physics.index
   table1, table2 = membership(index, [first], second)
