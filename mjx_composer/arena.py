@@ -3,6 +3,7 @@
 import mujoco
 
 from mjx_composer import entity
+from mjx_composer.model import layouts
 from mjx_composer.model import pymjcf
 
 
@@ -28,6 +29,7 @@ class Arena(entity.Entity):
   """
 
   _pymjcf_root = None
+  _episode_layouts = None
 
   def _build(self, name=None, xml_path=None):
     self._build_args = (name, xml_path)
@@ -97,8 +99,35 @@ class Arena(entity.Entity):
     """Regenerates the arena's layout at build time (no-op by default).
 
     Composer's hook: it edits the spec on the host, before the one compile.
+    Call it from the task's `initialize_episode_mjcf`, as composer's tasks
+    do; `regenerate_per_episode` draws a new layout at every episode.
     """
     del random_state
+
+  def regenerate_per_episode(self, layouts_count: int):
+    """Gives each episode one of `layouts_count` regenerated layouts.
+
+    When the environment is built (`after_compile`), `regenerate` runs
+    `layouts_count` times on the host and the whole tree is compiled after
+    each; every episode (`initialize_episode`) then writes a uniformly drawn
+    layout's model fields into its world's model: the values MuJoCo's
+    compiler gave that layout. Only regenerations that keep the structure
+    (move, resize or recolour existing elements, as a corridor's `regenerate`
+    does) can be carried; others raise at build, naming the field.
+    """
+    self._episode_layouts = layouts.EpisodeLayouts(layouts_count)
+
+  def after_compile(self, physics, random_state):
+    if self._episode_layouts is not None:
+      root = self
+      while root.parent is not None:
+        root = root.parent
+      self._episode_layouts.sample(root, self.regenerate, random_state)
+
+  def initialize_episode(self, physics, key):
+    if self._episode_layouts is not None:
+      physics = self._episode_layouts.apply(physics, key)
+    return physics
 
   def regenerate_world(self, physics, key):
     """Samples one world's layout on the device (identity by default).

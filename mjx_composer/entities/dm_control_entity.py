@@ -12,6 +12,7 @@ for what is not carried.
 from __future__ import annotations
 
 from mjx_composer import entity as entity_lib
+from mjx_composer.model import layouts
 from mjx_composer.model import pymjcf
 from mjx_composer.observation import observable
 
@@ -66,6 +67,29 @@ class DmControlEntity(entity_lib.Entity):
   def entity(self):
     """The wrapped dm_control entity."""
     return self._entity
+
+  _episode_layouts = None
+
+  def regenerate_per_episode(self, layouts_count: int):
+    """A wrapped arena's `regenerate`, per episode: see `Arena`'s method."""
+    if not callable(getattr(self._entity, 'regenerate', None)):
+      raise TypeError(
+          f'{type(self._entity).__name__} has no regenerate(random_state): '
+          'only arenas regenerate.'
+      )
+    self._episode_layouts = layouts.EpisodeLayouts(layouts_count)
+
+  def after_compile(self, physics, random_state):
+    if self._episode_layouts is not None:
+      root = self
+      while root.parent is not None:
+        root = root.parent
+      self._episode_layouts.sample(root, self._entity.regenerate, random_state)
+
+  def initialize_episode(self, physics, key):
+    if self._episode_layouts is not None:
+      physics = self._episode_layouts.apply(physics, key)
+    return physics
 
   def add_free_entity(self, entity_to_add):
     """Attaches an entity with a freejoint on its frame; returns the frame.
