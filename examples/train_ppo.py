@@ -5,7 +5,15 @@
 
 `--task walk` and `--task joystick` (`joystick_rough`) default to MuJoCo
 Playground's PPO settings for HumanoidWalk and Go1Joystick (`TASK_DEFAULTS`:
-episode length, network sizes, discount, reward scaling, ...).
+episode length, network sizes, discount, reward scaling, ...), the settings
+of `mjx-composer train` (`mjx_composer.training.config.TASK_DEFAULTS`).
+
+To train a task into a run folder that can be resumed, played and exported
+(checkpoints, TensorBoard, videos, ONNX), use `mjx-composer train TASK`
+(docs/training.md); this script is the benchmark-minded variant: time to a
+return threshold, rollout metrics against zero actions, Playground's
+comparison set-ups (`--like-playground`), and the pieces that
+`benchmarks/train_compare.py` imports.
 
 Brax trains on every local device by default (its `pmap`, each device with
 `--num-envs / N` worlds and its share of each minibatch, gradients averaged
@@ -36,8 +44,8 @@ progress bar, evaluates `--num-evals` times, and writes to `--out`:
   `rollout_frames/step_NNN.png` (the strip's columns, each a grid of the
   worlds) and `rollout.gif` of the trained deterministic policy (needs a
   headless OpenGL; skipped with a warning without it). Walk and joystick
-  are drawn from the robot's tracking camera (`ROLLOUT_CAMERAS`), which
-  follows its centre of mass;
+  are drawn from the robot's tracking camera, which
+  follows its centre of mass (`mjx_composer.training.video.CAMERAS`);
 * `summary.json`, including `time_to_threshold_s`.
 
 `--max-wall-s S` ends training after the first evaluation from which the
@@ -77,54 +85,27 @@ def _parse_sizes(text):
   return tuple(int(x) for x in text.split(',') if x)
 
 
+def _script_defaults(task):
+  """A task's `mjx_composer.training.config.TASK_DEFAULTS` as this script's
+  flags (the same settings `mjx-composer train` uses)."""
+  from mjx_composer.training import config as training_config  # pylint: disable=g-import-not-at-top
+
+  defaults = dict(training_config.TASK_DEFAULTS[task])
+  if defaults.pop('critic_obs', 'policy') == 'critic':
+    defaults['obs'] = 'asymmetric'
+  defaults['render_steps'] = defaults.pop('video_steps')
+  return defaults
+
+
 # Per-task defaults; flags given on the command line win. walk: MuJoCo
 # Playground 0.2.0's PPO config for HumanoidWalk (dm_control_suite_params);
 # joystick: its config for Go1JoystickFlatTerrain / RoughTerrain
 # (locomotion_params), whose critic sees the privileged state. Networks are
 # Brax's defaults where Playground keeps them (init_noise_std 1.0 too).
 TASK_DEFAULTS = {
-    'walk': dict(
-        num_timesteps=60_000_000,
-        num_evals=10,
-        reward_scaling=10.0,
-        normalize=True,
-        time_limit=25.0,
-        unroll_length=30,
-        num_minibatches=32,
-        num_updates_per_batch=16,
-        discounting=0.995,
-        learning_rate=1e-3,
-        entropy_cost=1e-2,
-        num_envs=2048,
-        batch_size=1024,
-        init_noise_std=1.0,
-        policy_layers=(32, 32, 32, 32),
-        value_layers=(256, 256, 256, 256, 256),
-        render_steps=200,
-    ),
-    'joystick': dict(
-        num_timesteps=200_000_000,
-        num_evals=10,
-        reward_scaling=1.0,
-        normalize=True,
-        time_limit=20.0,
-        unroll_length=20,
-        num_minibatches=32,
-        num_updates_per_batch=4,
-        discounting=0.97,
-        learning_rate=3e-4,
-        entropy_cost=1e-2,
-        num_envs=8192,
-        batch_size=256,
-        max_grad_norm=1.0,
-        init_noise_std=1.0,
-        policy_layers=(512, 256, 128),
-        value_layers=(512, 256, 128),
-        obs='asymmetric',
-        render_steps=200,
-    ),
+    task: _script_defaults(task)
+    for task in ('walk', 'joystick', 'joystick_rough')
 }
-TASK_DEFAULTS['joystick_rough'] = TASK_DEFAULTS['joystick']
 
 
 def parse_args(argv=None):
@@ -398,15 +379,14 @@ def _write_plot(path, rows, threshold, title):
 
 
 # Cameras for the rollout images: the robots' own cameras that track their
-# centre of mass (MuJoCo's 'trackcom' mode); other tasks use `_FREE_CAMERA`.
-ROLLOUT_CAMERAS = {
-    'walk': 'humanoid/side',
-    'joystick': 'go1/tracking',
-    'joystick_rough': 'go1/tracking',
-}
-_FREE_CAMERA = dict(
-    distance=2.2, elevation=-25.0, azimuth=135.0, lookat=[0.0, 0.0, 0.25]
-)
+# centre of mass (MuJoCo's 'trackcom' mode); other tasks a free camera
+# (`mjx-composer train`'s videos use the same).
+def _cameras():
+  from mjx_composer.training import video  # pylint: disable=g-import-not-at-top
+
+  return video.CAMERAS, video.FREE_CAMERA
+
+
 _ROLLOUT_COLUMNS = 6
 
 
@@ -490,7 +470,7 @@ def rollout_images(env, brax_env, policy, args, out):
   evenly spaced in time), the same six frames as
   `rollout_frames/step_NNN.png` (a grid of the worlds each, NNN the control
   step) and `rollout.gif` (every step, at real time). The camera is
-  `ROLLOUT_CAMERAS[args.task]`, else a fixed free camera.
+  `mjx_composer.training.video.CAMERAS[args.task]`, else a fixed free camera.
 
   Returns:
     The paths written.
@@ -504,7 +484,8 @@ def rollout_images(env, brax_env, policy, args, out):
   state = reset(jax.random.split(jax.random.PRNGKey(args.seed + 1), n))
   key = jax.random.PRNGKey(args.seed + 2)
   frames = []
-  camera = ROLLOUT_CAMERAS.get(args.task, _FREE_CAMERA)
+  cameras, free_camera = _cameras()
+  camera = cameras.get(args.task, free_camera)
   for _ in range(args.render_steps):
     inner = brax_adapter.composer_state(state)
     target = (

@@ -10,7 +10,6 @@ import os
 import shutil
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -31,7 +30,7 @@ _TINY = [
     '--unroll-length', '5', '--num-updates-per-batch', '1',
     '--num-evals', '3', '--num-eval-envs', '2', '--time-limit', '0.1',
     '--policy-layers', '8', '--value-layers', '8',
-    '--video-every', '2', '--video-worlds', '2', '--video-steps', '3',
+    '--video-every', '2', '--video-worlds', '2', '--video-steps', '6',
     '--video-size', '32', '48',
 ]  # fmt: skip
 
@@ -63,8 +62,8 @@ def test_the_run_folder_holds_everything(trained):
       os.path.join(run.video_dir, f'eval_step_{80:012d}.mp4')
   ]
   frames = video.read_mp4(first_summary['videos'][0])
-  # 3 steps after the reset; 2 worlds of 32 x 48 side by side, 2 px apart.
-  assert frames.shape == (4, 32, 98, 3)
+  # 6 steps after the reset; 2 worlds of 32 x 48 side by side, 2 px apart.
+  assert frames.shape == (7, 32, 98, 3)
   with open(run.summary_path) as f:
     summary = json.load(f)
   assert summary['steps'] == 120 and summary['resumed_from_step'] == 80
@@ -125,20 +124,14 @@ def test_export_matches_the_jax_policy_in_onnxruntime(trained, tmp_path):
   config = run.read_config()
   checkpoint = checkpoints.latest(run)
   env, brax_env = policy_lib.make_environment(config)
-  # Observations recorded from a rollout of the sampled policy.
-  policy = policy_lib.make_policy(config, checkpoint, deterministic=True)
-  state = jax.jit(brax_env.reset)(jax.random.split(jax.random.PRNGKey(3), 4))
-  step = jax.jit(brax_env.step)
-  observations = []
-  for i in range(4):
-    observations.append(state.obs)
-    action, _ = policy(state.obs, jax.random.PRNGKey(i))
-    state = step(
-        state,
-        action
-        + 0.3 * jnp.sin(i + jnp.arange(action.size)).reshape(action.shape),
-    )
-  obs = jax.tree.map(lambda *x: jnp.concatenate(x), *observations)
+  # Observations recorded from a rollout of the sampled policy (the program
+  # `play` ran: loaded from the compilation cache).
+  make_policy = policy_lib.make_inference(config, checkpoint)
+  observations = video.rollout(
+      brax_env, make_policy, checkpoint.params, 2, 6, 5, deterministic=False
+  )[-1]
+  obs = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), observations)
+  policy = make_policy(checkpoint.params, deterministic=True)
   want = np.asarray(policy(obs, jax.random.PRNGKey(0))[0])
   session = onnxruntime.InferenceSession(out)
   got = session.run(['action'], {'obs': np.asarray(obs['policy'])})[0]

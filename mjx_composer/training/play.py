@@ -78,12 +78,16 @@ def play(
   out = out or run.video_dir
   os.makedirs(out, exist_ok=True)
   result = {}
+  make_policy = policy_lib.make_inference(config, checkpoint)
   for mode in MODES:
-    policy = policy_lib.make_policy(
-        config, checkpoint, deterministic=mode == 'deterministic'
-    )
-    states, rewards, dones, metrics = video.rollout(
-        brax_env, policy, worlds, steps, seed
+    states, rewards, dones, metrics, _ = video.rollout(
+        brax_env,
+        make_policy,
+        checkpoint.params,
+        worlds,
+        steps,
+        seed,
+        deterministic=mode == 'deterministic',
     )
     stats = episode_statistics(rewards, dones, metrics)
     stats['step'] = checkpoint.step

@@ -76,17 +76,22 @@ def make_networks(config: config_lib.TrainConfig, observation_size, actions):
   )
 
 
+def make_inference(config: config_lib.TrainConfig, checkpoint):
+  """Brax's `make_policy(params, deterministic)` for a checkpoint's networks."""
+  from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
+
+  networks = make_networks(
+      config, checkpoint.observation_size, checkpoint.action_size
+  )
+  return ppo_networks.make_inference_fn(networks)
+
+
 def make_policy(config: config_lib.TrainConfig, checkpoint, deterministic=True):
   """`policy(obs, key) -> (action, extras)` of a checkpoint's parameters.
 
   Deterministic: the mode of the action distribution (tanh of its mean);
   otherwise a sample.
   """
-  from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
-
-  networks = make_networks(
-      config, checkpoint.observation_size, checkpoint.action_size
-  )
-  return ppo_networks.make_inference_fn(networks)(
+  return make_inference(config, checkpoint)(
       checkpoint.params, deterministic=deterministic
   )

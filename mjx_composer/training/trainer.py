@@ -320,9 +320,13 @@ def train(
 
 def _video(env, brax_env, config, latest, path):
   """Renders the latest deterministic policy into `path`."""
-  policy = latest['make_policy'](latest['params'], deterministic=True)
-  states, _, _, _ = video.rollout(
-      brax_env, policy, config.video_worlds, config.video_steps, config.seed
-  )
+  states = video.rollout(
+      brax_env,
+      latest['make_policy'],
+      latest['params'],
+      config.video_worlds,
+      config.video_steps,
+      config.seed + 1,
+  )[0]
   frames = video.render_rollout(env, config.task, states, config.video_size)
   video.write_mp4(path, frames, fps=1.0 / env.control_timestep())

@@ -30,44 +30,68 @@ FREE_CAMERA = dict(
 )
 
 
-def rollout(brax_env, policy, worlds: int, steps: int, seed: int):
-  """Runs `policy` for `steps` control steps on `worlds` worlds.
+def rollout(
+    brax_env,
+    make_policy,
+    params,
+    worlds: int,
+    steps: int,
+    seed: int,
+    deterministic: bool = True,
+):
+  """Runs a policy for `steps` control steps on `worlds` worlds.
+
+  The parameters are an argument of the jitted rollout, not constants in
+  it, so rollouts of other parameters of the same networks (each
+  evaluation's video, `play`) run the same program: compiled once, or
+  loaded from JAX's persistent compilation cache.
 
   Args:
     brax_env: the task's `BraxEnv`.
-    policy: `policy(obs, key) -> (action, extras)` (Brax's inference fn).
+    make_policy: Brax's `make_policy(params, deterministic) -> policy`.
+    params: the `(normalizer, policy, value)` parameters.
     worlds: the batch size.
     steps: control steps after the reset.
     seed: seeds the reset and the policy's sampling.
+    deterministic: the distribution's mode (True) or samples.
 
   Returns:
-    `(states, rewards, dones, metrics)`: the composer `State` after the reset
-    and after each step, stacked on a leading time axis (`steps + 1`);
-    rewards and dones `(steps, worlds)`; the composer metrics of each step,
-    `{name: (steps, worlds)}`. Episodes that end restart in the same step
-    (same-step auto-reset).
+    `(states, rewards, dones, metrics, observations)`: the composer `State`
+    after the reset and after each step, stacked on a leading time axis
+    (`steps + 1`); rewards and dones `(steps, worlds)`; the composer metrics
+    of each step, `{name: (steps, worlds)}`; the observation each action was
+    chosen from (`steps` on the time axis). Episodes that end restart in the
+    same step (same-step auto-reset).
   """
 
-  def one_step(state, key):
-    action, _ = policy(state.obs, key)
-    state = brax_env.step(state, action)
-    inner = brax_adapter.composer_state(state)
-    return state, (inner, state.reward, state.done, inner.metrics)
-
   @jax.jit
-  def run(key):
+  def run(params, key):
+    policy = make_policy(params, deterministic=deterministic)
+
+    def one_step(state, key):
+      action, _ = policy(state.obs, key)
+      next_state = brax_env.step(state, action)
+      inner = brax_adapter.composer_state(next_state)
+      return next_state, (
+          inner,
+          next_state.reward,
+          next_state.done,
+          inner.metrics,
+          state.obs,
+      )
+
     reset_key, step_key = jax.random.split(key)
     state = brax_env.reset(jax.random.split(reset_key, worlds))
-    _, (inners, rewards, dones, metrics) = jax.lax.scan(
+    _, (inners, rewards, dones, metrics, observations) = jax.lax.scan(
         one_step, state, jax.random.split(step_key, steps)
     )
     first = brax_adapter.composer_state(state)
     inners = jax.tree.map(
         lambda a, b: jnp.concatenate([a[None], b]), first, inners
     )
-    return inners, rewards, dones, metrics
+    return inners, rewards, dones, metrics, observations
 
-  return jax.device_get(run(jax.random.PRNGKey(seed)))
+  return jax.device_get(run(params, jax.random.PRNGKey(seed)))
 
 
 def _state_at(states, t):
