@@ -428,8 +428,11 @@ def test_divergence_is_isolated_and_reset(swing_fns):
   keys = jax.random.split(jax.random.key(0), 4)
   states = swing_fns['vreset'](keys)
   reference = swing_fns['vstep'](states, jnp.zeros((4, 1)))
+  # A NaN velocity in world 1 (a NaN action would run as zeros, flagged
+  # apart: tests/runtime/test_nonfinite.py).
+  qvel = states.data.qvel.at[1].set(jnp.nan)
   poisoned = swing_fns['vstep'](
-      states, jnp.array([[0.0], [jnp.nan], [0.0], [0.0]])
+      states.replace(data=states.data.replace(qvel=qvel)), jnp.zeros((4, 1))
   )
   diverged = np.asarray(poisoned.metrics['diverged'])
   np.testing.assert_array_equal(diverged, [0.0, 1.0, 0.0, 0.0])

@@ -326,21 +326,26 @@ class PropPlacer(initializer.Initializer):
     return pose, (position_state, quaternion_state)
 
   def _search(self, key, initial, states, collides):
-    """Rejection sampling: the first candidate for which `collides` is False.
+    """Rejection sampling: the first finite candidate for which `collides`
+    is False.
 
-    Only the candidate pose and the variation states are carried, so the
-    loop stays light under vmap. Returns `(pose, states, found)`.
+    A candidate with a NaN or an infinity (a variation that drew one) is
+    rejected as a colliding one is: its contact distances are NaN, which no
+    comparison rejects. Only the candidate pose and the variation states
+    are carried, so the loop stays light under vmap. Returns `(pose,
+    states, found)`.
     """
     if self._ignore_collisions:
       pose, states = self._sample_pose(states, key, initial, initial)
-      return pose, states, jnp.ones((), bool)
+      return pose, states, _finite(pose)
 
     def attempt(carry):
       n, _, current, states = carry
       pose, states = self._sample_pose(
           states, jax.random.fold_in(key, n), initial, current
       )
-      return n + 1, jnp.logical_not(collides(pose)), pose, states
+      valid = jnp.logical_and(_finite(pose), jnp.logical_not(collides(pose)))
+      return n + 1, valid, pose, states
 
     def searching(carry):
       n, found, _, _ = carry
@@ -557,3 +562,10 @@ class PropPlacer(initializer.Initializer):
         settling, step, (start, jnp.zeros((), jnp.int32), jnp.zeros((), bool))
     )
     return physics.replace(data=data.replace(time=start.time)), settled
+
+
+def _finite(pose) -> jax.Array:
+  """Whether a candidate `(position, quaternion)` is finite."""
+  return jnp.logical_and(
+      jnp.all(jnp.isfinite(pose[0])), jnp.all(jnp.isfinite(pose[1]))
+  )

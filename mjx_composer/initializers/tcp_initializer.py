@@ -173,7 +173,14 @@ class ToolCenterPointInitializer(initializer.Initializer):
           target_quat,
           max_ik_attempts=self._max_ik_attempts,
       )
-      found = jnp.logical_and(solved, jnp.logical_not(collides(candidate)))
+      # A drawn NaN or infinity (target or solution) is rejected as a
+      # collision is, whatever the solver made of it.
+      finite = jnp.all(jnp.isfinite(target_pos)) & jnp.all(
+          jnp.isfinite(candidate.data.qpos)
+      )
+      if target_quat is not None:
+        finite = finite & jnp.all(jnp.isfinite(target_quat))
+      found = solved & finite & jnp.logical_not(collides(candidate))
       # A rejected sample leaves the joints as they were (composer restores).
       qpos = jnp.where(found, candidate.data.qpos, initial_qpos)
       return n + 1, qpos, found

@@ -226,6 +226,24 @@ class ElementIndex:
       )
     return entry[2]
 
+  def spec_handle(self, element):
+    """The MjSpec handle a PyMJCF element was converted to (compose time).
+
+    MjSpec handles are returned as they are. MJCFVariator reads the spec
+    values of attributes through it.
+    """
+    if not pymjcf.is_element(element):
+      return element
+    name, kind = self.full_name(element), element_kind(element).name
+    for handle, handle_kind, full_name in self._handles.values():
+      if (
+          handle_kind == kind
+          and full_name == name
+          and not pymjcf.is_element(handle)
+      ):
+        return handle
+    raise ValueError(f'{_describe(element)} has no MjSpec handle.')
+
   def element_id(self, kind: Kind, element) -> int:
     """Compiled id of an element handle or a fully qualified name."""
     if isinstance(element, str):

@@ -167,6 +167,19 @@ def to_spec(root, frame_names: dict[int, str] | None = None):
   return spec, aliases
 
 
+def spec_handle_of(element):
+  """The MjSpec handle of a PyMJCF element in its model converted now.
+
+  For checks that read MjSpec attributes before the tree is composed; the
+  handle belongs to a throwaway spec.
+  """
+  _, aliases = to_spec(element.root)
+  entry = aliases.get(id(element))
+  if entry is None:
+    raise ValueError(f'{describe(element)} is not a bindable element.')
+  return entry[2]
+
+
 def attachment_frame(model, site, owner: str):
   """Adds an (unnamed) attachment frame body at a PyMJCF site or body.
 

@@ -6,9 +6,38 @@ What ends an episode (`step_type == LAST`), for one world:
 * truncation at the time limit: LAST with the task's discount (dm_env's
   convention), `truncated=True`. The limit counts control steps
   (`step_limit`), not float32 time;
-* divergence (any non-finite qpos, qvel, qacc or act after the step): LAST
-  with reward 0 and discount 0, `metrics['diverged'] = 1`. Only that world is
-  affected; its next reset replaces all of its data.
+* a failed step, as composer ends the episode on a `PhysicsError` with
+  `raise_exception_on_physics_error=False`: LAST, `terminated=True`, reward
+  0 and discount 0, the task's metrics reported as 0, and one flag in the
+  metrics saying why (1 at that step, else 0):
+
+  - `diverged`: a non-finite qpos, qvel, qacc or act after the step;
+  - `nonfinite_action`: the action held a NaN or an infinity. The step runs
+    with a zero action instead (`checked_action`), on every backend alike:
+    MuJoCo computes no actuator force from a control it finds bad, and
+    MuJoCo Warp would clamp a NaN control to its lower bound;
+  - `nonfinite_reward`: the task's reward or discount was not finite (with
+    finite physics, e.g. a NaN command in the task state);
+  - `nonfinite_observation`: the observation held a non-finite entry (with
+    finite physics).
+
+  Only that world is affected; its next reset replaces all of its data.
+
+What a world returns is never non-finite where it could hide a failure: the
+reward and discount of a failed step are 0, and every non-finite entry of
+an observation is returned as 0 (`zero_nonfinite`), at every step and at
+reset, whatever the cause (a diverged world's observation included). Zero,
+not the last finite value: it needs no extra state, it exists at reset
+too, where there is no previous value, and it is what `ObservationPadding
+.ZERO` already returns for an observation not yet sampled; the flag and
+LAST (discount 0) tell a learner not to bootstrap from it. A FIRST state
+whose observation held a non-finite entry reports `nonfinite_observation
+= 1` too (it cannot end; its first step will, if the cause stays).
+
+At reset, an `initialize_episode` hook that leaves a non-finite qpos, qvel,
+act, ctrl, mocap_pos or mocap_quat fails that attempt
+(`nonfinite_initial_state`), as `physics.fail_initialization()` does: the
+attempt is retried and counted in `metrics['init_failures']`.
 
 Reported, not ended: `metrics['overflow'] = 1` from the step at which
 MuJoCo Warp first dropped a contact or constraint row of the world (its
@@ -58,6 +87,57 @@ def diverged(data) -> jax.Array:
   )
 
 
+def finite(tree) -> jax.Array:
+  """Whether every floating-point entry of `tree` is finite (a bool)."""
+  flags = [
+      jnp.all(jnp.isfinite(x))
+      for x in jax.tree.leaves(tree)
+      if jnp.issubdtype(jnp.result_type(x), jnp.inexact)
+  ]
+  if not flags:
+    return jnp.ones((), bool)
+  return jnp.all(jnp.stack(flags))
+
+
+def zero_nonfinite(tree):
+  """`tree` with every non-finite floating-point entry replaced by 0.
+
+  Finite entries are returned unchanged, bit for bit.
+  """
+
+  def zero(x):
+    if not jnp.issubdtype(jnp.result_type(x), jnp.inexact):
+      return x
+    return jnp.where(jnp.isfinite(x), x, jnp.zeros_like(x))
+
+  return jax.tree.map(zero, tree)
+
+
+def checked_action(action) -> tuple[jax.Array, jax.Array]:
+  """`(action the step runs, whether the given one was not finite)`.
+
+  A non-finite action is replaced by zeros as a whole (MuJoCo computes no
+  actuator force at all when one control is bad), so that no hook, no
+  physics and no task state sees it, on every backend.
+  """
+  bad = jnp.logical_not(finite(action))
+  return jnp.where(bad, jnp.zeros_like(action), action), bad
+
+
+def nonfinite_initial_state(data) -> jax.Array:
+  """Whether an initialized episode's state is not finite: any of qpos,
+  qvel, act, ctrl, mocap_pos or mocap_quat (what the physics starts from)."""
+  fields = [
+      data.qpos,
+      data.qvel,
+      data.act,
+      data.ctrl,
+      data.mocap_pos,
+      data.mocap_quat,
+  ]
+  return jnp.logical_not(finite(fields))
+
+
 def overflowed(data) -> jax.Array:
   """Whether MuJoCo Warp dropped contacts or constraints since the reset."""
   return backend.overflow(data) != 0
@@ -85,10 +165,19 @@ class EpisodeRules:
         for name, value in self._task.get_metrics(physics).items()
     }
 
-  def start(self, physics, init_failures) -> dict:
-    """The `State` fields of an episode's FIRST timestep."""
+  def start(self, physics, init_failures, observation) -> dict:
+    """The `State` fields of an episode's FIRST timestep.
+
+    `observation`: the first observation (returned with its non-finite
+    entries zeroed, `zero_nonfinite`).
+    """
     metrics = {
         'diverged': diverged(physics.data).astype(jnp.float32),
+        'nonfinite_action': jnp.zeros((), jnp.float32),
+        'nonfinite_reward': jnp.zeros((), jnp.float32),
+        'nonfinite_observation': jnp.logical_not(finite(observation)).astype(
+            jnp.float32
+        ),
         'overflow': overflowed(physics.data).astype(jnp.float32),
         'episode_return': jnp.zeros((), jnp.float32),
         'episode_length': jnp.zeros((), jnp.int32),
@@ -96,7 +185,10 @@ class EpisodeRules:
         'init_failed': physics.initialization_failed.astype(jnp.float32),
     }
     metrics.update(self._task_metrics(physics))
+    observation = zero_nonfinite(observation)
     return dict(
+        observation=observation,
+        final_observation=observation,
         reward=jnp.zeros(self._reward_shape, jnp.float32),
         discount=jnp.ones(self._discount_shape, jnp.float32),
         step_type=jnp.asarray(state_lib.StepType.FIRST, jnp.int32),
@@ -109,17 +201,39 @@ class EpisodeRules:
         ),
     )
 
-  def end_of_step(self, previous: state_lib.State, physics) -> dict:
-    """The `State` fields that say how the step from `previous` ended."""
+  def end_of_step(
+      self, previous: state_lib.State, physics, observation, action_nonfinite
+  ) -> dict:
+    """The `State` fields that say how the step from `previous` ended.
+
+    Args:
+      previous: the state the step started from.
+      physics: the stepped `Physics` (after the `after_step` hooks).
+      observation: the step's observation.
+      action_nonfinite: whether the step's action was not finite
+        (`checked_action`).
+    """
     is_diverged = diverged(physics.data)
     reward = jnp.asarray(self._task.get_reward(physics), jnp.float32)
     discount = jnp.asarray(self._task.get_discount(physics), jnp.float32)
-    reward = jnp.where(is_diverged, jnp.zeros_like(reward), reward)
-    discount = jnp.where(is_diverged, jnp.zeros_like(discount), discount)
+    # One cause per failure: the physics' divergence makes everything
+    # computed from it non-finite, so the outputs' flags exclude it.
+    finite_physics = jnp.logical_not(is_diverged)
+    bad_reward = jnp.logical_and(
+        finite_physics, jnp.logical_not(finite((reward, discount)))
+    )
+    bad_observation = jnp.logical_and(
+        finite_physics, jnp.logical_not(finite(observation))
+    )
+    failed = jnp.any(
+        jnp.stack([is_diverged, action_nonfinite, bad_reward, bad_observation])
+    )
+    reward = jnp.where(failed, jnp.zeros_like(reward), reward)
+    discount = jnp.where(failed, jnp.zeros_like(discount), discount)
     length = previous.episode.length + 1
     terminated = jnp.logical_or(
         jnp.asarray(self._task.should_terminate_episode(physics), bool),
-        is_diverged,
+        failed,
     )
     truncated = jnp.logical_and(
         jnp.logical_not(terminated), length >= self.step_limit
@@ -128,23 +242,29 @@ class EpisodeRules:
     total_reward = previous.episode.total_reward + jnp.sum(reward)
     metrics = {
         'diverged': is_diverged.astype(jnp.float32),
+        'nonfinite_action': action_nonfinite.astype(jnp.float32),
+        'nonfinite_reward': bad_reward.astype(jnp.float32),
+        'nonfinite_observation': bad_observation.astype(jnp.float32),
         'overflow': overflowed(physics.data).astype(jnp.float32),
         'episode_return': total_reward,
         'episode_length': length,
         'init_failures': previous.metrics['init_failures'],
         'init_failed': previous.metrics['init_failed'],
     }
-    # A diverged world's task metrics are NaN-laden: report zeros instead.
+    # A failed world's task metrics may be NaN-laden: report zeros instead.
     metrics.update(
         {
-            k: jnp.where(is_diverged, 0.0, v)
+            k: jnp.where(failed, 0.0, v)
             for k, v in self._task_metrics(physics).items()
         }
     )
     step_type = jnp.where(
         last, state_lib.StepType.LAST, state_lib.StepType.MID
     ).astype(jnp.int32)
+    observation = zero_nonfinite(observation)
     return dict(
+        observation=observation,
+        final_observation=observation,
         reward=reward,
         discount=discount,
         step_type=step_type,

@@ -116,7 +116,9 @@ class _FusedLoop:
   observation state, the `State` returned (the stepped one, then the
   restarted one where the world resets) and the reset's failed
   initialization attempts. Its operands are `(state, action, keys,
-  next_reset)`: `next_reset` is None for a same-step restart (of the
+  next_reset, action_nonfinite)`: the action the step runs, and whether
+  the given one was not finite (`episode.checked_action`); `next_reset` is
+  None for a same-step restart (of the
   stepped state, where it is LAST, with its key), else `(reset_key,
   previous)`, a next-step reset of `previous` (where it is LAST, with
   `reset_key`).
@@ -133,6 +135,7 @@ class _FusedLoop:
   def run(self, state, action, next_reset):
     """The loop from `state` (whose key is the step's)."""
     t = self._t
+    action, action_nonfinite = episode_lib.checked_action(action)
     keys = keys_lib.StepKeys.split(state.key)
     physics = t.before_step(state, action, keys)
     start = physics.replace(initialization_failed=jnp.zeros((), bool))
@@ -146,7 +149,7 @@ class _FusedLoop:
             state,
             jnp.zeros((), jnp.int32),
         ),
-        (state, action, keys, next_reset),
+        (state, action, keys, next_reset, action_nonfinite),
     )
     return stepped
 
@@ -154,7 +157,7 @@ class _FusedLoop:
     """Iteration `i` of the loop (`body`, as the lowered program names it)."""
     t, n, fields = self._t, self._n, self._fields
     carry, obs_state, stepped, failures = loop
-    state, action, keys, next_reset = operands
+    state, action, keys, next_reset, action_nonfinite = operands
     # At `i = n` the carry is the prepared restart: its sub-step hooks and
     # integration are computed and dropped (selects on the shared `i`).
     ready = carry
@@ -183,7 +186,9 @@ class _FusedLoop:
     carry = control_flow.tree_select(i < n, moved, physics.carry(fields))
     carry, obs_state, stepped, failures = control_flow.once_or_never(
         i == n - 1,
-        lambda loop: self._end_step(state, keys, next_reset, started, loop),
+        lambda loop: self._end_step(
+            state, keys, next_reset, action_nonfinite, started, loop
+        ),
         (carry, obs_state, stepped, failures),
     )
     return carry, obs_state, stepped, failures
@@ -203,7 +208,7 @@ class _FusedLoop:
         previous.last(),
     )
 
-  def _end_step(self, state, keys, next_reset, started, loop):
+  def _end_step(self, state, keys, next_reset, action_nonfinite, started, loop):
     """Ends the control step; prepares the restart where one is wanted."""
     t = self._t
     carry, obs_state, stepped, failures = loop
@@ -212,7 +217,8 @@ class _FusedLoop:
       moved = moved.replace(
           data=substep_sensors.sensors_of(moved.model, moved.data, started)
       )
-    stepped = t.end_step(state, moved, obs_state, keys)
+    moved = moved.replace(data=t.step_forward(moved.model, moved.data))
+    stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)
     carry, failures = control_flow.once_or_never(
         control_flow.batch_any(self._reset_from(stepped, next_reset)[2]),
         lambda _: self._prepare_restart(stepped, next_reset),

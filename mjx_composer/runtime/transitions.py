@@ -333,13 +333,15 @@ class Transitions:
 
     `keys`: the reset's `keys.ResetKeys`.
     """
+    obs_state = self.updater.reset(physics, keys.obs)
     return _state(
         physics,
         tuple(carry.model_fields),
-        self.updater.reset(physics, keys.obs),
-        self.updater,
+        obs_state,
         keys.next,
-        self.episode.start(physics, failures),
+        self.episode.start(
+            physics, failures, self.updater.get_observation(obs_state)
+        ),
     )
 
   def _attempt(self, key, start, writers=None):
@@ -358,6 +360,11 @@ class Transitions:
           data=self._initial_kinematics.apply(physics.model, self.initial.data)
       )
       physics = self.hooks.initialize_episode(physics, key, writers)
+      # A hook that drew a NaN (or an infinity) into the state fails the
+      # attempt, as an initializer that finds no valid pose does.
+      physics = physics.fail_initialization(
+          episode_lib.nonfinite_initial_state(physics.data)
+      )
     changed = physics_lib.changed_model_fields(
         self.initial.model, physics.model
     )
@@ -414,7 +421,12 @@ class Transitions:
   # -- step ----------------------------------------------------------------
 
   def step(self, state: state_lib.State, action) -> state_lib.State:
-    """One control step; episode ends are decided, not acted on."""
+    """One control step; episode ends are decided, not acted on.
+
+    A non-finite action runs as zeros and ends the episode
+    (`episode.checked_action`).
+    """
+    action, action_nonfinite = episode_lib.checked_action(action)
     keys = keys_lib.StepKeys.split(state.key)
     fields = tuple(state.model_fields)
     physics = self.before_step(state, action, keys)
@@ -450,7 +462,7 @@ class Transitions:
               physics.model, physics.data, started
           )
       )
-    return self.end_step(state, physics, obs_state, keys)
+    return self.end_step(state, physics, obs_state, keys, action_nonfinite)
 
   def can_fuse_restart(self) -> bool:
     """Whether `step_and_restart` and `reset_or_step` apply
@@ -520,31 +532,37 @@ class Transitions:
     return physics.carry(fields), obs_state
 
   @_named_scope
-  def end_step(self, state, physics, obs_state, keys):
+  def end_step(self, state, physics, obs_state, keys, action_nonfinite):
     """The `after_step` hooks, the last observation update and how the step
-    ended (`EpisodeRules.end_of_step`): the stepped `State`."""
+    ended (`EpisodeRules.end_of_step`; `action_nonfinite` from
+    `episode.checked_action`): the stepped `State`."""
     fields = tuple(state.model_fields)
     start = physics
     physics = self.hooks.after_step(physics, keys.after)
     hooks_lib.check_step_writes(start, physics, fields, 'after_step')
+    obs_state = self.updater.update(
+        obs_state, physics, keys.obs, self.n_sub_steps
+    )
     return _state(
         physics,
         fields,
-        self.updater.update(obs_state, physics, keys.obs, self.n_sub_steps),
-        self.updater,
+        obs_state,
         keys.next,
-        jax.named_scope('episode')(self.episode.end_of_step)(state, physics),
+        jax.named_scope('episode')(self.episode.end_of_step)(
+            state,
+            physics,
+            self.updater.get_observation(obs_state),
+            action_nonfinite,
+        ),
     )
 
 
-def _state(physics, fields, obs_state, updater, key, episode_fields):
-  """The `State` of `physics` with its observation and episode fields."""
-  observation = updater.get_observation(obs_state)
+def _state(physics, fields, obs_state, key, episode_fields):
+  """The `State` of `physics` with its observation state and the episode's
+  fields (`EpisodeRules.start` or `end_of_step`: the observation included)."""
   return state_lib.State(
       **physics.world_fields(fields),
       obs_state=obs_state,
-      observation=observation,
-      final_observation=observation,
       key=key,
       **episode_fields,
   )

@@ -57,6 +57,7 @@ import jax.numpy as jnp
 
 from mjx_composer import compiler
 from mjx_composer.compiler import attributes
+from mjx_composer.model import pymjcf
 from mjx_composer.variation import variator_base
 
 
@@ -67,7 +68,10 @@ class _Plan:
     bindings = variator.bindings
     self._compiler = compiler.ModelCompiler(
         physics.index,
-        [(b.element, b.attr, b.describe()) for b in bindings],
+        [
+            (physics.index.spec_handle(b.element), b.attr, b.describe())
+            for b in bindings
+        ],
         owner=variator.label,
     )
     self.initial_values = self._compiler.initial_values
@@ -98,6 +102,9 @@ class MJCFVariator(variator_base.Variator):
   """
 
   def _check_binding(self, element, attr, variation):
+    if pymjcf.is_element(element):
+      # The checks read MjSpec attributes: those of the element converted.
+      element = pymjcf.spec_handle_of(element)
     kind = compiler.check_attribute(element, attr)
     initial = compiler.spec_value(element, kind, attr)
     variator_base.check_static_shape(
