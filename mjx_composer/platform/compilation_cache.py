@@ -26,15 +26,24 @@ JAX's own settings win: if a cache folder is already configured
 A library import never calls `enable()`: importing `mjx_composer` leaves the
 JAX configuration as it is.
 
-JAX trusts what it loads from the cache folder: keep it private to your user
-(`enable()` creates it with mode 0700); don't point it at a folder others can
-write.
+JAX trusts what it loads from the cache folder: an entry is a compiled
+program that runs as you. `enable()` creates the folder with mode 0700, and
+refuses (with a warning, leaving the cache off) an existing folder that
+another user owns or that its group or others can write.
+
+An entry that fails to load (a file truncated by a process killed while
+writing it, a full disk) is removed, with a warning, and written afresh by
+the compilation that follows: JAX itself keeps such an entry, and would
+read it and compile again in every process.
 """
 
 import os
+import stat
 import warnings
 
 import jax
+
+from mjx_composer.platform import internals
 
 # Environment variables.
 CACHE_DIR_ENV = 'MJX_COMPOSER_CACHE_DIR'
@@ -103,6 +112,16 @@ def enable(
   if not os.access(path, os.W_OK | os.X_OK):
     warnings.warn(f'No persistent compilation cache: {path} is not writable.')
     return None
+  unsafe = unsafe_folder_reason(path)
+  if unsafe:
+    warnings.warn(
+        f'No persistent compilation cache: {path} {unsafe}, and JAX runs '
+        'whatever a cache entry holds. Make it private (chmod 700 '
+        f'{path}, owned by you) or choose another folder '
+        f'(${CACHE_DIR_ENV}, or enable(cache_dir=...)).'
+    )
+    return None
+  internals.remove_unreadable_cache_entries(_warn_removed)
   jax.config.update('jax_compilation_cache_dir', path)
   jax.config.update(
       'jax_persistent_cache_min_compile_time_secs', min_compile_time_secs
@@ -110,6 +129,31 @@ def enable(
   # -1: no minimum entry size, and no backend-chosen override of it.
   jax.config.update('jax_persistent_cache_min_entry_size_bytes', -1)
   return path
+
+
+def unsafe_folder_reason(path: str) -> str | None:
+  """Why others could plant programs in `path`, or None if they cannot.
+
+  A folder is unsafe when another user owns it, or when its group or
+  everyone may write to it (even with the sticky bit: a newcomer could
+  still create entries that do not exist yet).
+  """
+  info = os.stat(path)
+  getuid = getattr(os, 'getuid', None)
+  if getuid is not None and info.st_uid != getuid():
+    return f'belongs to another user (uid {info.st_uid})'
+  writable = info.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
+  if writable:
+    who = 'everyone' if info.st_mode & stat.S_IWOTH else 'its group'
+    return f'can be written by {who} (mode {stat.S_IMODE(info.st_mode):o})'
+  return None
+
+
+def _warn_removed(entry: str) -> None:
+  warnings.warn(
+      f'Removed the unreadable compilation cache entry {entry}: the program '
+      'compiles again and is written afresh.'
+  )
 
 
 def is_enabled() -> bool:

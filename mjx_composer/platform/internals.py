@@ -42,6 +42,55 @@ except ImportError:  # pragma: no cover - a JAX that moved it
 
 # -- JAX ----------------------------------------------------------------------
 
+# `jax._src.compilation_cache.get_executable_and_time`, which JAX's compiler
+# calls (through the module) to load a persistent-cache entry. JAX has no
+# public hook for an entry that fails to load: it warns, compiles, and does
+# not overwrite the entry (`LRUCache.put` keeps an existing file), so a
+# corrupted entry is read and recompiled in every process.
+try:
+  from jax._src import compilation_cache as _jax_compilation_cache
+  from jax._src import lru_cache as _jax_lru_cache
+except ImportError:  # pragma: no cover - a JAX that moved them
+  _jax_compilation_cache = _jax_lru_cache = None
+
+
+def remove_unreadable_cache_entries(on_removed: Callable[[str], Any]) -> bool:
+  """Makes JAX delete a persistent-cache entry that fails to load.
+
+  Wraps `jax._src.compilation_cache.get_executable_and_time` (once per
+  process): when loading an entry raises (a truncated or corrupted file),
+  its files are removed and `on_removed(path)` is called, then the error
+  propagates to JAX, which warns and compiles as before and now writes a
+  fresh entry. Returns False where this JAX lacks those internals.
+  """
+  module = _jax_compilation_cache
+  if module is None or not hasattr(module, 'get_executable_and_time'):
+    return False
+  original = module.get_executable_and_time
+  if getattr(original, 'removes_unreadable_entries', False):
+    return True
+
+  def get_executable_and_time(cache_key, compile_options, backend, *args):
+    try:
+      return original(cache_key, compile_options, backend, *args)
+    except Exception:
+      cache = module._get_cache(backend)
+      folder = getattr(cache, 'path', None)
+      if folder is not None and cache_key:
+        entry = folder / f'{cache_key}{_jax_lru_cache._CACHE_SUFFIX}'
+        atime = folder / f'{cache_key}{_jax_lru_cache._ATIME_SUFFIX}'
+        if entry.exists():
+          entry.unlink()
+          if atime.exists():
+            atime.unlink()
+          on_removed(str(entry))
+      raise
+
+  get_executable_and_time.removes_unreadable_entries = True
+  module.get_executable_and_time = get_executable_and_time
+  return True
+
+
 # `jax._src.interpreters.mlir.lower_fun`: turns a JAX function into a
 # lowering rule. `cpu_linalg` lowers Cholesky to plain XLA loops with it;
 # JAX has no public way to replace a primitive's lowering.
