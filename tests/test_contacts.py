@@ -401,3 +401,20 @@ def test_bad_sets_raise_early_with_the_fix(plain):
     contact_sensor.ContactSensor([task.ball], name='other').update(
         physics.replace(task_state={}), _DT
     )
+
+
+def test_a_model_without_contacts_answers_empty():
+  """With contacts disabled MJX's list is empty: no contact, no slot."""
+  task = DropTask()
+  task.arena.mjcf_model.option.disableflags |= (
+      mujoco.mjtDisableBit.mjDSBL_CONTACT
+  )
+  physics = _build(task).initial_physics()
+  touch = contacts.between(physics, task.ball)
+  assert not touch.touching and touch.count == 0
+  assert touch.position.shape == (0, 3) and touch.valid.shape == (0,)
+  np.testing.assert_array_equal(touch.force, np.zeros(3))
+  rows = contacts.summarize(physics, [task.ball, task.box])
+  np.testing.assert_array_equal(rows.count, [0, 0])
+  pairs, valid = contacts.touching_pairs(physics, task.ball)
+  assert pairs.shape == (0, 2) and valid.shape == (0,)
