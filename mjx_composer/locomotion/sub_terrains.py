@@ -1,0 +1,254 @@
+"""Sub-terrains: one tile of a generated terrain, at a difficulty in [0, 1].
+
+The kinds of Isaac Lab's and mjlab's terrain generators, computed on the
+host with NumPy when the terrain is built. Height-field kinds return the
+tile's surface heights on the height field's grid; box kinds return boxes
+standing on flat ground (height 0). A height-field tile is 0 on its
+boundary, where it meets its neighbours. Every tile has a flat spawn platform
+of side `platform` at its centre, whose height is the tile's spawn height.
+Each parameter that makes a kind harder grows linearly with the difficulty,
+from its `*_range[0]` at difficulty 0 to `*_range[1]` at 1
+(`SubTerrainConfig`).
+
+Height-field kinds (`HFIELD_KINDS`):
+
+* 'flat': no relief (the difficulty does nothing);
+* 'random_uniform': each grid point's height drawn from U(0, noise);
+* 'pyramid_slope': rising towards the centre with slope `slope`;
+* 'inverted_pyramid_slope': falling towards the centre (a bowl);
+* 'waves': `wave_amplitude / 2 * (sin(2 pi n x / L) + sin(2 pi n y / L))`,
+  `n = waves` periods across the tile;
+* 'discrete_obstacles': `obstacles` rectangles of sides in
+  `obstacle_width`, each raised or sunk by `obstacle_height`.
+
+Box kinds (`BOX_KINDS`):
+
+* 'pyramid_stairs': steps of height `step_height` and depth `step_width`
+  down from the central platform to the tile's edge (the platform, at
+  least `platform` wide, takes the width the steps leave);
+* 'inverted_pyramid_stairs': the same steps up from the platform (a pit);
+* 'stepping_stones': square stones of side `stone_size`, `stone_gap`
+  apart, `stone_height` tall, over a ground `stone_height` below;
+* 'narrow_beams': four beams of width `beam_width`, `stone_height` tall,
+  from the platform to the edges;
+* 'random_grid': a grid of `grid_cell` wide boxes of heights drawn from
+  U(0, `grid_height`) around the platform.
+"""
+
+import dataclasses
+
+import numpy as np
+
+HFIELD_KINDS = (
+    'flat',
+    'random_uniform',
+    'pyramid_slope',
+    'inverted_pyramid_slope',
+    'waves',
+    'discrete_obstacles',
+)
+BOX_KINDS = (
+    'pyramid_stairs',
+    'inverted_pyramid_stairs',
+    'stepping_stones',
+    'narrow_beams',
+    'random_grid',
+)
+KINDS = HFIELD_KINDS + BOX_KINDS
+
+
+@dataclasses.dataclass(frozen=True)
+class SubTerrainConfig:
+  """The sub-terrains' parameters: `(at difficulty 0, at difficulty 1)`.
+
+  Lengths in metres; `slope` is rise over run.
+  """
+
+  platform: float = 1.0
+  noise_range: tuple = (0.02, 0.10)
+  slope_range: tuple = (0.0, 0.4)
+  wave_amplitude_range: tuple = (0.0, 0.2)
+  waves: int = 2
+  obstacles: int = 12
+  obstacle_width: tuple = (0.25, 0.6)
+  obstacle_height_range: tuple = (0.03, 0.15)
+  step_height_range: tuple = (0.03, 0.18)
+  step_width: float = 0.3
+  stone_size_range: tuple = (0.5, 0.25)
+  stone_gap_range: tuple = (0.05, 0.25)
+  stone_height: float = 0.2
+  beam_width_range: tuple = (0.4, 0.15)
+  grid_cell: float = 0.4
+  grid_height_range: tuple = (0.02, 0.12)
+
+  def at(self, name, difficulty):
+    """Parameter `<name>_range` at `difficulty` (linear)."""
+    low, high = getattr(self, f'{name}_range')
+    return low + (high - low) * float(difficulty)
+
+
+@dataclasses.dataclass
+class SubTerrain:
+  """One generated tile, in the tile's frame (origin at its centre).
+
+  Attributes:
+    heights: (rows, cols) surface heights at the tile's grid points (rows
+      along y), or None for a box kind (flat ground at 0).
+    boxes: (n, 6) boxes: centre (x, y, z) and half-sizes, axis-aligned.
+    spawn_height: the height of the central platform's surface.
+  """
+
+  heights: np.ndarray | None
+  boxes: np.ndarray
+  spawn_height: float
+
+
+def _platform_mask(xs, ys, platform):
+  return (np.abs(xs)[None, :] <= platform / 2) & (
+      np.abs(ys)[:, None] <= platform / 2
+  )
+
+
+def height_field(kind, difficulty, xs, ys, rng, config):
+  """The (len(ys), len(xs)) heights of a height-field kind at `xs`, `ys`.
+
+  Args:
+    kind: one of `HFIELD_KINDS`.
+    difficulty: in [0, 1].
+    xs, ys: the grid's coordinates in the tile's frame (centre at 0), from
+      -length / 2 to length / 2.
+    rng: a `numpy.random.Generator`.
+    config: a `SubTerrainConfig`.
+  """
+  half_x, half_y = xs[-1], ys[-1]
+  x, y = np.meshgrid(xs, ys, indexing='xy')
+  if kind == 'flat':
+    heights = np.zeros_like(x)
+  elif kind == 'random_uniform':
+    heights = rng.uniform(0.0, config.at('noise', difficulty), x.shape)
+  elif kind in ('pyramid_slope', 'inverted_pyramid_slope'):
+    # Distance from the edge, measured along the nearer axis.
+    # Flat on top: the platform is as high as its edge.
+    to_edge = np.minimum(half_x - np.abs(x), half_y - np.abs(y))
+    to_edge = np.minimum(to_edge, min(half_x, half_y) - config.platform / 2)
+    heights = config.at('slope', difficulty) * to_edge
+    if kind == 'inverted_pyramid_slope':
+      heights = -heights
+  elif kind == 'waves':
+    amplitude = config.at('wave_amplitude', difficulty)
+    n = config.waves
+    heights = (
+        amplitude
+        / 2
+        * (
+            np.sin(2 * np.pi * n * (x + half_x) / (2 * half_x))
+            + np.sin(2 * np.pi * n * (y + half_y) / (2 * half_y))
+        )
+    )
+  elif kind == 'discrete_obstacles':
+    heights = np.zeros_like(x)
+    height = config.at('obstacle_height', difficulty)
+    for _ in range(config.obstacles):
+      width = rng.uniform(*config.obstacle_width, size=2)
+      centre = rng.uniform([-half_x, -half_y], [half_x, half_y])
+      inside = (np.abs(x - centre[0]) <= width[0] / 2) & (
+          np.abs(y - centre[1]) <= width[1] / 2
+      )
+      heights[inside] = rng.choice([-height, height])
+  else:
+    raise ValueError(
+        f'Unknown height-field kind {kind!r}: one of {HFIELD_KINDS}.'
+    )
+  platform = _platform_mask(xs, ys, config.platform)
+  centre = heights[len(ys) // 2, len(xs) // 2]
+  if kind in ('random_uniform', 'discrete_obstacles', 'waves'):
+    centre = 0.0
+  heights = np.where(platform, centre, heights)
+  # Height 0 on the tile's boundary: neighbouring tiles meet there.
+  heights[[0, -1], :] = 0.0
+  heights[:, [0, -1]] = 0.0
+  return heights
+
+
+def _box(centre, half):
+  return np.concatenate([np.asarray(centre, float), np.asarray(half, float)])
+
+
+def _ring(inner, outer, top):
+  """Four boxes covering the square ring between half-widths inner, outer."""
+  mid, half_depth, z = (inner + outer) / 2, (outer - inner) / 2, top / 2
+  return [
+      _box([0, mid, z], [outer, half_depth, z]),
+      _box([0, -mid, z], [outer, half_depth, z]),
+      _box([mid, 0, z], [half_depth, inner, z]),
+      _box([-mid, 0, z], [half_depth, inner, z]),
+  ]
+
+
+def boxes(kind, difficulty, half, rng, config):
+  """`(boxes (n, 6), spawn height)` of a box kind on a square tile.
+
+  Args:
+    kind: one of `BOX_KINDS`.
+    difficulty: in [0, 1].
+    half: the tile's half-side, metres.
+    rng: a `numpy.random.Generator`.
+    config: a `SubTerrainConfig`.
+  """
+  platform = config.platform / 2
+  out = []
+  if kind in ('pyramid_stairs', 'inverted_pyramid_stairs'):
+    step = config.at('step_height', difficulty)
+    n = int(np.floor((half - platform) / config.step_width + 1e-9))
+    # Every step is `step_width` deep; the platform takes what remains.
+    if kind == 'pyramid_stairs':
+      # Nested boxes, the outermost lowest; box n is the platform.
+      for k in range(n + 1):
+        w, z = half - k * config.step_width, (k + 1) * step / 2
+        out.append(_box([0, 0, z], [w, w, z]))
+      spawn = (n + 1) * step
+    else:
+      # Rings around the platform, the innermost lowest.
+      for k in range(1, n + 1):
+        inner = half - (n - k + 1) * config.step_width
+        out.extend(_ring(inner, inner + config.step_width, k * step))
+      spawn = 0.0
+  elif kind == 'stepping_stones':
+    size = config.at('stone_size', difficulty)
+    gap = config.at('stone_gap', difficulty)
+    top = config.stone_height
+    pitch = size + gap
+    count = int(np.floor((2 * half + gap) / pitch + 1e-9))
+    offsets = (np.arange(count) - (count - 1) / 2) * pitch
+    for x in offsets:
+      for y in offsets:
+        if max(abs(x), abs(y)) - size / 2 < platform:
+          continue  # Under the platform.
+        out.append(_box([x, y, top / 2], [size / 2, size / 2, top / 2]))
+    out.append(_box([0, 0, top / 2], [platform, platform, top / 2]))
+    spawn = top
+  elif kind == 'narrow_beams':
+    width = config.at('beam_width', difficulty)
+    top = config.stone_height
+    length = (half - platform) / 2
+    mid = platform + length
+    out.append(_box([0, 0, top / 2], [platform, platform, top / 2]))
+    for sign in (1, -1):
+      out.append(_box([sign * mid, 0, top / 2], [length, width / 2, top / 2]))
+      out.append(_box([0, sign * mid, top / 2], [width / 2, length, top / 2]))
+    spawn = top
+  elif kind == 'random_grid':
+    cell = config.grid_cell
+    height = config.at('grid_height', difficulty)
+    count = int(np.floor(2 * half / cell + 1e-9))
+    offsets = (np.arange(count) - (count - 1) / 2) * cell
+    for x in offsets:
+      for y in offsets:
+        if max(abs(x), abs(y)) - cell / 2 < platform:
+          continue
+        top = max(rng.uniform(0.0, height), 1e-3)
+        out.append(_box([x, y, top / 2], [cell / 2, cell / 2, top / 2]))
+    spawn = 0.0
+  else:
+    raise ValueError(f'Unknown box kind {kind!r}: one of {BOX_KINDS}.')
+  return np.reshape(np.asarray(out, float), (-1, 6)), float(spawn)
