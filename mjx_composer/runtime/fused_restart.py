@@ -118,10 +118,9 @@ class _FusedLoop:
   initialization attempts. Its operands are `(state, action, keys,
   next_reset, action_nonfinite)`: the action the step runs, and whether
   the given one was not finite (`episode.checked_action`); `next_reset` is
-  None for a same-step restart (of the
-  stepped state, where it is LAST, with its key), else `(reset_key,
-  previous)`, a next-step reset of `previous` (where it is LAST, with
-  `reset_key`).
+  None for a same-step restart (of the stepped state, where it is LAST,
+  with its key), else `(reset_key, previous)`, a next-step reset of
+  `previous` (where it is LAST, with `reset_key`).
   """
 
   def __init__(self, transitions, state):
