@@ -68,12 +68,15 @@ class State(physics_lib.WorldFields):
     reward: the reward of the transition into this timestep (0 at FIRST).
     discount: its discount (1 at FIRST).
     step_type: a `StepType` value (int32).
-    terminated: the episode ended by termination or divergence.
+    terminated: the episode ended by termination or a failed step
+      (divergence, a non-finite action, reward, discount or observation).
     truncated: the episode ended at the time limit.
     metrics: this timestep's report, per world: `episode_return` and
-      `episode_length` of the episode the transition belongs to, `diverged`,
-      `overflow` (MuJoCo Warp dropped contacts or constraints this episode),
-      `init_failures`, `init_failed`, and the task's `get_metrics`.
+      `episode_length` of the episode the transition belongs to; the flags
+      of a failed step, `diverged`, `nonfinite_action`, `nonfinite_reward`
+      and `nonfinite_observation` (`runtime.episode`); `overflow` (MuJoCo
+      Warp dropped contacts or constraints this episode); `init_failures`,
+      `init_failed`; and the task's `get_metrics`.
     episode: the running `Episode` counters.
     key: the world's PRNG key for what comes next.
   """
