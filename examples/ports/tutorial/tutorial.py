@@ -173,7 +173,7 @@ class Button(composer.Entity):
     )
 
   def initialize_episode(self, physics, key):
-    return self._update_activation(physics)
+    return self._update_activation(physics.forward())
 
   def after_substep(self, physics, key):
     return self._update_activation(physics)
