@@ -8,8 +8,9 @@ What ends an episode (`step_type == LAST`), for one world:
   (`step_limit`), not float32 time;
 * a failed step, as composer ends the episode on a `PhysicsError` with
   `raise_exception_on_physics_error=False`: LAST, `terminated=True`, reward
-  0 and discount 0, the task's metrics reported as 0, and one flag in the
-  metrics saying why (1 at that step, else 0):
+  0 and discount 0, the task's metrics reported as 0, and a flag in the
+  metrics saying why (1 at that step, else 0; one cause may raise two: a
+  NaN command makes the reward and the observation non-finite):
 
   - `diverged`: a non-finite qpos, qvel, qacc or act after the step;
   - `nonfinite_action`: the action held a NaN or an infinity. The step runs
@@ -23,8 +24,9 @@ What ends an episode (`step_type == LAST`), for one world:
 
   Only that world is affected; its next reset replaces all of its data.
 
-What a world returns is never non-finite where it could hide a failure: the
-reward and discount of a failed step are 0, and every non-finite entry of
+The reward, discount and observations a world returns are always finite
+(its `data` is not: a diverged world keeps its physics until the reset).
+A failed step's reward and discount are 0, and every non-finite entry of
 an observation is returned as 0 (`zero_nonfinite`), at every step and at
 reset, whatever the cause (a diverged world's observation included). Zero,
 not the last finite value: it needs no extra state, it exists at reset
@@ -118,7 +120,10 @@ def checked_action(action) -> tuple[jax.Array, jax.Array]:
 
   A non-finite action is replaced by zeros as a whole (MuJoCo computes no
   actuator force at all when one control is bad), so that no hook, no
-  physics and no task state sees it, on every backend.
+  physics and no task state sees it, on every backend. It is a flag, not
+  an error: inside a jitted step nothing can raise, and composer's
+  `Environment` does not check actions against their spec either (its
+  physics raises `PhysicsError` on MuJoCo's bad-control warning).
   """
   bad = jnp.logical_not(finite(action))
   return jnp.where(bad, jnp.zeros_like(action), action), bad
