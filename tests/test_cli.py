@@ -34,7 +34,20 @@ def test_demo_runs_and_reports(capsys):
 
 def test_usage_without_command(capsys):
   assert cli.main([]) == 2
-  assert 'usage' in capsys.readouterr().out
+  out = capsys.readouterr().out
+  assert 'usage' in out
+  for command in ('demo', 'list', 'train', 'play', 'export'):
+    assert f'mjx-composer {command}' in out
+
+
+def test_train_help_lists_the_settings_with_the_tasks_defaults(capsys):
+  with pytest.raises(SystemExit) as exit_info:
+    cli.main(['train', 'walk', '--help'])
+  assert exit_info.value.code == 0
+  # The help is a box drawn to the terminal's width: read it as words.
+  out = ' '.join(capsys.readouterr().out.replace('│', ' ').split())
+  assert '--learning-rate' in out and '--policy-layers' in out
+  assert '(default: 0.995)' in out  # walk's discount, not reach's 0.95
 
 
 def test_list_prints_every_registered_task_on_its_own_line(capsys):

@@ -15,13 +15,16 @@ Register a task under a name with a factory that returns a new `Task`:
 
     registry.register('balance_long', lambda: Balance(pole_length=1.0))
 
-The command line (`mjx-composer list`, `mjx-composer demo --task NAME`), the
-examples and the benchmarks find tasks here, so a task registered before they
-run (e.g. in a module they import) is available to them by name.
+The command line (`mjx-composer list`, `mjx-composer demo --task NAME`,
+`mjx-composer train NAME`), the examples and the benchmarks find tasks here,
+so a task registered before they run (e.g. in a module they import, or a
+script that registers it and then calls `mjx_composer.cli.main`) is
+available to them by name. Its training defaults, if it needs its own, go to
+`mjx_composer.training.config.register_defaults`.
 
-The bundled tasks (reach, push, walk, joystick, joystick_rough) are
-registered when this module is imported, but their modules are imported only
-when a task is built: building the walk task does not import the Go1's, and
+The bundled tasks (reach, push, walk, joystick, joystick_rough,
+joystick_terrain) are registered when this module is imported, but their
+modules are imported only when a task is built: building the walk task does not import the Go1's, and
 `mjx-composer list` imports none.
 """
 
@@ -252,3 +255,18 @@ def _joystick_rough():
   from mjx_composer.tasks import joystick
 
   return joystick.Joystick(terrain='rough')
+
+
+@register(
+    'joystick_terrain',
+    description=(
+        'The Go1 tracks commands on generated terrain (slopes, stairs, '
+        'stepping stones, ...) with a terrain curriculum, a height scan and '
+        "actuation delay (Isaac Lab's and mjlab's rough velocity task)."
+    ),
+    distance='distance travelled',
+)
+def _joystick_terrain():
+  from mjx_composer.tasks import joystick_terrain
+
+  return joystick_terrain.TerrainJoystick()
