@@ -418,3 +418,38 @@ def test_a_model_without_contacts_answers_empty():
   np.testing.assert_array_equal(rows.count, [0, 0])
   pairs, valid = contacts.touching_pairs(physics, task.ball)
   assert pairs.shape == (0, 2) and valid.shape == (0,)
+
+
+class _PyMJCFBall(composer.Entity):
+  """A ball written in PyMJCF, as dm_control's entities are."""
+
+  def _build(self):
+    from dm_control import mjcf  # pylint: disable=g-import-not-at-top
+
+    self._root = mjcf.RootElement(model='pyball')
+    self.body = self._root.worldbody.add('body', name='body')
+    self.geom = self.body.add('geom', type='sphere', size=[0.1])
+
+  @property
+  def mjcf_model(self):
+    return self._root
+
+
+class _PyMJCFTask(composer.NullTask):
+
+  def __init__(self):
+    arena = arenas.Floor()
+    self.ball = _PyMJCFBall()
+    arena.add_free_entity(self.ball)
+    super().__init__(arena)
+
+
+def test_pymjcf_elements_resolve_as_their_compiled_geoms():
+  task = _PyMJCFTask()
+  index = _build(task).initial_physics().index
+  m = index.mj_model
+  body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, 'pyball/body')
+  expected = np.flatnonzero(m.geom_bodyid == body)
+  assert expected.size == 1
+  for elements in (task.ball, task.ball.geom, task.ball.body, 'pyball/body'):
+    np.testing.assert_array_equal(contacts.geom_ids(index, elements), expected)

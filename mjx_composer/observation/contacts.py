@@ -49,6 +49,7 @@ import mujoco
 import numpy as np
 
 from mjx_composer.model import element_index
+from mjx_composer.model import pymjcf
 from mjx_composer.observation import contact_list as contact_list_lib
 from mjx_composer.platform import internals
 
@@ -69,8 +70,9 @@ def geom_ids(index: element_index.ElementIndex, elements) -> np.ndarray:
   Args:
     index: the environment's `ElementIndex` (`physics.index`).
     elements: an entity (its geoms and those of the entities attached below
-      it), an `MjsBody` (the body's own geoms), an `MjsGeom`, a fully
-      qualified geom or body name, or a list, tuple or set of these.
+      it), a body (its own geoms) or a geom, as an MjSpec handle, a PyMJCF
+      element or a fully qualified name (a geom's, else a body's), or a
+      list, tuple or set of these.
 
   Returns:
     An int32 array of unique geom ids (possibly empty: a body without geoms).
@@ -91,14 +93,9 @@ def _collect(index, elements, ids):
       _collect(index, element, ids)
   elif hasattr(elements, 'iter_entities') and hasattr(elements, 'mjcf_model'):
     for entity in elements.iter_entities():
-      ids.extend(
-          index.element_id(_GEOM, geom) for geom in entity.mjcf_model.geoms
-      )
-  elif isinstance(elements, mujoco.MjsGeom):
-    ids.append(index.element_id(_GEOM, elements))
-  elif isinstance(elements, mujoco.MjsBody):
-    body = index.element_id(_BODY, elements)
-    ids.extend(np.flatnonzero(model.geom_bodyid == body).tolist())
+      spec = entity.mjcf_model
+      geoms = spec.find_all('geom') if pymjcf.is_root(spec) else spec.geoms
+      ids.extend(index.element_id(_GEOM, geom) for geom in geoms)
   elif isinstance(elements, str):
     geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, elements)
     if geom >= 0:
@@ -113,11 +110,21 @@ def _collect(index, elements, ids):
       )
     ids.extend(np.flatnonzero(model.geom_bodyid == body).tolist())
   else:
-    raise TypeError(
-        'A set of geoms is an entity, an MjsBody, an MjsGeom, a geom or body '
-        f'name, or a list of these: got {type(elements).__name__} '
-        f'{elements!r}.'
-    )
+    try:
+      kind = element_index.element_kind(elements)  # MjSpec or PyMJCF.
+    except TypeError:
+      kind = None
+    if kind is _GEOM:
+      ids.append(index.element_id(_GEOM, elements))
+    elif kind is _BODY:
+      body = index.element_id(_BODY, elements)
+      ids.extend(np.flatnonzero(model.geom_bodyid == body).tolist())
+    else:
+      raise TypeError(
+          'A set of geoms is an entity, a body, a geom (MjSpec handles or '
+          'PyMJCF elements), a geom or body name, or a list of these: got '
+          f'{type(elements).__name__} {elements!r}.'
+      )
 
 
 def membership(index, sets, other=None) -> tuple[np.ndarray, np.ndarray]:
