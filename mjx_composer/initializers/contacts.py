@@ -34,6 +34,7 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer.model import element_index
+from mjx_composer.model import pymjcf
 from mjx_composer.platform import backend
 from mjx_composer.platform import internals
 
@@ -45,7 +46,7 @@ def entity_geoms(index, entity) -> np.ndarray:
       [
           index.element_id(kind, geom)
           for e in entity.iter_entities()
-          for geom in e.mjcf_model.geoms
+          for geom in pymjcf.elements(e.mjcf_model, "geoms")
       ],
       np.int32,
   )

@@ -11,6 +11,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from mjx_composer.model import element_index
+from mjx_composer.model import pymjcf
 
 
 class Single(NamedTuple):
@@ -54,7 +55,9 @@ class Tables(NamedTuple):
 def entity_elements(entity, attr):
   """Element handles of `attr` ('geoms', 'joints') in an entity's subtree."""
   return [
-      el for e in entity.iter_entities() for el in getattr(e.mjcf_model, attr)
+      el
+      for e in entity.iter_entities()
+      for el in pymjcf.elements(e.mjcf_model, attr)
   ]
 
 

@@ -230,6 +230,18 @@ def freejoint(frame) -> Any:
   return None
 
 
+def elements(model, attr: str) -> list:
+  """An entity model's elements of one list (`'geoms'`, `'joints'`, ...).
+
+  `getattr(spec, attr)` for an MjSpec; for a PyMJCF model, its elements of
+  that namespace, those of PyMJCF models attached inside it included.
+  """
+  if is_root(model):
+    namespace = {a: k for k, a in _SPEC_LISTS.items()}[attr]
+    return model.find_all(namespace)
+  return list(getattr(model, attr))
+
+
 def own_joints(root) -> list:
   """The joints of a PyMJCF model, not those of models attached inside it."""
   return root.find_all('joint', exclude_attachments=True)
