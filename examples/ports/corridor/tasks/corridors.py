@@ -19,8 +19,8 @@ import jax
 import jax.numpy as jnp
 import mjx_composer as composer
 from mjx_composer import variation
+from mjx_composer.observation import contacts
 from mjx_composer.tasks import locomotion as rewards
-import numpy as np
 
 
 class RunThroughCorridor(composer.Task):
@@ -102,19 +102,13 @@ class RunThroughCorridor(composer.Task):
     return {'failure_termination': jnp.array(False)}
 
   def after_compile(self, physics, random_state):
-    # The geom ids are the same in every world: found once, at build.
+    # The walker's non-foot geoms: the same in every world, found once.
     walker_foot_geoms = set(self._walker.ground_contact_geoms)
-    walker_nonfoot_geoms = [
+    self._walker_nonfoot_geoms = [
         geom
         for geom in self._walker.mjcf_model.find_all('geom')
         if geom not in walker_foot_geoms
     ]
-    self._walker_nonfoot_geomids = np.array(
-        physics.bind(walker_nonfoot_geoms).element_ids
-    )
-    self._ground_geomids = np.array(
-        physics.bind(self._arena.ground_geoms).element_ids
-    )
 
   def initialize_episode(self, physics, key):
     pose_key, rotation_key, position_key = jax.random.split(key, 3)
@@ -135,14 +129,10 @@ class RunThroughCorridor(composer.Task):
         rotate_velocity=True,
     )
 
-  def _is_disallowed_contact(self, contact):
-    set1, set2 = self._walker_nonfoot_geomids, self._ground_geomids
-    # Every candidate contact of MJX, masked to those MuJoCo would report.
-    active = contact.dist < contact.includemargin
-    return active & (
-        (jnp.isin(contact.geom1, set1) & jnp.isin(contact.geom2, set2))
-        | (jnp.isin(contact.geom1, set2) & jnp.isin(contact.geom2, set1))
-    )
+  def _is_disallowed_contact(self, physics):
+    return contacts.between(
+        physics, self._walker_nonfoot_geoms, self._arena.ground_geoms
+    ).touching
 
   def before_step(self, physics, action, key):
     return self._walker.apply_action(physics, action, key)
@@ -150,9 +140,7 @@ class RunThroughCorridor(composer.Task):
   def after_step(self, physics, key):
     failure_termination = jnp.array(False)
     if self._contact_termination:
-      failure_termination |= jnp.any(
-          self._is_disallowed_contact(physics.data.contact)
-      )
+      failure_termination |= self._is_disallowed_contact(physics)
     if self._terminate_at_height is not None:
       failure_termination |= jnp.any(
           physics.bind(self._walker.end_effectors).xpos[:, -1]
