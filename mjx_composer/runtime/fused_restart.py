@@ -216,6 +216,7 @@ class _FusedLoop:
       moved = moved.replace(
           data=substep_sensors.sensors_of(moved.model, moved.data, started)
       )
+    moved = moved.replace(data=t.step_forward(moved.model, moved.data))
     stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)
     carry, failures = control_flow.once_or_never(
         control_flow.batch_any(self._reset_from(stepped, next_reset)[2]),

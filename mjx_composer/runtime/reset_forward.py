@@ -50,8 +50,10 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer.platform import backend
 from mjx_composer.platform import internals
 from mjx_composer.runtime import data_reads
+from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import substep_sensors
 
 STAGES = ('none', 'position', 'velocity', 'full')
@@ -333,3 +335,130 @@ class ResetForward:
     return self._keep_inexact_sensors(
         keep_only(self.writes, self.derived, computed, before), before
     )
+
+
+# -- after a physics step: what composer's `Physics.step` leaves current ------
+#
+# dm_control's `Physics.step` runs `mj_step2` then `mj_step1`: after a step,
+# everything of the position and velocity stages (poses, com velocities,
+# tendon and actuator lengths and velocities, position and velocity
+# sensors) is of the NEW state, and the acceleration stage (`qacc`, forces,
+# acceleration sensors, touch) is of the state the step started from.
+# `mjx.step` is MuJoCo's `mj_step`: everything but the integration state is
+# of the state the step started from. So the control step recomputes, after
+# its last physics step, the least stage (`AFTER_STEP_STAGES`) that covers
+# what its readers read of the position and velocity stages (found from
+# their jaxpr, as for the reset); the acceleration stage keeps the step's
+# values, as composer's does.
+
+AFTER_STEP_STAGES = ('none', 'position', 'velocity')
+
+
+@dataclasses.dataclass(frozen=True)
+class StepForward:
+  """The stage of the forward pass a control step runs after its physics.
+
+  Attributes:
+    stage: one of `AFTER_STEP_STAGES`.
+    sensors: whether the stage recomputes the sensors of its stages (the
+      position sensors; for `'velocity'` the velocity sensors too); the
+      acceleration sensors keep the step's values either way.
+  """
+
+  stage: str = 'none'
+  sensors: bool = False
+
+  def __call__(self, model, data):
+    """`data` with the stage recomputed at its (new) integration state."""
+    if self.stage == 'none':
+      return data
+    return _STAGE_FNS[self.stage](model, data, self.sensors)
+
+
+def _sensor_floor(mj_model, sensors) -> int:
+  """The last of the position (1) and velocity (2) stages that `sensors`
+  need; 0 where they are all acceleration sensors."""
+  stages = [int(mj_model.sensor_needstage[i]) for i in sensors]
+  return max([s for s in stages if s <= 2], default=0)
+
+
+def choose_after_step(
+    needed, model, data, mj_model, sensordata=None
+) -> StepForward:
+  """The least stage that brings what `needed` reads up to date.
+
+  Args:
+    needed: the names (`data_reads.leaf_names`) of the fields the readers
+      use.
+    model: the `mjx.Model`.
+    data: an `mjx.Data` of the model (shapes suffice).
+    mj_model: the host `MjModel` (its sensors' stages).
+    sensordata: the `sensordata` elements read; None: all.
+
+  Returns:
+    The `StepForward`: `'none'` where nothing read is of the position or
+    velocity stages.
+  """
+  needed = frozenset(needed) & written('velocity', model, data)
+  floor = 0
+  if 'sensordata' in needed:
+    floor = _sensor_floor(mj_model, sensors_of_elements(mj_model, sensordata))
+    if not floor:  # Only acceleration sensors: the step's values stand.
+      needed -= {'sensordata'}
+  if not needed:
+    return StepForward()
+  sensors = 'sensordata' in needed
+  for stage in AFTER_STEP_STAGES[max(floor, 1) :]:
+    if needed <= written(stage, model, data, sensors):
+      return StepForward(stage, sensors)
+  return StepForward('velocity', sensors)
+
+
+def after_step(transitions) -> StepForward:
+  """What `transitions`' control step recomputes after its physics.
+
+  Its readers: the `after_step` hooks, the control step's last observation
+  update, the reward, discount, termination and metrics, and the next
+  step's hooks before its physics (scheduled, `before_step`, the first
+  `before_substep`). Found from their jaxpr, traced with the shapes of a
+  reset's `State` (`Transitions.reset_shapes`). On MuJoCo Warp, whose
+  forward pass is one kernel sequence, nothing is recomputed (its
+  observations lag the state by one physics step).
+  """
+  t = transitions
+  model = t.initial.model
+  if backend.is_warp(model):
+    return StepForward()
+  state = t.reset_shapes.state
+  action = jax.ShapeDtypeStruct(t.action_shape, jnp.float32)
+
+  def readers(data, state, key, action):
+    keys = keys_lib.StepKeys.split(key)
+    physics = t.physics(state.replace(data=data))
+    stepped = t.end_step(
+        state, physics, state.obs_state, keys, jnp.zeros((), bool)
+    )
+    next_keys = keys_lib.StepKeys.split(stepped.key)
+    fields = tuple(stepped.model_fields)
+    before = t.before_step(stepped, action, next_keys)
+    before = t.before_substep(before, action, next_keys, 0, fields)
+    after = before.carry(fields)
+    pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
+    written_leaves = [new for new, old in pairs if new is not old]
+    read = (
+        stepped.replace(data=None),
+        after.replace(data=None),
+        written_leaves,
+    )
+    return read, stepped.data
+
+  read = data_reads.reads(
+      readers, state.data, state, keys_lib.key_shape(), action
+  )
+  return choose_after_step(
+      read.fields,
+      model,
+      state.data,
+      t.initial.index.mj_model,
+      sensordata=read.sensordata,
+  )

@@ -153,7 +153,12 @@ class Transitions:
     run; running them at build keeps their traces out of the first trace of
     `reset` or `step`. Raises what tracing those hooks raises.
     """
-    for analysis in ('reset_shapes', 'reset_forward', 'sensors_once_per_step'):
+    for analysis in (
+        'reset_shapes',
+        'reset_forward',
+        'sensors_once_per_step',
+        'step_forward',
+    ):
       getattr(self, analysis)
     return self
 
@@ -270,6 +275,13 @@ class Transitions:
     if self.substep_sensors == 'all':
       return False
     return substep_sensors_lib.once_per_step(self)
+
+  @functools.cached_property
+  def step_forward(self) -> reset_forward_lib.StepForward:
+    """What a control step recomputes after its last physics step, so that
+    its readers see the position and velocity stages of the new state, as
+    after composer's `Physics.step` (`reset_forward.after_step`)."""
+    return reset_forward_lib.after_step(self)
 
   # -- a world's fields and its `Physics` ----------------------------------
 
@@ -462,6 +474,9 @@ class Transitions:
               physics.model, physics.data, started
           )
       )
+    physics = physics.replace(
+        data=self.step_forward(physics.model, physics.data)
+    )
     return self.end_step(state, physics, obs_state, keys, action_nonfinite)
 
   def can_fuse_restart(self) -> bool:
