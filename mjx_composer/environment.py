@@ -66,6 +66,7 @@ from mjx_composer.model import element_index
 from mjx_composer.model import model_checks
 from mjx_composer.observation import updater as updater_lib
 from mjx_composer.platform import backend
+from mjx_composer.platform import internals
 from mjx_composer.runtime import arguments
 from mjx_composer.runtime import auto_reset as auto_reset_lib
 from mjx_composer.runtime import control_flow
@@ -90,6 +91,39 @@ class EpisodeInitializationError(RuntimeError):
   Inside the jitted `reset` nothing can raise: initializers record failure in
   `State.metrics['init_failures']` instead (see `initializers`).
   """
+
+
+def _choose_friction_cone(mj_model, impl):
+  """Makes the compiled model's friction cone one MJX can run.
+
+  composer's `Arena` asks for elliptic cones. MJX's JAX solver cannot run
+  them on a model without contacts that has other constraints (a joint
+  limit: it fails with "Indexer must have integer or boolean type"), nor
+  with contacts of dimension 1. Without any contact the cone changes
+  nothing, so such a model gets pyramidal cones (logged); with frictionless
+  contacts the cone matters and the build is refused with the fix.
+
+  Raises:
+    NotImplementedError: elliptic cones with a contact of `condim` 1, on
+      'jax'.
+  """
+  if mj_model.opt.cone != mujoco.mjtCone.mjCONE_ELLIPTIC:
+    return
+  dims = internals.contact_dims(mj_model)
+  if not np.size(dims):
+    logging.info(
+        'The model has no contacts: its elliptic friction cone changes '
+        'nothing, and MJX cannot run it without contacts; using pyramidal.'
+    )
+    mj_model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+  elif impl == 'jax' and np.any(np.asarray(dims) == 1):
+    raise NotImplementedError(
+        "The model has elliptic friction cones (composer's Arena default) "
+        'and contacts of condim 1 (frictionless), which MJX cannot '
+        'simulate together. Set arena.mjcf_model.option.cone = '
+        'mujoco.mjtCone.mjCONE_PYRAMIDAL, or give the geoms (or pairs) '
+        'condim 3 or more.'
+    )
 
 
 class Environment:
@@ -290,6 +324,7 @@ class Environment:
         naconmax=options.naconmax if on_warp else None,
         njmax=options.njmax if on_warp else None,
     )
+    _choose_friction_cone(self._mj_model, impl)
     mjx_model, data0 = backend.put(
         self._mj_model,
         impl,

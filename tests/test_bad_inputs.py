@@ -873,3 +873,86 @@ def test_a_corrupted_cache_entry_is_removed_and_written_afresh(tmp_path):
   assert all(e.stat().st_size > 100 for e in entries)
   again = _cache_run(tmp_path, folder)
   assert again['hits'] == len(entries) and not again['warnings']
+
+
+# -- first use: composer's elliptic cones on models MJX cannot run them on ---
+
+
+class _LimitedPole(conftest.SpecEntity):
+  """A hinge with a range and a motor; `condim` adds a free box that can
+  touch the world's floor with that contact dimension (None: no contacts)."""
+
+  def _build(self, condim=None, name='pole'):
+    spec = self._new_spec(name)
+    body = spec.worldbody.add_body(name='link')
+    body.add_joint(
+        name='hinge',
+        type=mujoco.mjtJoint.mjJNT_HINGE,
+        range=[-0.3, 0.3],
+        limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+    )
+    body.add_geom(
+        name='rod',
+        size=[0.05, 0, 0],
+        pos=[0, 0, 0.5],
+        contype=0,
+        conaffinity=0,
+    )
+    spec.add_actuator(
+        name='motor',
+        target='hinge',
+        trntype=mujoco.mjtTrn.mjTRN_JOINT,
+        gear=[20, 0, 0, 0, 0, 0],
+    )
+    if condim is not None:
+      spec.worldbody.add_geom(
+          name='floor',
+          type=mujoco.mjtGeom.mjGEOM_PLANE,
+          size=[1, 1, 0.1],
+          condim=condim,
+      )
+      box = spec.worldbody.add_body(name='box', pos=[0.5, 0, 0.2])
+      box.add_joint(name='drop', type=mujoco.mjtJoint.mjJNT_SLIDE)
+      box.add_geom(
+          name='box',
+          type=mujoco.mjtGeom.mjGEOM_BOX,
+          size=[0.05] * 3,
+          condim=condim,
+      )
+
+
+def test_a_contact_free_model_with_a_joint_limit_runs_in_composers_arena():
+  """MJX's elliptic solver failed ("Indexer must have integer or boolean
+  type"); without contacts the cone changes nothing: compared with MuJoCo
+  running the model as composed, elliptic cones and all."""
+  arena = composer.Arena()
+  arena.attach(_LimitedPole())
+  env = composer.Environment(composer.NullTask(arena), time_limit=1.0)
+  assert env.spec.option.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+  assert env.mj_model.opt.cone == mujoco.mjtCone.mjCONE_PYRAMIDAL
+  state = jax.jit(env.reset)(jax.random.key(0))
+  step = jax.jit(env.step)
+  action = np.ones(1, np.float32)  # Drives the hinge into its limit.
+  for _ in range(10):
+    state = step(state, action)
+  reference = env.spec.compile()  # The elliptic model, on the host.
+  assert reference.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+  data = mujoco.MjData(reference)
+  data.ctrl[:] = action
+  for _ in range(10 * env.n_sub_steps):
+    mujoco.mj_step(reference, data)
+  assert data.qpos[0] > 0.29  # At the limit: its constraint was active.
+  np.testing.assert_allclose(state.data.qpos, data.qpos, atol=1e-4)
+
+
+def test_elliptic_cones_with_frictionless_contacts_say_what_to_change():
+  arena = composer.Arena()
+  arena.attach(_LimitedPole(condim=1))
+  with pytest.raises(
+      NotImplementedError,
+      match=r'elliptic friction cones.*condim 1.*option.cone = '
+      r'mujoco.mjtCone.mjCONE_PYRAMIDAL.*condim 3',
+  ):
+    composer.Environment(
+        composer.NullTask(arena), options=composer.ExecutionOptions(impl='jax')
+    )

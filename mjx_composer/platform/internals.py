@@ -183,6 +183,17 @@ def collision_pair_groups(mj_model) -> dict:
   return _collision_driver._geom_groups(mj_model)
 
 
+def contact_dims(mj_model):
+  """`mujoco.mjx._src.collision_driver.make_condim(mj_model)`.
+
+  The dimension of every contact MJX's JAX implementation allocates (one
+  entry per potential contact, static): its solver's elliptic cone runs
+  only where there is at least one and none has dimension 1, and MJX names
+  neither case when it fails (`environment` chooses the cone from this).
+  """
+  return _collision_driver.make_condim(mj_model)
+
+
 def collision_function(key):
   """`mujoco.mjx._src.collision_driver._COLLISION_FUNC[key.types]`.
 
