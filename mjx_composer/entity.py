@@ -346,6 +346,13 @@ class Entity(abc.ABC):
         handles[id(alias[0])] = (alias[0], kind, copied)
     for child in self._attached:
       child_spec, child_handles = child.compose()
+      if pymjcf.is_root(child.mjcf_model):
+        # PyMJCF merges an attached model into its parent's, under one
+        # compiler: the mass and inertia bounds set above (the arena's)
+        # apply to the child's bodies too.
+        for bound in ('boundmass', 'boundinertia'):
+          if not getattr(child_spec.compiler, bound):
+            setattr(child_spec.compiler, bound, getattr(spec.compiler, bound))
       frame = handles[id(child.attachment_frame)][2]
       counts = composition_checks.count_elements(spec)
       with warnings.catch_warnings():
