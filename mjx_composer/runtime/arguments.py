@@ -38,9 +38,12 @@ COMPOSER_OPTIONS = {
         'per-world model fields).'
     ),
     'legacy_step': (
-        "mjx.step is MuJoCo's mj_step: composer's legacy_step=False "
-        'semantics (derived quantities in an observation lag the state by '
-        'one physics step).'
+        "a control step's hooks, observations and reward see what "
+        "composer's legacy step leaves (positions, velocities and their "
+        'sensors of the new state, recomputed where read), while sub-step '
+        "hooks and observables sampled between sub-steps see mj_step's "
+        'data (derived quantities one physics step behind the state): '
+        'neither setting describes it whole.'
     ),
 }
 
