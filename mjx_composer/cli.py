@@ -156,7 +156,14 @@ def demo(argv=None):
       'init_failures': jnp.zeros(()),
   }
 
+  # A cold compile takes minutes on a CPU: say what runs before it does.
   t0 = time.perf_counter()
+  print(
+      f'Compiling the reset of {args.worlds} worlds and a {chunk}-step '
+      f'rollout (seconds on a GPU, minutes on a CPU; later runs load them '
+      f'from the compilation cache: {cache_dir or "off"})...',
+      flush=True,
+  )
   states = reset(jax.random.split(reset_key, args.worlds))
   states, key, totals = jax.block_until_ready(rollout(states, key, totals))
   print(

@@ -956,3 +956,54 @@ def test_elliptic_cones_with_frictionless_contacts_say_what_to_change():
     composer.Environment(
         composer.NullTask(arena), options=composer.ExecutionOptions(impl='jax')
     )
+
+
+# -- first use: a cold demo says what it compiles before compiling -----------
+
+
+def test_demo_says_what_it_compiles_before_compiling(capsys, monkeypatch):
+  from mjx_composer import cli  # pylint: disable=g-import-not-at-top
+  from mjx_composer.tasks import registry  # pylint: disable=g-import-not-at-top
+
+  before_compiling = []
+  make_rollout = cli.make_rollout
+
+  def recording_make_rollout(*args):
+    rollout = make_rollout(*args)
+
+    def first_call(*call_args):
+      if not before_compiling:
+        before_compiling.append(capsys.readouterr().out)
+      return rollout(*call_args)
+
+    return first_call
+
+  monkeypatch.setattr(cli, 'make_rollout', recording_make_rollout)
+  registry.register('swing_for_the_demo_test', conftest.SwingTask)
+  try:
+    assert (
+        cli.demo(
+            [
+                '--task',
+                'swing_for_the_demo_test',
+                '--worlds',
+                '2',
+                '--steps',
+                '2',
+                '--chunk',
+                '2',
+                '--time-limit',
+                '0.05',
+            ]
+        )
+        == 0
+    )
+  finally:
+    registry.unregister('swing_for_the_demo_test')
+  (printed,) = before_compiling
+  assert re.search(
+      r'Compiling the reset of 2 worlds and a 2-step rollout \(seconds on a '
+      r'GPU, minutes on a CPU; .*compilation cache',
+      printed,
+  ), printed
+  assert 'Compiled reset' in capsys.readouterr().out
