@@ -78,9 +78,11 @@ def save(run: run_folder.RunFolder, checkpoint: Checkpoint) -> str:
   """Writes `checkpoint` into the run's checkpoints; returns its path."""
   os.makedirs(run.checkpoint_dir, exist_ok=True)
   path = path_for(run, checkpoint.step)
-  payload = {'format': FORMAT, **dataclasses.asdict(checkpoint)}
-  payload['params'] = jax.device_get(checkpoint.params)
-  payload['optimizer_state'] = jax.device_get(checkpoint.optimizer_state)
+  payload = {
+      f.name: jax.device_get(getattr(checkpoint, f.name))
+      for f in dataclasses.fields(checkpoint)
+  }
+  payload['format'] = FORMAT
   tmp = f'{path}.tmp'
   with open(tmp, 'wb') as f:
     pickle.dump(payload, f)
