@@ -54,9 +54,14 @@ def reference():
   return env
 
 
+def _named(values):
+  """A dict keyed by observable names without their entity's prefix."""
+  return {k.split('/')[-1]: v for k, v in values.items()}
+
+
 def _by_name(observables):
   """Enabled observables keyed by their own name (the part after '/')."""
-  return {k.split('/')[-1]: o for k, o in observables.items() if o.enabled}
+  return {k: o for k, o in _named(observables).items() if o.enabled}
 
 
 def _world(state, world):
@@ -67,8 +72,8 @@ def test_runs_batched(port, reference):
   env, states = port
   names = {'joint_positions', 'joint_velocities', 'touch_force'}
   names.add('button_position')
-  assert set(_by_name(states[0].observation)) == names
-  assert set(_by_name(reference.observation_spec())) == names
+  assert set(_named(states[0].observation)) == names
+  assert set(_named(reference.observation_spec())) == names
   for state in states:
     for value in state.observation.values():
       assert np.asarray(value).shape[0] == _BATCH
@@ -82,7 +87,7 @@ def test_runs_batched(port, reference):
   # button on a circle of radius U(0.5, 0.75) around it, each world its own.
   qpos = np.asarray(states[0].data.qpos)
   np.testing.assert_allclose(qpos[:, :7], [[0, 0, 0.15, 1, 0, 0, 0]] * _BATCH)
-  button = _by_name(states[0].observation)['button_position'][:, 0]
+  button = _named(states[0].observation)['button_position'][:, 0]
   distance = np.linalg.norm(button[:, :2], axis=-1)
   assert np.all((distance >= 0.5) & (distance <= 0.75)), distance
   np.testing.assert_allclose(button[:, 2], 0.0)
@@ -101,13 +106,35 @@ def _set_state(physics, dm_button, one, button_frame_id, count):
   dm_button._num_activated_steps = count  # pylint: disable=protected-access
 
 
-def _on_the_button(one):
-  """`one` with the creature standing on the button (a pressing state)."""
-  button = np.asarray(one.observation['button_position'])[0]
+def _standing(one, frame, height):
+  """`one` with the creature's torso at `height` above its button's centre."""
   qpos = np.asarray(one.data.qpos).copy()
-  qpos[:2] = button[:2]
-  qpos[2] = 0.135  # The feet 5 mm into the button's top (z = 0.02).
+  qpos[:2] = np.asarray(one.model_fields['body_pos'][frame][:2])
+  qpos[2] = height
   return one.replace(data=one.data.replace(qpos=qpos))
+
+
+def _pressing_height(physics, frame):
+  """A torso height at which the upright creature presses its button in range.
+
+  The button's top is at z = 0.02 and the feet hang 0.12 below the torso:
+  of the heights that push the feet 0 to 10 mm into the button, the one
+  whose touch force (MuJoCo's C library) is nearest the middle of [5, 10] N.
+  """
+  qpos0 = physics.data.qpos.copy()
+  heights = 0.14 - np.linspace(0.0, 0.01, 21)
+  forces = []
+  for height in heights:
+    physics.data.qpos[:] = qpos0
+    physics.data.qpos[:2] = physics.model.body_pos[frame][:2]
+    physics.data.qpos[2] = height
+    physics.data.qpos[3:7] = [1, 0, 0, 0]
+    physics.data.qpos[7:] = 0
+    physics.data.qvel[:] = 0
+    physics.forward()
+    forces.append(physics.data.sensordata[0])
+  physics.data.qpos[:] = qpos0
+  return heights[np.argmin(np.abs(np.asarray(forces) - 7.5))]
 
 
 def test_observations_activation_and_reward_equal_dm_control(port, reference):
@@ -117,6 +144,7 @@ def test_observations_activation_and_reward_equal_dm_control(port, reference):
   dm_button = reference.task._button  # pylint: disable=protected-access
   physics = reference.physics
   frame = physics.model.name2id(dm_button.mjcf_model.model + '/', 'body')
+  assert env.mj_model.body(frame).name == physics.model.id2name(frame, 'body')
   observables = _by_name(task.observables)
   dm_observables = _by_name(reference.task.observables)
 
@@ -130,9 +158,13 @@ def test_observations_activation_and_reward_equal_dm_control(port, reference):
 
   errors = {}
   pressed = 0
+  touched = 0
   for state in states:
     for world in range(_BATCH):
-      for one in (_world(state, world), _on_the_button(_world(state, world))):
+      one = _world(state, world)
+      _set_state(physics, dm_button, one, frame, 0)
+      height = _pressing_height(physics, frame)
+      for one in (one, _standing(one, frame, height)):
         raw, count, rgba, reward = evaluate(one)
         start = int(
             one.entity_states[button.full_identifier]['num_activated_steps']
@@ -150,19 +182,21 @@ def test_observations_activation_and_reward_equal_dm_control(port, reference):
               errors.get(name, 0.0),
               float(np.max(np.abs(actual - expected) / scale)),
           )
+        touched += int(physics.data.sensordata[0] > 1.0)
         dm_button._update_activation(physics)  # pylint: disable=protected-access
         assert int(count) == dm_button.num_activated_steps
         pressed += int(count) - start
         np.testing.assert_array_equal(
-            np.asarray(rgba), physics.bind(dm_button._geom).rgba  # pylint: disable=protected-access
+            np.asarray(rgba),
+            physics.bind(dm_button._geom).rgba,  # pylint: disable=protected-access
         )
         np.testing.assert_allclose(
             float(reward), reference.task.get_reward(physics), rtol=1e-6
         )
   # float32 rounding of values of order one (errors relative to max(|x|, 1)).
   assert max(errors.values()) < 2e-5, errors
-  # Some of the standing states press the button within its force range.
-  assert pressed > 0
+  # The standing states press the button, within the force range.
+  assert touched >= _BATCH and pressed > 0, (touched, pressed)
 
 
 def test_observation_noise_is_composers(port):
@@ -171,7 +205,7 @@ def test_observation_noise_is_composers(port):
   # The creature's joints are all hinges, after its freejoint (7 qpos, 6 dofs).
   position_noise, speed_log_ratio = [], []
   for state in states:
-    obs = _by_name(state.observation)
+    obs = _named(state.observation)
     qpos = np.asarray(state.data.qpos)[:, 7:]
     qvel = np.asarray(state.data.qvel)[:, 6:]
     position_noise.append(obs['joint_positions'][:, 0] - qpos)
