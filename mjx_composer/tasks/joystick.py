@@ -181,12 +181,8 @@ class Joystick(task.Task):
     )
     v.check_bool('randomize', randomize, owner=owner)
     v.check_bool('terminate_on_fall', terminate_on_fall, owner=owner)
-    if terrain == 'flat':
-      self._arena = arenas.Floor(size=(10.0, 10.0))
-    else:
-      # The task samples the terrain itself, before placing the robot.
-      self._arena = arenas.RoughTerrain(auto_regenerate=False)
     self._terrain = terrain
+    self._arena = self._build_arena(terrain)
     self._go1 = go1_lib.Go1(kp=kp, kd=kd)
     frame = self._arena.add_free_entity(self._go1)
     frame.pos = [0.0, 0.0, self._go1.home_height]
@@ -212,6 +208,24 @@ class Joystick(task.Task):
     self._configure_observables(noise_level, observation_delay, history)
 
   # -- set-up ----------------------------------------------------------------
+
+  def _build_arena(self, terrain):
+    """The arena for `terrain` (a subclass may build its own)."""
+    if terrain == 'flat':
+      return arenas.Floor(size=(10.0, 10.0))
+    # The task samples the terrain itself, before placing the robot.
+    return arenas.RoughTerrain(auto_regenerate=False)
+
+  def _ground(self, physics, key, xy):
+    """Samples this world's ground: `(physics, origin (2,), height)`.
+
+    The robot starts at `origin + xy`, `height` below its home height.
+    """
+    origin = jnp.zeros(2, jnp.float32)
+    if self._terrain != 'rough':
+      return physics, origin, 0.0
+    physics = self._arena.regenerate_world(physics, key)
+    return physics, origin, self._arena.max_height_near(physics, xy, 0.4) + 0.01
 
   def _bind_randomization(self):
     uniform = distributions.Uniform
@@ -340,15 +354,9 @@ class Joystick(task.Task):
         'start_xy': zeros(2),
     }
 
-  def sample_command(self, key, command):
-    """Playground's resampling: keep (p=1/2), else new, entries zeroed."""
-    return self._command.resample(key, command)[0]
-
   def initialize_episode(self, physics, key):
     keys = jax.random.split(key, 6)
     physics = self._variator.apply_variations(physics, keys[0])
-    if self._terrain == 'rough':
-      physics = self._arena.regenerate_world(physics, keys[1])
     go1 = self._go1
     xy = jnp.zeros(2, jnp.float32)
     yaw = jnp.zeros((), jnp.float32)
@@ -361,9 +369,8 @@ class Joystick(task.Task):
       joints = joints + jax.random.uniform(
           keys[5], (12,), minval=-0.1, maxval=0.1
       )
-    ground = 0.0
-    if self._terrain == 'rough':
-      ground = self._arena.max_height_near(physics, xy, 0.4) + 0.01
+    physics, origin, ground = self._ground(physics, keys[1], xy)
+    xy = origin + xy
     position = jnp.concatenate([xy, jnp.reshape(ground + go1.home_height, 1)])
     physics = go1.set_pose(physics, position, locomotion.yaw_quaternion(yaw))
     physics = go1.set_velocity(physics, velocity[:3], velocity[3:])

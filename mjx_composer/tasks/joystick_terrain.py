@@ -1,0 +1,194 @@
+"""The Go1 joystick on generated terrain, composed from the locomotion kit.
+
+Isaac Lab's and mjlab's rough-terrain velocity task on `Joystick`'s robot,
+rewards and randomization (`tasks/joystick.py`), with each locomotion part
+a reusable piece of `mjx_composer.locomotion`:
+
+* the arena is a `TerrainGenerator` (height-field and box sub-terrains in a
+  grid of difficulty levels x kinds);
+* a `TerrainCurriculum` keeps each world's level: a robot that walked more
+  than half a tile from its spawn point goes up a level at its next
+  episode, one that covered less than half its commanded distance goes
+  down; the level is reported as the `terrain_level` metric;
+* every episode starts on the platform of a tile of the world's level (a
+  kind drawn per episode), with `Joystick`'s spread of the initial pose
+  (+U(-0.5, 0.5) m around the platform's centre);
+* the policy sees a `HeightScan` of the terrain (a 1.6 m x 1.0 m grid every
+  0.1 m around the trunk, aligned with its heading) with U(-0.1, 0.1) m
+  noise per ray, and the critic its clean twin;
+* an `ActuationDelay` delays the motors by a per-episode draw of
+  `actuation_delay` physics sub-steps;
+* the command is `Joystick`'s `VelocityCommand`.
+
+Deviation: MJX evaluates every candidate contact pair at every sub-step, so
+the number of boxes (stepping stones and random grids above all) costs
+simulation time; the defaults keep 5 levels of 4 m tiles.
+"""
+
+import jax
+import jax.numpy as jnp
+
+from mjx_composer.locomotion import actuation_delay as delay_lib
+from mjx_composer.locomotion import curriculum as curriculum_lib
+from mjx_composer.locomotion import height_scan as height_scan_lib
+from mjx_composer.locomotion import sub_terrains
+from mjx_composer.locomotion import terrain as terrain_lib
+from mjx_composer.observation import groups as groups_lib
+from mjx_composer.tasks import joystick
+from mjx_composer.tasks import locomotion
+from mjx_composer.utils import validation
+
+HEIGHT_SCAN_NOISE = 0.1  # Metres, per ray (Isaac Lab's height_scan noise).
+
+
+class TerrainJoystick(joystick.Joystick):
+  """`Joystick` on a generated terrain with a curriculum (module docstring).
+
+  Args:
+    kinds: the terrain's sub-terrain kinds (`sub_terrains.KINDS`).
+    levels: the terrain's difficulty levels.
+    tile_size: the side of a tile, metres.
+    initial_levels: (low, high) of a world's first level.
+    actuation_delay: (low, high) of the motors' delay in physics sub-steps.
+    scan_size: (length, width) of the height scan's grid, metres.
+    scan_resolution: the height scan's spacing, metres.
+    terrain_seed: the seed of the random sub-terrains.
+    **kwargs: `Joystick`'s arguments (not `terrain`).
+  """
+
+  def __init__(
+      self,
+      kinds=sub_terrains.KINDS,
+      levels=5,
+      tile_size=4.0,
+      initial_levels=(0, 1),
+      actuation_delay=(0, 2),
+      scan_size=(1.6, 1.0),
+      scan_resolution=0.1,
+      terrain_seed=0,
+      **kwargs,
+  ):
+    if 'terrain' in kwargs:
+      raise TypeError(
+          'TerrainJoystick generates its terrain: pass kinds, levels and '
+          f"tile_size instead of terrain={kwargs['terrain']!r}."
+      )
+    self._terrain_args = dict(
+        kinds=kinds,
+        levels=levels,
+        tile_size=tile_size,
+        border=validation.check_positive(
+            'tile_size', tile_size, owner='TerrainJoystick'
+        )
+        / 4,
+        seed=terrain_seed,
+    )
+    super().__init__(terrain='flat', **kwargs)
+    self._terrain = 'generated'
+    self._curriculum = curriculum_lib.TerrainCurriculum(
+        self._arena, initial_levels=initial_levels
+    )
+    self._delay = delay_lib.ActuationDelay(self.go1.actuators, actuation_delay)
+    scan = height_scan_lib.HeightScan(
+        self.go1.trunk,
+        size=scan_size,
+        resolution=scan_resolution,
+        geomgroup=self._arena.geomgroup,
+    )
+    noise = self._noise_level * HEIGHT_SCAN_NOISE
+    locomotion.policy_observable(
+        scan,
+        self.physics_steps_per_control_step,
+        corruptor=locomotion.uniform_noise(noise) if noise else None,
+        delay=self._observation_delay,
+    )
+    self._scan = scan
+    self._scan_twin = locomotion.clean_twin(scan)
+
+  def _build_arena(self, terrain):
+    del terrain
+    return terrain_lib.TerrainGenerator(**self._terrain_args)
+
+  def _configure_observables(self, noise_level, delay, history):
+    self._noise_level = float(noise_level)
+    self._observation_delay = int(delay)
+    super()._configure_observables(noise_level, delay, history)
+
+  def _ground(self, physics, key, xy):
+    """Spawns on a tile of this world's level (the curriculum's)."""
+    del xy
+    physics, spawn = self._curriculum.reset(physics, key)
+    return physics, spawn[:2], spawn[2] + 0.01
+
+  # -- composition -----------------------------------------------------------
+
+  @property
+  def terrain(self):
+    return self._arena
+
+  @property
+  def curriculum(self):
+    return self._curriculum
+
+  @property
+  def actuation_delay(self):
+    return self._delay
+
+  @property
+  def height_scan(self):
+    return self._scan
+
+  @property
+  def task_observables(self):
+    return {
+        **super().task_observables,
+        'height_scan': self._scan,
+        'privileged_height_scan': self._scan_twin,
+    }
+
+  def observation_groups(self):
+    groups = super().observation_groups()
+    policy, critic = groups['policy'], groups['critic']
+    return {
+        'policy': groups_lib.ObservationGroup(
+            keys=list(policy.keys) + ['height_scan'], flatten=True
+        ),
+        'critic': groups_lib.ObservationGroup(
+            keys=list(critic.keys) + ['privileged_height_scan'],
+            corrupted=False,
+            flatten=True,
+        ),
+    }
+
+  # -- episode ---------------------------------------------------------------
+
+  def initial_task_state(self):
+    return {**super().initial_task_state(), **self._delay.initial_state()}
+
+  def initialize_episode(self, physics, key):
+    physics = super().initialize_episode(physics, key)
+    return self._delay.reset(physics, jax.random.fold_in(key, 11))
+
+  def before_substep(self, physics, action, key):
+    del action, key
+    return self._delay.before_substep(physics)
+
+  def after_substep(self, physics, key):
+    del key
+    return self._delay.after_substep(physics)
+
+  def after_step(self, physics, key):
+    physics = super().after_step(physics, key)
+    command = self.command.velocity(physics)
+    return self._curriculum.record(
+        physics,
+        physics.bind(self.go1.trunk).xpos,
+        jnp.linalg.norm(command[:2]),
+        self.control_timestep,
+    )
+
+  def get_metrics(self, physics):
+    return {
+        **super().get_metrics(physics),
+        **self._curriculum.metrics(physics),
+    }

@@ -1,0 +1,98 @@
+"""TerrainJoystick: the Go1 joystick composed from the locomotion kit.
+
+One environment (a tiny terrain of 2 levels x 3 kinds of 2 m tiles, 2
+worlds, 3 control steps) is built for the module.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjx_composer import environment
+from mjx_composer.tasks import joystick_terrain
+from mjx_composer.tasks import registry
+
+_WORLDS = 2
+_STEPS = 3
+
+
+@pytest.fixture(scope='module')
+def run():
+  task = joystick_terrain.TerrainJoystick(
+      kinds=('flat', 'pyramid_stairs', 'random_uniform'),
+      levels=2,
+      tile_size=2.0,
+      initial_levels=(0, 1),
+      actuation_delay=(1, 3),
+      scan_size=(0.4, 0.2),
+      push_interval=0,
+  )
+  env = environment.Environment(task, time_limit=1.0)
+  states = [
+      jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(2), _WORLDS))
+  ]
+  step = jax.jit(jax.vmap(env.step))
+  actions = np.random.default_rng(0).uniform(-0.3, 0.3, (_STEPS, _WORLDS, 12))
+  for action in actions:
+    states.append(step(states[-1], jnp.asarray(action, jnp.float32)))
+
+  @jax.jit
+  @jax.vmap
+  def scan(state):
+    return task.height_scan.scan(env.physics(state))[0]
+
+  scans = [scan(state) for state in states[-2:]]
+  return env, jax.device_get(states), jax.device_get(scans)
+
+
+def test_worlds_spawn_on_a_tile_of_their_level(run):
+  env, states, _ = run
+  first = states[0]
+  levels = first.metrics['terrain_level']
+  assert set(levels) <= {0.0, 1.0}
+  points = env.task.terrain.spawn_points
+  for world in range(_WORLDS):
+    level = int(levels[world])
+    xy = first.data.qpos[world, :2]
+    gaps = np.max(np.abs(points[level, :, :2] - xy), axis=-1)
+    assert gaps.min() <= 0.5 + 1e-5  # On a platform of its level.
+    kind = int(np.argmin(gaps))
+    height = first.data.qpos[world, 2] - points[level, kind, 2]
+    assert height == pytest.approx(env.task.go1.home_height + 0.01, abs=1e-5)
+
+
+def test_policy_sees_the_height_scan_and_the_critic_its_clean_twin(run):
+  env, states, (previous, scan) = run
+  rays = len(env.task.height_scan.points)
+  assert rays == 5 * 3
+  # The critic's last entries are the clean scan of the step's end.
+  np.testing.assert_allclose(
+      states[-1].observation['critic'][:, -rays:], scan, atol=1e-5
+  )
+  # The policy's: the previous step's scan (a sample visible one sub-step
+  # after it is taken), with U(-0.1, 0.1) m noise.
+  error = np.abs(states[-1].observation['policy'][:, -rays:] - previous)
+  assert np.all(error <= 0.1 + 1e-5) and np.any(error > 1e-3)
+  # About the trunk's height below it, standing on a platform.
+  assert np.all(scan < -0.1) and np.all(scan > -0.6)
+
+
+def test_delay_is_drawn_per_world_in_its_range(run):
+  _, states, _ = run
+  delays = states[0].task_state['actuation_delay_steps']
+  assert np.all((delays >= 1) & (delays <= 3))
+  for state in states[1:]:
+    np.testing.assert_array_equal(
+        state.task_state['actuation_delay_steps'], delays
+    )
+    # ctrl reads the task's targets; the delay acts between them and the
+    # motors.
+    history = state.task_state['actuation_delay_history']
+    np.testing.assert_allclose(history[:, 0], state.data.ctrl, atol=1e-6)
+
+
+def test_registered():
+  assert 'joystick_terrain' in registry.names()
+  with pytest.raises(TypeError, match='terrain'):
+    joystick_terrain.TerrainJoystick(terrain='rough')
