@@ -24,8 +24,8 @@ available to them by name. Its training defaults, if it needs its own, go to
 
 The bundled tasks (reach, push, walk, joystick, joystick_rough,
 joystick_terrain) are registered when this module is imported, but their
-modules are imported only when a task is built: building the walk task does not import the Go1's, and
-`mjx-composer list` imports none.
+modules are imported only when a task is built: building the walk task does
+not import the Go1's, and `mjx-composer list` imports none.
 """
 
 from __future__ import annotations
