@@ -230,6 +230,13 @@ class Entity(abc.ABC):
           f'{entity.parent.name!r}; detach() it first, or build another '
           'instance to attach it twice.'
       )
+    taken = {sibling.name for sibling in self._attached}
+    if pymjcf.is_root(entity.mjcf_model) and entity.name in taken:
+      # As PyMJCF's attach: a clashing model name gets the first free `_N`.
+      base, number = entity.name, 1
+      while f'{base}_{number}' in taken:
+        number += 1
+      entity.mjcf_model.model = f'{base}_{number}'
     for sibling in self._attached:
       if sibling.name == entity.name:
         raise ValueError(

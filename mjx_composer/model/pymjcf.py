@@ -160,7 +160,11 @@ def to_spec(root, frame_names: dict[int, str] | None = None):
         )
       aliases[id(element)] = (element, namespace, handle)
   for _, _, handle in aliases.values():
-    if handle.name.startswith(_UNNAMED_PREFIX):
+    # A placeholder that another element refers to (a touch sensor's site,
+    # an actuator's joint) stays: MjSpec refers by name.
+    if handle.name.startswith(_UNNAMED_PREFIX) and (
+        xml.count(f'"{handle.name}"') == 1
+    ):
       handle.name = ''
   for element_id, name in (frame_names or {}).items():
     aliases[element_id][2].name = name
