@@ -50,81 +50,20 @@ import jax
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
-import numpy as np
 
+from mjx_composer import bindings
 from mjx_composer.model import element_index
-from mjx_composer.platform import internals
+
+# What bindings read and write (`bindings`), re-exported for callers of
+# this module.
+FLAT_MATRIX_FIELDS = bindings.FLAT_MATRIX_FIELDS
+ON_DEMAND_FIELDS = bindings.ON_DEMAND_FIELDS
+STATE_INPUT_FIELDS = bindings.STATE_INPUT_FIELDS
+StaleReadError = bindings.StaleReadError
+Binding = bindings.Binding
+EmptyBinding = bindings.EmptyBinding
 
 _MODEL_FIELD_NAMES = tuple(f.name for f in dataclasses.fields(mjx.Model))
-
-# Rotation matrices MJX keeps as `(n, 3, 3)` and MuJoCo's `mjData` (so
-# dm_control's bindings) as `(n, 9)`: bindings give and take them flat.
-FLAT_MATRIX_FIELDS = frozenset(
-    {'xmat', 'ximat', 'geom_xmat', 'site_xmat', 'cam_xmat'}
-)
-# `mjData` fields that MJX keeps in its implementation data (`data._impl`),
-# computed by every forward pass.
-_IMPL_FIELDS = frozenset({'cinert', 'crb', 'actuator_velocity', 'ten_velocity'})
-# `mjData` fields that MJX computes only where a sensor needs them, and the
-# public MJX function that computes them from a forwarded `mjx.Data` (what
-# MuJoCo's `mj_subtreeVel` / `mj_rnePostConstraint` compute).
-ON_DEMAND_FIELDS = {
-    'subtree_linvel': mjx.subtree_vel,
-    'subtree_angmom': mjx.subtree_vel,
-    'cacc': mjx.rne_postconstraint,
-    'cfrc_int': mjx.rne_postconstraint,
-    'cfrc_ext': mjx.rne_postconstraint,
-}
-# What dm_control's bindings mark dirty when written (its
-# `MJDATA_TRIGGERS_DIRTY`): its next read of anything else runs `mj_forward`.
-STATE_INPUT_FIELDS = frozenset(
-    {'qpos', 'qvel', 'act', 'ctrl', 'qfrc_applied', 'xfrc_applied'}
-)
-# Data fields no forward pass computes: a binding reads them as they are.
-_NOT_DERIVED = STATE_INPUT_FIELDS | {
-    'time',
-    'mocap_pos',
-    'mocap_quat',
-    'eq_active',
-    'qacc_warmstart',
-    'userdata',
-    'plugin_state',
-    'history',
-}
-# The stage of MuJoCo's forward pass that computes each derived field a
-# binding can read (1 position, 2 velocity; every other derived field 3,
-# acceleration), as `mjModel.sensor_needstage` numbers them.
-_FIELD_STAGE = {
-    **dict.fromkeys(
-        (
-            'xpos', 'xquat', 'xmat', 'xipos', 'ximat', 'xanchor', 'xaxis',
-            'geom_xpos', 'geom_xmat', 'site_xpos', 'site_xmat', 'cam_xpos',
-            'cam_xmat', 'subtree_com', 'cinert', 'crb', 'cdof', 'ten_length',
-            'actuator_length', 'qfrc_gravcomp',
-        ),
-        1,
-    ),
-    **dict.fromkeys(
-        (
-            'cvel', 'cdof_dot', 'ten_velocity', 'actuator_velocity',
-            'subtree_linvel', 'subtree_angmom', 'qfrc_bias', 'qfrc_passive',
-            'qfrc_fluid',
-        ),
-        2,
-    ),
-}  # fmt: skip
-# The first stage that a write of each input makes stale: positions change
-# everything, velocities the velocity and acceleration stages, the rest
-# (controls, activations, applied forces) the acceleration stage only.
-_INPUT_STAGE = {'qpos': 1, 'qvel': 2}
-
-
-class StaleReadError(ValueError):
-  """A binding read a derived quantity after a write with no forward pass.
-
-  dm_control's bindings run `mj_forward` lazily before such a read; here
-  the hook must call `physics.forward()` (or `physics.kinematics()`) itself.
-  """
 
 
 @struct.dataclass
@@ -198,21 +137,21 @@ class Physics:
 
   # -- dm_control-style accessors -------------------------------------------
 
-  def bind(self, elements) -> 'Binding':
+  def bind(self, elements) -> 'bindings.Binding':
     """A view of one element (or a list of elements of one kind).
 
     An empty list binds nothing, as in dm_control: every attribute reads as
     an empty array of shape `(0,)`, and `set` changes nothing.
     """
     if isinstance(elements, (list, tuple)) and not elements:
-      return EmptyBinding(self)
+      return bindings.EmptyBinding(self)
     kind, ids, is_seq = self.index.resolve(elements)
-    return Binding(self, kind, tuple(ids), is_seq)
+    return bindings.Binding(self, kind, tuple(ids), is_seq)
 
   @property
-  def named(self) -> '_NamedAccess':
+  def named(self) -> 'bindings.NamedAccess':
     """`physics.named.data.<field>[name]` and `physics.named.model....`."""
-    return _NamedAccess(self)
+    return bindings.NamedAccess(self)
 
   def time(self) -> jax.Array:
     return self.data.time
@@ -350,54 +289,23 @@ class Physics:
     if address.source == 'data':
       self._check_fresh(address.field, address.index)
     value = self.field(address.source, address.field)[address.index]
-    if address.field in FLAT_MATRIX_FIELDS:
-      value = value.reshape(value.shape[:-2] + (9,))
-    return value
+    return bindings.flat(address.field, value)
 
   def field(self, source: str, name: str) -> jax.Array:
-    """The whole `source` ('data' or 'model') field `name`, in MJX's shape.
-
-    Reads fields that MJX keeps in its implementation data, and computes
-    `ON_DEMAND_FIELDS` (`mjx.subtree_vel`, `mjx.rne_postconstraint` on this
-    data: what MuJoCo's `mj_subtreeVel` / `mj_rnePostConstraint` give).
-    """
-    if source == 'model':
-      return getattr(self.model, name)
-    if name in ON_DEMAND_FIELDS or name in _IMPL_FIELDS:
-      if self.data.impl == mjx.Impl.WARP:
-        raise NotImplementedError(
-            f'data.{name} cannot be read on MuJoCo Warp '
-            "(ExecutionOptions(impl='warp')): MJX keeps it only in its "
-            "JAX implementation's data. Use impl='jax', or a sensor that "
-            'measures it (e.g. a subtreelinvel sensor for subtree_linvel).'
-        )
-      data = self.data
-      if name in ON_DEMAND_FIELDS:
-        data = ON_DEMAND_FIELDS[name](self.model, data)
-      return getattr(internals.data_impl(data), name)
-    return getattr(self.data, name)
+    """The whole `source` ('data' or 'model') field `name`, in MJX's shape
+    (`bindings.read_field`: fields MJX keeps in its implementation data,
+    and `ON_DEMAND_FIELDS` computed from this data)."""
+    return bindings.read_field(self.model, self.data, source, name)
 
   def write(self, address: element_index.Address, value) -> 'Physics':
     """A new `Physics` with `value` written at `address`."""
-    if address.field in ON_DEMAND_FIELDS or address.field in _IMPL_FIELDS:
-      raise AttributeError(
-          f'data.{address.field} is computed by the forward pass and cannot '
-          'be written.'
-      )
+    bindings.check_writable(address.field)
     source = self.data if address.source == 'data' else self.model
     old = getattr(source, address.field)
     target_shape = jax.eval_shape(lambda a: a[address.index], old).shape
-    value = jnp.asarray(value, dtype=old.dtype)
-    if address.field in FLAT_MATRIX_FIELDS:
-      flat = target_shape[:-2] + (9,)
-      value = jnp.broadcast_to(
-          value.reshape(value.shape[:-2] + (9,))
-          if value.shape[-2:] == (3, 3)
-          else value,
-          flat,
-      )
-      value = value.reshape(target_shape)
-    value = jnp.broadcast_to(value, target_shape)
+    value = bindings.unflat(
+        address.field, jnp.asarray(value, dtype=old.dtype), target_shape
+    )
     new = old.at[address.index].set(value)
     if address.source == 'data':
       return self._written(
@@ -449,23 +357,9 @@ class Physics:
     object.__setattr__(self, '_wrote_result', False)
 
   def _check_fresh(self, field: str, index):
-    unsynced = self.unsynced_writes
-    if not unsynced or field in _NOT_DERIVED:
-      return
-    stale_from = min(_INPUT_STAGE.get(name, 3) for name in unsynced)
-    if field == 'sensordata':
-      stage = _sensor_stage(self.index.mj_model, index)
-    else:
-      stage = _FIELD_STAGE.get(field, 3)
-    if stage >= stale_from:
-      raise StaleReadError(
-          f'This physics wrote {sorted(unsynced)} and then read {field!r}, '
-          'which is derived from them, with no forward pass between: it '
-          'would read the value from before the write. dm_control runs '
-          'mj_forward before such a read; here call `physics = '
-          'physics.forward()` (or `physics.kinematics()` for positions '
-          'only) after the write and read from the result.'
-      )
+    bindings.check_fresh(
+        self.unsynced_writes, field, index, self.index.mj_model
+    )
 
 
 def changed_model_fields(before: mjx.Model, after: mjx.Model) -> list[str]:
@@ -548,16 +442,6 @@ class PhysicsCarry(WorldFields):
     return self.initialization_failed
 
 
-def _sensor_stage(mj_model, index) -> int:
-  """The last forward-pass stage that `sensordata[index]` needs (1-3)."""
-  rows = np.arange(mj_model.nsensordata)[index].reshape(-1)
-  if not rows.size:
-    return 1
-  # The sensor of each row: the last sensor starting at or before it.
-  sensors = np.searchsorted(mj_model.sensor_adr, rows, side='right') - 1
-  return int(np.max(mj_model.sensor_needstage[sensors]))
-
-
 def _entity_key(entity, entity_states) -> str:
   key = entity.full_identifier
   if entity_states is None or key not in entity_states:
@@ -586,125 +470,3 @@ def _updated(state, values: dict, declared_in: str) -> dict:
         jnp.shape(old)
     )
   return new
-
-
-class Binding:
-  """Attribute access for bound elements, like dm_control's `physics.bind`."""
-
-  __slots__ = ('_physics', '_kind', '_ids', '_is_seq')
-
-  def __init__(
-      self, physics: Physics, kind: element_index.Kind, ids: tuple, is_seq: bool
-  ):
-    self._physics = physics
-    self._kind = kind
-    self._ids = ids
-    self._is_seq = is_seq
-
-  def _address(self, attr: str) -> element_index.Address:
-    return self._physics.index.address(
-        self._kind, attr, self._ids, self._is_seq
-    )
-
-  def __getattr__(self, attr: str) -> jax.Array:
-    if attr.startswith('_'):
-      raise AttributeError(attr)
-    return self._physics.read(self._address(attr))
-
-  def __setattr__(self, attr, value):
-    if attr in Binding.__slots__:
-      object.__setattr__(self, attr, value)
-      return
-    raise AttributeError(
-        'Physics is immutable: use `physics = physics.bind(el).set('
-        f'{attr}=value)` instead of assigning to a binding.'
-    )
-
-  @property
-  def element_ids(self) -> tuple:
-    """The compiled ids of the bound elements."""
-    return self._ids
-
-  def set(self, **values) -> Physics:
-    """Returns a new Physics with the given attributes written."""
-    physics = self._physics
-    for attr, value in values.items():
-      physics = physics.write(self._address(attr), value)
-    return physics
-
-
-class EmptyBinding:
-  """The binding of an empty list of elements (dm_control's `_EmptyBinding`).
-
-  Every attribute reads as an empty float array of shape `(0,)`; `set`
-  returns the physics unchanged.
-  """
-
-  __slots__ = ('_physics',)
-
-  def __init__(self, physics: Physics):
-    object.__setattr__(self, '_physics', physics)
-
-  def __getattr__(self, attr: str) -> jax.Array:
-    if attr.startswith('_'):
-      raise AttributeError(attr)
-    return jnp.zeros((0,), self._physics.data.qpos.dtype)
-
-  def __setattr__(self, attr, value):
-    raise AttributeError(
-        'Physics is immutable: use `physics = physics.bind(el).set('
-        f'{attr}=value)` instead of assigning to a binding.'
-    )
-
-  @property
-  def element_ids(self) -> tuple:
-    return ()
-
-  def set(self, **values) -> Physics:
-    del values
-    return self._physics
-
-
-class _NamedAccess:
-  """`physics.named.data` / `physics.named.model`."""
-
-  def __init__(self, physics: Physics):
-    self.data = _NamedSource(physics, 'data')
-    self.model = _NamedSource(physics, 'model')
-
-
-class _NamedSource:
-
-  def __init__(self, physics: Physics, source: str):
-    self._physics = physics
-    self._source = source
-
-  def __getattr__(self, field: str) -> '_NamedField':
-    if field.startswith('_'):
-      raise AttributeError(field)
-    return _NamedField(self._physics, self._source, field)
-
-  def set(self, field: str, key, value) -> Physics:
-    """Returns a new Physics with `<source>.<field>[key] = value`."""
-    address = self._physics.index.named_address(self._source, field, key)
-    return self._physics.write(address, value)
-
-
-class _NamedField:
-
-  def __init__(self, physics: Physics, source: str, field: str):
-    self._physics = physics
-    self._source = source
-    self._field = field
-
-  def __getitem__(self, key) -> jax.Array:
-    address = self._physics.index.named_address(self._source, self._field, key)
-    return self._physics.read(address)
-
-  def __array__(self, dtype=None):
-    value = np.asarray(
-        self._physics.field(self._source, self._field), dtype=dtype
-    )
-    if self._field in FLAT_MATRIX_FIELDS:
-      value = value.reshape(value.shape[:-2] + (9,))
-    return value

@@ -1,6 +1,6 @@
 """Bindings as composer binds: dm_control's shapes, fields MJX computes only on
-demand, empty bindings, and the errors a port meets (stale reads, dropped
-writes, `random_state=`, touch sensors MJX cannot compute).
+demand, empty bindings, a `Variation` as a corruptor, and the errors a port
+meets (stale reads, dropped writes, `random_state=`).
 
 References: `dm_control.mjcf.Physics.bind` on the same MJCF, and MuJoCo's C
 library (`mj_forward`, `mj_rnePostConstraint`, `mj_subtreeVel`) on the same
@@ -17,7 +17,6 @@ import pytest
 import mjx_composer as composer
 from mjx_composer import physics as physics_lib
 from mjx_composer.model import element_index
-from mjx_composer.model import model_checks
 from mjx_composer.observation.observable import mjcf as mjcf_observable
 from mjx_composer.platform import internals
 from mjx_composer.variation import distributions
@@ -257,17 +256,6 @@ def test_write_then_derived_read_is_refused(scene):
     trace(lambda p: push(p).named.data.sensordata['acc'])
   with pytest.raises(physics_lib.StaleReadError):
     trace(lambda p: push(p).bind(foot).set(pos=jnp.ones(3)).bind(torso).cacc)
-
-
-def test_touch_sensor_on_a_cylinder_site_is_refused_at_build():
-  xml = _XML.replace(
-      'name="touch_site" type="box"', 'name="touch_site" type="cylinder"'
-  )
-  model = mujoco.MjModel.from_xml_string(xml)
-  with pytest.raises(
-      NotImplementedError, match="touch.*'touch_site'.*CYLINDER"
-  ):
-    model_checks.check_compiled_model(model)
 
 
 def test_variation_as_a_corruptor():

@@ -37,6 +37,7 @@ LAYER_OF = {
     'robot': 'authoring',
     'task': 'authoring',
     'physics': 'authoring',
+    'bindings': 'authoring',
     'observation': 'authoring',
     'variation': 'authoring',
     'compiler': 'authoring',

@@ -1,0 +1,305 @@
+"""What `physics.bind(...)` and `physics.named` read and write.
+
+`Binding` (one element or a list of one kind), `EmptyBinding` (an empty
+list, as dm_control's) and `NamedAccess` (`physics.named.data.<field>[name]`)
+give composer's view of a `physics.Physics`:
+
+* dm_control's shapes: the rotation matrices `xmat`, `ximat`, `geom_xmat`,
+  `site_xmat` and `cam_xmat` are flat 9-vectors (`(9,)` for one element,
+  `(n, 9)` for a list), as MuJoCo's `mjData` and
+  `dm_control.mujoco.Physics.bind` hold them; MJX keeps `(n, 3, 3)`.
+* the fields MJX computes only where a sensor needs them (`subtree_linvel`,
+  `subtree_angmom`: `mjx.subtree_vel`; `cacc`, `cfrc_int`, `cfrc_ext`:
+  `mjx.rne_postconstraint`) are computed when read, from the data, so they
+  hold what MuJoCo's `mj_subtreeVel` / `mj_rnePostConstraint` give on the
+  same state; those MJX keeps in its implementation data (`cinert`, `crb`,
+  actuator and tendon velocities) are read there.
+* no stale read: dm_control's bindings run `mj_forward` before reading
+  anything after a write of `STATE_INPUT_FIELDS`. Here a read of a
+  quantity that such a write made stale, with no forward pass between,
+  raises `StaleReadError` while tracing (`check_fresh`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import jax
+import jax.numpy as jnp
+from mujoco import mjx
+import numpy as np
+
+from mjx_composer.model import element_index
+from mjx_composer.platform import internals
+
+if TYPE_CHECKING:
+  from mjx_composer.physics import Physics  # pylint: disable=g-bad-import-order
+
+# Rotation matrices MJX keeps as `(n, 3, 3)` and MuJoCo's `mjData` (so
+# dm_control's bindings) as `(n, 9)`: bindings give and take them flat.
+FLAT_MATRIX_FIELDS = frozenset(
+    {'xmat', 'ximat', 'geom_xmat', 'site_xmat', 'cam_xmat'}
+)
+# `mjData` fields that MJX keeps in its implementation data (`data._impl`),
+# computed by every forward pass.
+IMPL_FIELDS = frozenset({'cinert', 'crb', 'actuator_velocity', 'ten_velocity'})
+# `mjData` fields that MJX computes only where a sensor needs them, and the
+# public MJX function that computes them from a forwarded `mjx.Data` (what
+# MuJoCo's `mj_subtreeVel` / `mj_rnePostConstraint` compute).
+ON_DEMAND_FIELDS = {
+    'subtree_linvel': mjx.subtree_vel,
+    'subtree_angmom': mjx.subtree_vel,
+    'cacc': mjx.rne_postconstraint,
+    'cfrc_int': mjx.rne_postconstraint,
+    'cfrc_ext': mjx.rne_postconstraint,
+}
+# What dm_control's bindings mark dirty when written (its
+# `MJDATA_TRIGGERS_DIRTY`): its next read of anything else runs `mj_forward`.
+STATE_INPUT_FIELDS = frozenset(
+    {'qpos', 'qvel', 'act', 'ctrl', 'qfrc_applied', 'xfrc_applied'}
+)
+# Data fields no forward pass computes: a binding reads them as they are.
+_NOT_DERIVED = STATE_INPUT_FIELDS | {
+    'time',
+    'mocap_pos',
+    'mocap_quat',
+    'eq_active',
+    'qacc_warmstart',
+    'userdata',
+    'plugin_state',
+    'history',
+}
+# The stage of MuJoCo's forward pass that computes each derived field a
+# binding can read (1 position, 2 velocity; every other derived field 3,
+# acceleration), as `mjModel.sensor_needstage` numbers them.
+_FIELD_STAGE = {
+    **dict.fromkeys(
+        (
+            'xpos', 'xquat', 'xmat', 'xipos', 'ximat', 'xanchor', 'xaxis',
+            'geom_xpos', 'geom_xmat', 'site_xpos', 'site_xmat', 'cam_xpos',
+            'cam_xmat', 'subtree_com', 'cinert', 'crb', 'cdof', 'ten_length',
+            'actuator_length', 'qfrc_gravcomp',
+        ),
+        1,
+    ),
+    **dict.fromkeys(
+        (
+            'cvel', 'cdof_dot', 'ten_velocity', 'actuator_velocity',
+            'subtree_linvel', 'subtree_angmom', 'qfrc_bias', 'qfrc_passive',
+            'qfrc_fluid',
+        ),
+        2,
+    ),
+}  # fmt: skip
+# The first stage that a write of each input makes stale: positions change
+# everything, velocities the velocity and acceleration stages, the rest
+# (controls, activations, applied forces) the acceleration stage only.
+_INPUT_STAGE = {'qpos': 1, 'qvel': 2}
+
+
+class StaleReadError(ValueError):
+  """A binding read a derived quantity after a write with no forward pass.
+
+  dm_control's bindings run `mj_forward` lazily before such a read; here
+  the hook must call `physics.forward()` (or `physics.kinematics()`) itself.
+  """
+
+
+def _sensor_stage(mj_model, index) -> int:
+  """The last forward-pass stage that `sensordata[index]` needs (1-3)."""
+  rows = np.arange(mj_model.nsensordata)[index].reshape(-1)
+  if not rows.size:
+    return 1
+  # The sensor of each row: the last sensor starting at or before it.
+  sensors = np.searchsorted(mj_model.sensor_adr, rows, side='right') - 1
+  return int(np.max(mj_model.sensor_needstage[sensors]))
+
+
+def flat(field: str, value):
+  """`value` of `field` in dm_control's shape (matrices flat)."""
+  if field in FLAT_MATRIX_FIELDS:
+    return value.reshape(value.shape[:-2] + (9,))
+  return value
+
+
+def unflat(field: str, value, target_shape):
+  """`value` (dm_control's shape, or MJX's) broadcast to MJX's
+  `target_shape` of `field`."""
+  if field in FLAT_MATRIX_FIELDS:
+    if value.shape[-2:] == (3, 3):
+      value = value.reshape(value.shape[:-2] + (9,))
+    value = jnp.broadcast_to(value, target_shape[:-2] + (9,))
+    value = value.reshape(target_shape)
+  return jnp.broadcast_to(value, target_shape)
+
+
+def read_field(model, data, source: str, name: str) -> jax.Array:
+  """The whole `source` ('data' or 'model') field `name`, in MJX's shape.
+
+  Reads fields that MJX keeps in its implementation data, and computes
+  `ON_DEMAND_FIELDS` from `data` (a forwarded `mjx.Data`).
+  """
+  if source == 'model':
+    return getattr(model, name)
+  if name in ON_DEMAND_FIELDS or name in IMPL_FIELDS:
+    if data.impl == mjx.Impl.WARP:
+      raise NotImplementedError(
+          f'data.{name} cannot be read on MuJoCo Warp '
+          "(ExecutionOptions(impl='warp')): MJX keeps it only in its "
+          "JAX implementation's data. Use impl='jax', or a sensor that "
+          'measures it (e.g. a subtreelinvel sensor for subtree_linvel).'
+      )
+    if name in ON_DEMAND_FIELDS:
+      data = ON_DEMAND_FIELDS[name](model, data)
+    return getattr(internals.data_impl(data), name)
+  return getattr(data, name)
+
+
+def check_writable(field: str) -> None:
+  if field in ON_DEMAND_FIELDS or field in IMPL_FIELDS:
+    raise AttributeError(
+        f'data.{field} is computed by the forward pass and cannot be '
+        'written.'
+    )
+
+
+def check_fresh(unsynced, field: str, index, mj_model) -> None:
+  """Raises `StaleReadError` where `field[index]` is derived from the
+  `unsynced` writes (`STATE_INPUT_FIELDS` written with no forward pass
+  since) and would read its value from before them."""
+  if not unsynced or field in _NOT_DERIVED:
+    return
+  stale_from = min(_INPUT_STAGE.get(name, 3) for name in unsynced)
+  if field == 'sensordata':
+    stage = _sensor_stage(mj_model, index)
+  else:
+    stage = _FIELD_STAGE.get(field, 3)
+  if stage >= stale_from:
+    raise StaleReadError(
+        f'This physics wrote {sorted(unsynced)} and then read {field!r}, '
+        'which is derived from them, with no forward pass between: it '
+        'would read the value from before the write. dm_control runs '
+        'mj_forward before such a read; here call `physics = '
+        'physics.forward()` (or `physics.kinematics()` for positions '
+        'only) after the write and read from the result.'
+    )
+
+
+class Binding:
+  """Attribute access for bound elements, like dm_control's `physics.bind`."""
+
+  __slots__ = ('_physics', '_kind', '_ids', '_is_seq')
+
+  def __init__(
+      self, physics: Physics, kind: element_index.Kind, ids: tuple, is_seq: bool
+  ):
+    self._physics = physics
+    self._kind = kind
+    self._ids = ids
+    self._is_seq = is_seq
+
+  def _address(self, attr: str) -> element_index.Address:
+    return self._physics.index.address(
+        self._kind, attr, self._ids, self._is_seq
+    )
+
+  def __getattr__(self, attr: str) -> jax.Array:
+    if attr.startswith('_'):
+      raise AttributeError(attr)
+    return self._physics.read(self._address(attr))
+
+  def __setattr__(self, attr, value):
+    if attr in Binding.__slots__:
+      object.__setattr__(self, attr, value)
+      return
+    raise AttributeError(
+        'Physics is immutable: use `physics = physics.bind(el).set('
+        f'{attr}=value)` instead of assigning to a binding.'
+    )
+
+  @property
+  def element_ids(self) -> tuple:
+    """The compiled ids of the bound elements."""
+    return self._ids
+
+  def set(self, **values) -> Physics:
+    """Returns a new Physics with the given attributes written."""
+    physics = self._physics
+    for attr, value in values.items():
+      physics = physics.write(self._address(attr), value)
+    return physics
+
+
+class EmptyBinding:
+  """The binding of an empty list of elements (dm_control's `_EmptyBinding`).
+
+  Every attribute reads as an empty float array of shape `(0,)`; `set`
+  returns the physics unchanged.
+  """
+
+  __slots__ = ('_physics',)
+
+  def __init__(self, physics: Physics):
+    object.__setattr__(self, '_physics', physics)
+
+  def __getattr__(self, attr: str) -> jax.Array:
+    if attr.startswith('_'):
+      raise AttributeError(attr)
+    return jnp.zeros((0,), self._physics.data.qpos.dtype)
+
+  def __setattr__(self, attr, value):
+    raise AttributeError(
+        'Physics is immutable: use `physics = physics.bind(el).set('
+        f'{attr}=value)` instead of assigning to a binding.'
+    )
+
+  @property
+  def element_ids(self) -> tuple:
+    return ()
+
+  def set(self, **values) -> Physics:
+    del values
+    return self._physics
+
+
+class NamedAccess:
+  """`physics.named.data` / `physics.named.model`."""
+
+  def __init__(self, physics: Physics):
+    self.data = _NamedSource(physics, 'data')
+    self.model = _NamedSource(physics, 'model')
+
+
+class _NamedSource:
+
+  def __init__(self, physics: Physics, source: str):
+    self._physics = physics
+    self._source = source
+
+  def __getattr__(self, field: str) -> '_NamedField':
+    if field.startswith('_'):
+      raise AttributeError(field)
+    return _NamedField(self._physics, self._source, field)
+
+  def set(self, field: str, key, value) -> Physics:
+    """Returns a new Physics with `<source>.<field>[key] = value`."""
+    address = self._physics.index.named_address(self._source, field, key)
+    return self._physics.write(address, value)
+
+
+class _NamedField:
+
+  def __init__(self, physics: Physics, source: str, field: str):
+    self._physics = physics
+    self._source = source
+    self._field = field
+
+  def __getitem__(self, key) -> jax.Array:
+    address = self._physics.index.named_address(self._source, self._field, key)
+    return self._physics.read(address)
+
+  def __array__(self, dtype=None):
+    return np.asarray(
+        flat(self._field, self._physics.field(self._source, self._field)),
+        dtype=dtype,
+    )
