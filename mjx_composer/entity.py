@@ -327,6 +327,9 @@ class Entity(abc.ABC):
       )
       # Keyed by the spec handle (kept alive in the value, so ids stay unique).
       aliases = {id(h): (e, h) for e, _, h in aliases.values()}
+      # The handles live in the converted spec's memory: it must outlive
+      # the element index that keeps them (until the next compose).
+      self._converted_spec = own
     # copy() and attach() silently drop elements with dangling references;
     # elements that refer to attached entities are added back at the end.
     deferred = composition_checks.cross_entity_elements(self, own)

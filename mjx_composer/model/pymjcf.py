@@ -172,16 +172,16 @@ def to_spec(root, frame_names: dict[int, str] | None = None):
 
 
 def spec_handle_of(element):
-  """The MjSpec handle of a PyMJCF element in its model converted now.
+  """`(spec, handle)`: a PyMJCF element's model converted now, its handle.
 
-  For checks that read MjSpec attributes before the tree is composed; the
-  handle belongs to a throwaway spec.
+  For checks that read MjSpec attributes before the tree is composed. Keep
+  the spec while using the handle: the handle lives in the spec's memory.
   """
-  _, aliases = to_spec(element.root)
+  spec, aliases = to_spec(element.root)
   entry = aliases.get(id(element))
   if entry is None:
     raise ValueError(f'{describe(element)} is not a bindable element.')
-  return entry[2]
+  return spec, entry[2]
 
 
 def attachment_frame(model, site, owner: str):

@@ -102,9 +102,10 @@ class MJCFVariator(variator_base.Variator):
   """
 
   def _check_binding(self, element, attr, variation):
+    spec = None  # Keeps a converted PyMJCF model alive for its handle.
     if pymjcf.is_element(element):
       # The checks read MjSpec attributes: those of the element converted.
-      element = pymjcf.spec_handle_of(element)
+      spec, element = pymjcf.spec_handle_of(element)
     kind = compiler.check_attribute(element, attr)
     initial = compiler.spec_value(element, kind, attr)
     variator_base.check_static_shape(
@@ -113,6 +114,7 @@ class MJCFVariator(variator_base.Variator):
         variator_base.describe_element(element) + '.' + attr,
         self.label,
     )
+    del spec
 
   def _bound(self, element, attr):
     return attributes.bound_of(element, attr)
