@@ -27,6 +27,7 @@ simulation time; the defaults keep 5 levels of 4 m tiles.
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mjx_composer.locomotion import actuation_delay as delay_lib
 from mjx_composer.locomotion import curriculum as curriculum_lib
@@ -39,6 +40,38 @@ from mjx_composer.tasks import locomotion
 from mjx_composer.utils import validation
 
 HEIGHT_SCAN_NOISE = 0.1  # Metres, per ray (Isaac Lab's height_scan noise).
+
+
+def _check_arguments(**kwargs):
+  """`TerrainJoystick`'s own arguments, checked before anything is built."""
+  v, owner = validation, 'TerrainJoystick'
+  kinds = kwargs['kinds']
+  if (
+      isinstance(kinds, str)
+      or not isinstance(kinds, (tuple, list))
+      or not kinds
+  ):
+    raise TypeError(
+        f'{owner}: `kinds` must be a non-empty sequence of sub-terrain '
+        f'names, got {kinds!r}. Pass e.g. kinds=sub_terrains.KINDS.'
+    )
+  v.check_integer('levels', kwargs['levels'], owner=owner, minimum=1)
+  for name in ('initial_levels', 'actuation_delay'):
+    pair = kwargs[name]
+    v.check_range_pair(name, pair, owner=owner, nonnegative=True)
+    for i, bound in enumerate(pair):
+      v.check_integer(f'{name}[{i}]', bound, owner=owner, minimum=0)
+  size = kwargs['scan_size']
+  if isinstance(size, str) or np.ndim(size) != 1 or len(size) != 2:
+    raise TypeError(
+        f'{owner}: `scan_size` must be a (length, width) pair, got {size!r}. '
+        'Pass two positive numbers of metres, e.g. (1.6, 1.0).'
+    )
+  v.check_positive('scan_size', size, owner=owner)
+  v.check_positive('scan_resolution', kwargs['scan_resolution'], owner=owner)
+  v.check_integer(
+      'terrain_seed', kwargs['terrain_seed'], owner=owner, minimum=0
+  )
 
 
 class TerrainJoystick(joystick.Joystick):
@@ -68,6 +101,15 @@ class TerrainJoystick(joystick.Joystick):
       terrain_seed=0,
       **kwargs,
   ):
+    _check_arguments(
+        kinds=kinds,
+        levels=levels,
+        initial_levels=initial_levels,
+        actuation_delay=actuation_delay,
+        scan_size=scan_size,
+        scan_resolution=scan_resolution,
+        terrain_seed=terrain_seed,
+    )
     if 'terrain' in kwargs:
       raise TypeError(
           'TerrainJoystick generates its terrain: pass kinds, levels and '
