@@ -85,7 +85,7 @@ def layout_tables(models: list[mujoco.MjModel]) -> dict[str, np.ndarray]:
   first = models[0]
   tables = {}
   for field in sorted(element_index.MODEL_FIELDS):
-    if not hasattr(first, field):
+    if field.startswith('_') or not hasattr(first, field):
       continue
     values = [getattr(m, field) for m in models]
     if not isinstance(values[0], np.ndarray):
