@@ -7,7 +7,7 @@ qvel, the button's pose and press count set alike) its observations, the
 button's activation and the reward equal dm_control's (MuJoCo's C library on
 the host) to float32 rounding, a state with the creature standing on the
 button included, except the force on the button where a foot touches it
-(MJX's narrow phase makes other capsule-cylinder contacts). The noise (composer's corruptors) is checked by
+(MJX's capsule-cylinder contacts differ from MuJoCo's). The noise (composer's corruptors) is checked by
 its distribution. `docs/porting.md` shows the diff between the two modules:
 the docs test below keeps it current.
 """
@@ -181,9 +181,9 @@ def test_observations_activation_and_reward_equal_dm_control(port, reference):
           actual = np.asarray(raw[name]).reshape(expected.shape)
           scale = np.maximum(np.abs(expected), 1.0)
           if standing and name == 'touch_force':
-            # MJX's narrow phase makes other contacts between the capsule
-            # feet and the cylinder than MuJoCo's C library (the force
-            # differed by up to 43%): compared where no foot touches it.
+            # MJX's contacts between the capsule feet and the cylinder (or
+            # their forces) differ from MuJoCo's C library's: the force
+            # differed by up to 43%. Compared where no foot touches it.
             continue
           errors[name] = max(
               errors.get(name, 0.0),
