@@ -49,11 +49,11 @@ _EXPECTED_TEXT = {
         r'DM_CONTROL_SOURCE: kept \d+ lines as text, not run',
         r'MJX_SOURCE: ran \d+ lines',
         r'(?m)^\+\+\+ mjx_composer$',
-        r"(?m)^-    self\._model = mjcf\.RootElement\(model='pendulum'\)$",
-        r'(?m)^\+  def initial_task_state\(self\):$',
-        r'32 worlds x 150 steps: mean reward 0\.\d{3}, [1-9]\d* episodes '
-        r'ended by holding',
-        r'one episode: \d+ steps, return \d+\.\d, discount 0\.0',
+        r'(?m)^-  def initialize_episode\(self, physics, random_state\):$',
+        r'(?m)^\+  def initial_state\(self\):$',
+        r"\d+ of \d+ lines of dm_control's code changed",
+        r'4 worlds x 40 steps of 0\.05 s: button distances \[[0-9. ]+\] m, '
+        r'max touch force \d+\.\d\d N, total reward \d+\.\d\d',
     ],
 }
 
