@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 # ============================================================================
-"""dm_control's composer tutorial on mjx_composer: the port of `dm_control_tutorial.py`.
+"""dm_control's composer tutorial on mjx_composer: `dm_control_tutorial.py` ported.
 
 Diff it against `dm_control_tutorial.py` (dm_control's `tutorial.ipynb`):
 the imports change, and the hooks become pure: they take a key and return
@@ -20,10 +20,12 @@ the physics. The PyMJCF models (`Leg`, `make_creature`, the `Button`'s)
 are unchanged. Changed because hooks are pure: the `Button`'s activation
 count lives in its per-world entity state (`initial_state`), read with
 `num_activated_steps(physics)`; traced values branch with `jnp.where` and
-`&`, and `UniformCircle` uses `jnp` for its traced heading; the MJCF
-variator runs per episode in `initialize_episode` (the model compiles
-once); the `Button`'s colour, a model field written in `after_substep`, is
-declared per world; the arena is an MjSpec (`add_light`).
+`&`, and `UniformCircle` uses `jnp` for its traced heading; the button reads
+its sensor after `physics.forward()` (dm_control's bindings run `mj_forward`
+before that read); the MJCF variator runs per episode in
+`initialize_episode` (the model compiles once); the `Button`'s colour, a
+model field written in `after_substep`, is declared per world; the arena is
+an MjSpec (`add_light`).
 """
 
 # PyMJCF
