@@ -33,7 +33,7 @@ def _parts():
       ant=ant.Ant(name='ant'),
       ball=jumping_ball.RollingBallWithHead(name='ball'),
       target=target_sphere.TargetSphere(name='target'),
-      box=props.Primitive(geom_type='box', size=[0.1, 0.1, 0.1], name='box'),
+      box=props.Primitive(geom_type='sphere', size=[0.1], name='box'),
   )
 
 
