@@ -24,6 +24,7 @@ task's state: merge `delay.initial_state()` into `initial_task_state()`.
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mjx_composer.utils import validation
 
@@ -43,13 +44,24 @@ class ActuationDelay:
   """
 
   def __init__(self, actuators, delay_range=(0, 2), name='actuation_delay'):
+    if isinstance(actuators, (str, bytes)) or not hasattr(
+        actuators, '__iter__'
+    ):
+      raise TypeError(
+          f'{_OWNER}: actuators must be a list of actuators, got '
+          f'{actuators!r}. Pass e.g. robot.actuators.'
+      )
     self.actuators = list(actuators)
     if not self.actuators:
       raise ValueError(
           f'{_OWNER}: actuators is empty: pass the actuators to delay, e.g. '
           'robot.actuators.'
       )
-    if isinstance(delay_range, (str, bytes)) or len(tuple(delay_range)) != 2:
+    if (
+        isinstance(delay_range, (str, bytes))
+        or np.ndim(delay_range) != 1
+        or len(delay_range) != 2
+    ):
       raise TypeError(
           f'{_OWNER}: delay_range must be a (low, high) pair of integers, '
           f'got {delay_range!r}. Pass e.g. (0, 2).'

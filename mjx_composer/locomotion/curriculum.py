@@ -24,7 +24,9 @@ per world: its distribution over the batch is the curriculum's state).
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
+from mjx_composer.locomotion import terrain as terrain_lib
 from mjx_composer.utils import validation
 
 _OWNER = 'TerrainCurriculum'
@@ -75,12 +77,21 @@ class TerrainCurriculum:
       down_fraction=0.5,
       name='terrain_curriculum',
   ):
+    if not isinstance(terrain, terrain_lib.TerrainGenerator):
+      raise TypeError(
+          f'{_OWNER}: terrain must be a TerrainGenerator, got {terrain!r}. '
+          'Pass the arena the task builds, e.g. TerrainGenerator(levels=5).'
+      )
     self.terrain = terrain
     levels = terrain.levels
-    if isinstance(initial_levels, (str, bytes)) or len(initial_levels) != 2:
+    if (
+        isinstance(initial_levels, (str, bytes))
+        or np.ndim(initial_levels) != 1
+        or len(initial_levels) != 2
+    ):
       raise TypeError(
           f'{_OWNER}: initial_levels must be a (low, high) pair of levels, '
-          f'got {initial_levels!r}.'
+          f'got {initial_levels!r}. Pass e.g. (0, 0).'
       )
     low, high = (
         validation.check_integer(
@@ -102,6 +113,10 @@ class TerrainCurriculum:
     self.down_fraction = validation.check_nonnegative(
         'down_fraction', down_fraction, owner=_OWNER
     )
+    if not isinstance(name, str) or not name:
+      raise TypeError(
+          f'{_OWNER}: name must be a non-empty string, got {name!r}.'
+      )
     self.name = name
 
   def _entry(self, field):

@@ -163,17 +163,17 @@ class HeightScan(observable.Observable):
     self._points = np.concatenate(
         [points, np.zeros((len(points), 1), np.float32)], axis=1
     )
-    if alignment not in ALIGNMENTS:
-      raise ValueError(
-          f'{_OWNER}: alignment must be one of {ALIGNMENTS}, got '
-          f'{alignment!r}.'
-      )
-    self._alignment = alignment
+    self._alignment = validation.check_choice(
+        'alignment', alignment, ALIGNMENTS, owner=_OWNER
+    )
     mask = np.asarray(geomgroup)
-    if mask.shape != (mujoco.mjNGROUP,):
+    if mask.shape != (mujoco.mjNGROUP,) or not all(
+        isinstance(g, (bool, int, float)) and g in (0, 1) for g in mask.tolist()
+    ):
       raise ValueError(
-          f'{_OWNER}: geomgroup must have {mujoco.mjNGROUP} flags, got '
-          f'{geomgroup!r}. Pass e.g. (1, 0, 0, 0, 0, 0) for group 0 only.'
+          f'{_OWNER}: geomgroup must be {mujoco.mjNGROUP} flags, each 0 or 1 '
+          f'(or a bool), got {geomgroup!r}. Pass e.g. (1, 0, 0, 0, 0, 0) for '
+          'group 0 only.'
       )
     self._geomgroup = tuple(int(bool(g)) for g in mask)
     self._ray_start = validation.check_finite(

@@ -39,6 +39,8 @@ import dataclasses
 
 import numpy as np
 
+from mjx_composer.utils import validation
+
 HFIELD_KINDS = (
     'flat',
     'random_uniform',
@@ -55,6 +57,42 @@ BOX_KINDS = (
     'random_grid',
 )
 KINDS = HFIELD_KINDS + BOX_KINDS
+_OWNER = 'SubTerrainConfig'
+# Each length's lower bound: 'positive' (a box or a step of size 0 cannot be
+# built) or 'nonnegative' (0 turns the feature off).
+_LENGTHS = {
+    'platform': 'positive',
+    'step_width': 'positive',
+    'stone_height': 'positive',
+    'grid_cell': 'positive',
+}
+_ENDPOINTS = {
+    'noise_range': 'nonnegative',
+    'slope_range': 'nonnegative',
+    'wave_amplitude_range': 'nonnegative',
+    'obstacle_height_range': 'nonnegative',
+    'step_height_range': 'positive',
+    'stone_size_range': 'positive',
+    'stone_gap_range': 'nonnegative',
+    'beam_width_range': 'positive',
+    'grid_height_range': 'nonnegative',
+}
+_COUNTS = ('waves', 'obstacles')
+_CHECKS = {
+    'positive': validation.check_positive,
+    'nonnegative': validation.check_nonnegative,
+}
+
+
+def _check_endpoints(name, value, bound):
+  """`value` must be two numbers (at difficulty 0, at 1), either order."""
+  if isinstance(value, (str, bytes)) or np.ndim(value) != 1 or len(value) != 2:
+    raise TypeError(
+        f'{_OWNER}: {name} must be a pair (at difficulty 0, at difficulty 1)'
+        f' of numbers, got {value!r}. Pass e.g. (0.05, 0.2).'
+    )
+  for i, endpoint in enumerate(value):
+    _CHECKS[bound](f'{name}[{i}]', endpoint, owner=_OWNER)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -80,6 +118,20 @@ class SubTerrainConfig:
   beam_width_range: tuple = (0.4, 0.15)
   grid_cell: float = 0.4
   grid_height_range: tuple = (0.02, 0.12)
+
+  def __post_init__(self):
+    """Refuses a bad parameter here rather than when a terrain is built."""
+    for name, bound in _LENGTHS.items():
+      _CHECKS[bound](name, getattr(self, name), owner=_OWNER)
+    for name, bound in _ENDPOINTS.items():
+      _check_endpoints(name, getattr(self, name), bound)
+    for name in _COUNTS:
+      validation.check_integer(
+          name, getattr(self, name), owner=_OWNER, minimum=0
+      )
+    validation.check_range_pair(
+        'obstacle_width', self.obstacle_width, owner=_OWNER, positive=True
+    )
 
   def at(self, name, difficulty):
     """Parameter `<name>_range` at `difficulty` (linear)."""

@@ -58,7 +58,16 @@ class TerrainGenerator(arena.Arena):
       seed=0,
       name='terrain',
   ):
+    if not isinstance(name, str) or not name:
+      raise TypeError(
+          f'{_OWNER}: name must be a non-empty string, got {name!r}.'
+      )
     super()._build(name=name)
+    if isinstance(kinds, (str, bytes)) or not hasattr(kinds, '__iter__'):
+      raise TypeError(
+          f'{_OWNER}: kinds must be a sequence of sub-terrain kinds, got '
+          f"{kinds!r}. Pass e.g. ('flat', 'pyramid_stairs')."
+      )
     kinds = tuple(kinds)
     unknown = [k for k in kinds if k not in sub_terrains.KINDS]
     if not kinds or unknown:
@@ -91,15 +100,16 @@ class TerrainGenerator(arena.Arena):
           f'{_OWNER}: difficulty_range must lie in [0, 1], got '
           f'{difficulty_range!r}.'
       )
-    self._config = config or sub_terrains.SubTerrainConfig()
+    self._config = sub_terrains.SubTerrainConfig() if config is None else config
     if not isinstance(self._config, sub_terrains.SubTerrainConfig):
       raise TypeError(
           f'{_OWNER}: config must be a sub_terrains.SubTerrainConfig, got '
-          f'{config!r}.'
+          f'{config!r}. Pass e.g. SubTerrainConfig(platform=1.5) or None.'
       )
     self._group = validation.check_integer(
         'group', group, owner=_OWNER, minimum=0
     )
+    seed = validation.check_integer('seed', seed, owner=_OWNER, minimum=0)
     self._scale, self._border = scale, border
     self._generate(np.random.default_rng(seed))
 

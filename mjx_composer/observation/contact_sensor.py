@@ -35,6 +35,7 @@ import jax.numpy as jnp
 
 from mjx_composer.observation import contacts as contacts_lib
 from mjx_composer.observation.observable import base as observable_base
+from mjx_composer.utils import validation
 
 _OWNER = 'ContactSensor'
 _TIMES = ('air_time', 'contact_time', 'last_air_time', 'last_contact_time')
@@ -69,15 +70,12 @@ class ContactSensor:
           f'{_OWNER}: name must be a non-empty string, got {name!r}.'
       )
     if force_threshold is not None:
-      try:
-        force_threshold = float(force_threshold)
-      except (TypeError, ValueError):
-        force_threshold = -1.0
-      if not force_threshold >= 0.0:
-        raise ValueError(
-            f'{_OWNER}: force_threshold must be None or a non-negative '
-            'number of newtons.'
-        )
+      force_threshold = validation.check_nonnegative(
+          'force_threshold',
+          force_threshold,
+          owner=_OWNER,
+          fix='Pass None (any contact) or a force in newtons >= 0.',
+      )
     self._rows = list(rows)
     self._other = other
     self.name = name

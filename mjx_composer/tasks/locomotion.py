@@ -112,13 +112,36 @@ def policy_observable(obs, n_sub_steps, corruptor=None, delay=0, history=1):
 
   Returns:
     `obs`, enabled and configured.
+
+  Raises:
+    TypeError, ValueError: for an `obs` without `configure`, a `corruptor`
+      that is neither None nor callable, or a count that is not an integer
+      (`delay` >= 0, `n_sub_steps` and `history` >= 1): `2.5` is refused
+      rather than truncated.
   """
+  owner = 'policy_observable'
+  if not callable(getattr(obs, 'configure', None)):
+    raise TypeError(
+        f'{owner}: obs must be an observable, got {obs!r}. Pass e.g. '
+        'robot.observables.joints_pos or observable.Generic(fn).'
+    )
+  n_sub_steps = validation.check_integer(
+      'n_sub_steps', n_sub_steps, owner=owner, minimum=1
+  )
+  if corruptor is not None and not callable(corruptor):
+    raise TypeError(
+        f'{owner}: corruptor must be None or a callable '
+        f'corruptor(value, key) -> value, got {corruptor!r}. Pass e.g. '
+        'uniform_noise(0.05).'
+    )
+  delay = validation.check_integer('delay', delay, owner=owner, minimum=0)
+  history = validation.check_integer('history', history, owner=owner, minimum=1)
   obs.configure(
       enabled=True,
       update_interval=n_sub_steps,
       corruptor=corruptor,
-      delay=int(delay),
-      buffer_size=int(history),
+      delay=delay,
+      buffer_size=history,
   )
   return obs
 

@@ -7,10 +7,16 @@ For times since touch-down or lift-off, which need per-world state, see
 `observation.contact_sensor.ContactSensor`.
 """
 
+import numbers
+
 import jax.numpy as jnp
+import numpy as np
 
 from mjx_composer.observation import contacts as contacts_lib
 from mjx_composer.observation.observable import base
+from mjx_composer.utils import validation
+
+_OWNER = 'ContactFeature'
 
 # `contacts.Contacts` fields an observable can read, and their dtypes.
 KINDS = {
@@ -23,6 +29,15 @@ KINDS = {
     'distance': None,
     'valid': jnp.float32,
 }
+
+
+def _check_count(name, value):
+  """An observable's count option: None, an integer >= 0, or (for
+  `update_interval` and `delay`) a `Variation`, drawn per sample."""
+  if value is None:
+    return
+  if isinstance(value, (str, bytes, numbers.Number, np.generic)):
+    validation.check_integer(name, value, owner=_OWNER, minimum=0)
 
 
 class ContactFeature(base.Observable):
@@ -51,10 +66,34 @@ class ContactFeature(base.Observable):
       aggregator=None,
       corruptor=None,
   ):
-    if kind not in KINDS:
+    if not isinstance(kind, str) or kind not in KINDS:
       raise ValueError(
-          f'ContactFeature: unknown kind {kind!r}; choose one of '
-          f'{sorted(KINDS)}.'
+          f'{_OWNER}: unknown kind {kind!r}; choose one of {sorted(KINDS)}.'
+      )
+    if max_contacts is not None:
+      validation.check_integer(
+          'max_contacts', max_contacts, owner=_OWNER, minimum=1
+      )
+    # As every observable's: None or 0 means 1 sample, every sub-step.
+    for option, value in (
+        ('update_interval', update_interval),
+        ('buffer_size', buffer_size),
+        ('delay', delay),
+    ):
+      _check_count(option, value)
+    if not (
+        aggregator is None
+        or callable(aggregator)
+        or (isinstance(aggregator, str) and aggregator in base.AGGREGATORS)
+    ):
+      raise ValueError(
+          f'{_OWNER}: aggregator must be None, one of '
+          f'{sorted(base.AGGREGATORS)} or a callable, got {aggregator!r}.'
+      )
+    if corruptor is not None and not callable(corruptor):
+      raise TypeError(
+          f'{_OWNER}: corruptor must be None or a callable '
+          f'corruptor(value, key) -> value, got {corruptor!r}.'
       )
     self._kind = kind
     self._first = first
