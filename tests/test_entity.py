@@ -117,8 +117,12 @@ def test_frames_rotate_vectors_into_the_attachment_frame():
   local = np.asarray(child.global_xmat_to_local_frame(physics, xmat))
   flat = np.asarray(child.global_xmat_to_local_frame(physics, xmat.ravel()))
   np.testing.assert_allclose(local.ravel(), flat, atol=1e-6)
+  # Bindings give rotation matrices flat, as dm_control's Physics.bind does.
   frame_xmat = np.asarray(physics.bind(child.root_body).xmat)
-  np.testing.assert_allclose(local, frame_xmat.T @ xmat, atol=1e-6)
+  assert frame_xmat.shape == (9,)
+  np.testing.assert_allclose(
+      local, frame_xmat.reshape(3, 3).T @ xmat, atol=1e-6
+  )
 
 
 def _quat(axis, degrees):
