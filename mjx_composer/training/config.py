@@ -144,6 +144,9 @@ TASK_DEFAULTS: dict[str, dict[str, Any]] = {
     ),
 }
 TASK_DEFAULTS['joystick_rough'] = dict(TASK_DEFAULTS['joystick'])
+# The Go1 on generated terrain: the joystick's settings (its critic sees the
+# clean height scan and the privileged state).
+TASK_DEFAULTS['joystick_terrain'] = dict(TASK_DEFAULTS['joystick'])
 
 
 def field_names() -> tuple[str, ...]:
