@@ -61,18 +61,7 @@ _KINDS = {
 }
 KINDS_BY_NAME = {kind.name: kind for kind in _KINDS.values()}
 # The MjSpec list attribute that holds each kind's elements, in order.
-SPEC_LISTS = {
-    'body': 'bodies',
-    'geom': 'geoms',
-    'site': 'sites',
-    'joint': 'joints',
-    'actuator': 'actuators',
-    'sensor': 'sensors',
-    'tendon': 'tendons',
-    'camera': 'cameras',
-    'light': 'lights',
-    'equality': 'equalities',
-}
+SPEC_LISTS = pymjcf.SPEC_LISTS
 
 # Data fields indexed per element of a kind (first axis = element id).
 _DATA_PER_ELEMENT = {

@@ -38,7 +38,8 @@ BINDABLE_NAMESPACES = (
     'light',
     'equality',
 )
-_SPEC_LISTS = {
+# The MjSpec list attribute that holds each kind of element, in order.
+SPEC_LISTS = {
     'body': 'bodies',
     'geom': 'geoms',
     'site': 'sites',
@@ -146,7 +147,7 @@ def to_spec(root, frame_names: dict[int, str] | None = None):
   if root.model:
     spec.modelname = root.model
   by_name = {}
-  for kind, attr in _SPEC_LISTS.items():
+  for kind, attr in SPEC_LISTS.items():
     by_name[kind] = {h.name: h for h in getattr(spec, attr) if h.name}
   aliases = {id(root.worldbody): (root.worldbody, 'body', spec.worldbody)}
   for namespace in BINDABLE_NAMESPACES:
@@ -241,7 +242,7 @@ def elements(model, attr: str) -> list:
   that namespace, those of PyMJCF models attached inside it included.
   """
   if is_root(model):
-    namespace = {a: k for k, a in _SPEC_LISTS.items()}[attr]
+    namespace = {a: k for k, a in SPEC_LISTS.items()}[attr]
     return model.find_all(namespace)
   return list(getattr(model, attr))
 
