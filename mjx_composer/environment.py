@@ -101,13 +101,14 @@ def _choose_friction_cone(mj_model, impl):
   limit: it fails with "Indexer must have integer or boolean type"), nor
   with contacts of dimension 1. Without any contact the cone changes
   nothing, so such a model gets pyramidal cones (logged); with frictionless
-  contacts the cone matters and the build is refused with the fix.
+  contacts the cone matters and the build is refused with the fix. MuJoCo
+  Warp keeps the model's cone.
 
   Raises:
     NotImplementedError: elliptic cones with a contact of `condim` 1, on
       'jax'.
   """
-  if mj_model.opt.cone != mujoco.mjtCone.mjCONE_ELLIPTIC:
+  if impl != 'jax' or mj_model.opt.cone != mujoco.mjtCone.mjCONE_ELLIPTIC:
     return
   dims = internals.contact_dims(mj_model)
   if not np.size(dims):
@@ -116,7 +117,7 @@ def _choose_friction_cone(mj_model, impl):
         'nothing, and MJX cannot run it without contacts; using pyramidal.'
     )
     mj_model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
-  elif impl == 'jax' and np.any(np.asarray(dims) == 1):
+  elif np.any(np.asarray(dims) == 1):
     raise NotImplementedError(
         "The model has elliptic friction cones (composer's Arena default) "
         'and contacts of condim 1 (frictionless), which MJX cannot '
@@ -324,6 +325,8 @@ class Environment:
         naconmax=options.naconmax if on_warp else None,
         njmax=options.njmax if on_warp else None,
     )
+    if impl == 'jax':
+      model_checks.check_jax_collisions(self._mj_model)
     _choose_friction_cone(self._mj_model, impl)
     mjx_model, data0 = backend.put(
         self._mj_model,

@@ -48,6 +48,7 @@ from typing import Any
 from flax import struct
 import jax
 import jax.numpy as jnp
+import numpy as np
 import mujoco
 from mujoco import mjx
 
@@ -288,8 +289,35 @@ class Physics:
     flat; `ON_DEMAND_FIELDS` computed from the data)."""
     if address.source == 'data':
       self._check_fresh(address.field, address.index)
-    value = self.field(address.source, address.field)[address.index]
+    if (
+        address.source == 'data'
+        and self.batch_ndim
+        and (address.field in ON_DEMAND_FIELDS)
+    ):
+      raise NotImplementedError(
+          f'data.{address.field} is computed when read, one world at a time: '
+          "read it from one world's physics (env.physics(state) of "
+          'jax.tree.map(lambda x: x[i], state)), or inside jax.vmap.'
+      )
+    value = self.field(address.source, address.field)
+    value = value[self._batched(address, value)]
     return bindings.flat(address.field, value)
+
+  @property
+  def batch_ndim(self) -> int:
+    """How many leading batch axes this physics' data has (0: one world;
+    `Environment.physics` of a batched state has them)."""
+    return int(jnp.ndim(self.data.qpos)) - 1
+
+  def _batched(self, address: element_index.Address, value) -> tuple:
+    """`address.index` behind the batch axes `value` has: a data field has
+    the data's; a model field has them only where it is per-world."""
+    if address.source == 'data':
+      batch = self.batch_ndim
+    else:
+      per_world = getattr(self.mj_model, address.field, None)
+      batch = 0 if per_world is None else jnp.ndim(value) - np.ndim(per_world)
+    return (slice(None),) * max(batch, 0) + (address.index,)
 
   def field(self, source: str, name: str) -> jax.Array:
     """The whole `source` ('data' or 'model') field `name`, in MJX's shape
@@ -302,11 +330,12 @@ class Physics:
     bindings.check_writable(address.field)
     source = self.data if address.source == 'data' else self.model
     old = getattr(source, address.field)
-    target_shape = jax.eval_shape(lambda a: a[address.index], old).shape
+    where = self._batched(address, old)
+    target_shape = jax.eval_shape(lambda a: a[where], old).shape
     value = bindings.unflat(
         address.field, jnp.asarray(value, dtype=old.dtype), target_shape
     )
-    new = old.at[address.index].set(value)
+    new = old.at[where].set(value)
     if address.source == 'data':
       return self._written(
           self.replace(data=self.data.replace(**{address.field: new})),

@@ -222,6 +222,54 @@ def test_fields_mjx_computes_on_demand_read_right(scene):
     np.testing.assert_allclose(named, expected[2], atol=2e-4, err_msg=field)
 
 
+def test_a_batch_of_worlds_binds_each_worlds_values(scene):
+  """`Environment.physics` of a batched state: each element's value per
+  world, in dm_control's shape behind the batch axis, and writes land in
+  each world; a per-world model field is read per world, a shared one as
+  is."""
+  worlds = []
+  for qpos_z in (0.3, 0.5, 0.9):
+    data = mujoco.MjData(scene.model)
+    data.qpos[:] = scene.data.qpos
+    data.qpos[2] = qpos_z
+    data.qpos[7] = qpos_z - 0.5  # the hip
+    mujoco.mj_forward(scene.model, data)
+    worlds.append(data)
+  stacked = jax.tree.map(
+      lambda *x: jnp.stack(x),
+      *[mjx.put_data(scene.model, d) for d in worlds],
+  )
+  rgba = jnp.stack([jnp.full((scene.model.ngeom, 4), w) for w in range(3)])
+  physics = scene.physics(stacked)
+  physics = physics.replace(model=physics.model.replace(geom_rgba=rgba))
+  assert physics.batch_ndim == 1
+  leg, torso = scene.handle('body', 'leg'), scene.handle('body', 'torso')
+  geoms = scene.handle('geom', ['torso_geom', 'leg_geom'])
+  hip = scene.handle('joint', 'hip')
+  expected_xpos = np.stack([d.xpos[2] for d in worlds])
+  np.testing.assert_allclose(physics.bind(leg).xpos, expected_xpos, atol=1e-6)
+  np.testing.assert_allclose(
+      physics.bind([torso, leg]).xmat,
+      np.stack([d.xmat[1:3] for d in worlds]),
+      atol=1e-6,
+  )
+  np.testing.assert_allclose(
+      physics.named.data.xpos['leg'], expected_xpos, atol=1e-6
+  )
+  np.testing.assert_array_equal(
+      physics.bind(hip).qpos, np.array([[-0.2], [0.0], [0.4]], np.float32)
+  )
+  np.testing.assert_array_equal(
+      physics.bind(geoms).rgba, np.broadcast_to(rgba[:, 1:3], (3, 2, 4))
+  )
+  assert physics.bind(geoms).size.shape == (2, 3)  # shared by the worlds
+  written = physics.bind(hip).set(qpos=jnp.array([[1.0], [2.0], [3.0]]))
+  np.testing.assert_array_equal(written.data.qpos[:, 7], [1.0, 2.0, 3.0])
+  np.testing.assert_array_equal(written.data.qpos[:, :7], stacked.qpos[:, :7])
+  with pytest.raises(NotImplementedError, match='one world at a time'):
+    physics.bind(torso).subtree_linvel  # pylint: disable=expression-not-assigned
+
+
 def test_empty_binding_is_empty(scene):
   physics = scene.physics()
   binding = physics.bind([])

@@ -277,8 +277,12 @@ class PositionDetector(entity.Entity):
     del key
     if not self._retain_substep_detections:
       return physics
+    # The task's hook (which runs first) and initializers may have moved
+    # bodies with no forward pass since: detect from their new positions.
+    # (composer reads the stale ones here.)
+    moved = physics.kinematics()
     return physics.update_entity_state(
-        self, detected=self._instantaneous(physics)
+        self, detected=self._instantaneous(moved)
     )
 
   def before_step(self, physics, key):

@@ -13,6 +13,10 @@ MuJoCo into errors and warnings that say what to change:
   an integrator, solver or enable flag that MJX does not implement; a touch
   sensor on a site whose shape MJX cannot ray cast (a cylinder: MJX would
   fail while tracing the step, deep in its ray code);
+* errors (`NotImplementedError`, from `check_jax_collisions`, for the JAX
+  implementation only): geoms that collide in shapes MJX has no collision
+  function for (a cylinder against a box or a height field), named, where
+  MJX would fail while sizing its contacts with only the two type numbers;
 * one `MjxIgnoredOptionWarning` naming every option MJX's JAX backend accepts
   but ignores (e.g. `noslip_iterations > 0`: MJX has no noslip solver).
 """
@@ -25,6 +29,8 @@ import warnings
 
 import mujoco
 from mujoco import mjx
+
+from mjx_composer.platform import internals
 
 
 class MjxIgnoredOptionWarning(UserWarning):
@@ -163,6 +169,47 @@ def _check_touch_sites(mj_model):
         "shapes (a box or capsule of the cylinder's size, "
         'site.type = mujoco.mjtGeom.mjGEOM_BOX), or remove the sensor.'
     )
+
+
+def check_jax_collisions(mj_model: mujoco.MjModel):
+  """Raises where MJX's JAX implementation cannot collide two geoms.
+
+  Call it once per build that runs on `impl='jax'`, before anything sizes
+  MJX's contacts.
+
+  Args:
+    mj_model: the compiled host model.
+
+  Raises:
+    NotImplementedError: a pair of geoms that may touch (contype and
+      conaffinity, exclusions and `<pair>`s as MuJoCo's) has shapes MJX
+      implements no collision for; the message names every such pair.
+  """
+  missing = {}
+  for g1, g2 in internals.colliding_geom_pairs(mj_model):
+    t1, t2 = int(mj_model.geom_type[g1]), int(mj_model.geom_type[g2])
+    if internals.has_collision_function(t1, t2):
+      continue
+    types = tuple(mujoco.mjtGeom(t).name for t in (t1, t2))
+    names = tuple(
+        mujoco.mj_id2name(mj_model, mujoco.mjtObj.mjOBJ_GEOM, g) or f'#{g}'
+        for g in (g1, g2)
+    )
+    missing.setdefault(types, []).append(names)
+  if not missing:
+    return
+  lines = []
+  for (type1, type2), pairs in missing.items():
+    shown = ', '.join(f'{a!r} with {b!r}' for a, b in pairs[:5])
+    more = f' and {len(pairs) - 5} more' if len(pairs) > 5 else ''
+    lines.append(f'{type1} with {type2}: {shown}{more}')
+  raise NotImplementedError(
+      'MJX has no collision function for these shapes, and these geoms may '
+      'touch: ' + '; '.join(lines) + '. Give one geom of each pair another '
+      'shape (a capsule or box instead of a cylinder), or keep the pair from '
+      'colliding (contype/conaffinity 0 on a visual geom, or an <exclude> '
+      'of their bodies).'
+  )
 
 
 def _check_rejected(opt):

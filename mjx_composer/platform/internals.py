@@ -183,6 +183,22 @@ def collision_pair_groups(mj_model) -> dict:
   return _collision_driver._geom_groups(mj_model)
 
 
+def colliding_geom_pairs(mj_model) -> list[tuple[int, int]]:
+  """`mujoco.mjx._src.collision_driver.geom_pairs(mj_model)`'s geom ids.
+
+  Every pair of geoms MJX's JAX implementation tests for contact, after
+  contype/conaffinity, exclusions and parent filtering, `<pair>`s included.
+  """
+  return [
+      (int(g1), int(g2)) for g1, g2, _ in _collision_driver.geom_pairs(mj_model)
+  ]
+
+
+def has_collision_function(type1: int, type2: int) -> bool:
+  """Whether MJX's JAX implementation collides geoms of these two types."""
+  return bool(_collision_driver.has_collision_fn(type1, type2))
+
+
 def contact_dims(mj_model):
   """`mujoco.mjx._src.collision_driver.make_condim(mj_model)`.
 

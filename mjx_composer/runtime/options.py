@@ -73,8 +73,9 @@ class ExecutionOptions:
       copy of the forward pass (`Transitions.step_and_restart`,
       `Transitions.reset_or_step`): it compiles faster, and on a GPU runs
       slightly slower than the separate restart. False runs the sub-steps as
-      a `lax.scan` of `mjx.step` and the restart separately. Results are
-      bit-identical either way. Models the fused loop cannot run exactly
+      a `lax.scan` of `mjx.step` and the restart separately. States are
+      bit-identical either way; a reward, computed in other fusions of the
+      compiled program, may differ in its last bits (a few ulps). Models the fused loop cannot run exactly
       (RK4, muscles, actuator gravity compensation) always take the
       separate restart. None (default): True on a CPU with impl='jax', where
       runs are short and compiling dominates; False elsewhere (and with

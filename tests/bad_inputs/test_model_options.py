@@ -261,3 +261,27 @@ def test_elliptic_cones_with_frictionless_contacts_say_what_to_change():
     composer.Environment(
         composer.NullTask(arena), options=composer.ExecutionOptions(impl='jax')
     )
+
+
+def test_shapes_mjx_cannot_collide_are_named_with_the_fix():
+  """MJX fails sizing its contacts with only the two type numbers
+  ("Collision function not found for geom types 5, 6")."""
+  arena = composer.Arena()
+  cylinder = composer.ModelWrapperEntity(mujoco.MjSpec())
+  body = cylinder.mjcf_model.worldbody.add_body(name='drum')
+  body.add_geom(
+      name='drum_geom', type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[0.1, 0.1, 0]
+  )
+  arena.add_free_entity(cylinder)
+  arena.mjcf_model.worldbody.add_geom(
+      name='crate', type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.2, 0.2, 0.2]
+  )
+  with pytest.raises(
+      NotImplementedError,
+      match=r'no collision function.*mjGEOM_CYLINDER with mjGEOM_BOX: '
+      r"'modelwrapperentity/drum_geom' with 'crate'.*capsule or box instead "
+      r'of a cylinder.*<exclude>',
+  ):
+    composer.Environment(
+        composer.NullTask(arena), options=composer.ExecutionOptions(impl='jax')
+    )

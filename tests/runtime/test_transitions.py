@@ -143,7 +143,12 @@ def test_fused_single_world_equals_step_then_restart(env, reset_states):
   for t in range(7):
     action = jnp.full((1,), np.sin(t))
     a, b = fused(a, action), reference(b, action)
-    test_environment.assert_trees_equal(a, b)
+    # The state is bit-for-bit the composition's. The reward, computed
+    # inside the fused loop's last iteration rather than after the loop,
+    # is compiled into other fusions: it may round differently in the
+    # last bits (2 ulps seen; 4 allowed).
+    test_environment.assert_trees_equal(a.replace(reward=b.reward), b)
+    np.testing.assert_array_max_ulp(a.reward, b.reward, maxulp=4)
     resets += bool(a.first() if env.auto_reset == 'next_step' else a.last())
   assert resets  # the reset iteration ran
 
