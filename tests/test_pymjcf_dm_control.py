@@ -1,10 +1,10 @@
 """dm_control's own walkers, arenas and props, used unchanged.
 
-Five of them (`EmptyCorridor`, `Ant`, `RollingBallWithHead`, `TargetSphere`
-and composer's `Primitive`) compose into one environment that steps batched;
-`Floor`, `Bowl`, the `Rat` and the CMU humanoid compose and compile. The
-reference is dm_control's own composition of the same classes (PyMJCF's
-`attach`, compiled by `mjcf.Physics`).
+Five of them (`Floor`, `Ant`, `TargetSphere` and composer's `Primitive` and
+`PositionDetector`) compose into one environment that steps batched;
+`EmptyCorridor` with `RollingBallWithHead`, `Bowl`, the `Rat` and the CMU
+humanoid compose and compile. The reference is dm_control's own composition
+of the same classes (PyMJCF's `attach`, compiled by `mjcf.Physics`).
 """
 
 from dm_control import mjcf
@@ -27,18 +27,34 @@ from mjx_composer.entities.dm_control_entity import DmControlEntity
 _BATCH = 2
 
 
-def _parts():
+def _stepped_parts():
+  """The five classes the batched environment steps."""
   return dict(
-      arena=corridors.EmptyCorridor(),
+      arena=floors.Floor(size=(4, 4)),
       ant=ant.Ant(name='ant'),
-      ball=jumping_ball.RollingBallWithHead(name='ball'),
       target=target_sphere.TargetSphere(name='target'),
-      box=props.Primitive(geom_type='sphere', size=[0.1], name='box'),
+      ball=props.Primitive(geom_type='sphere', size=[0.1], name='ball'),
+      detector=props.PositionDetector(
+          pos=(0, 0, 0.5), size=(1, 1, 1), name='detector'
+      ),
   )
 
 
+def _compose(parts, entity):
+  """`parts` composed as the batched environment composes them, by
+  `entity(part)` (a `DmControlEntity`, or the part itself for dm_control's
+  own composition); returns the arena and the walker."""
+  arena = entity(parts['arena'])
+  walker = entity(parts['ant'])
+  arena.add_free_entity(walker)
+  arena.add_free_entity(entity(parts['ball']))
+  arena.attach(entity(parts['target']))
+  arena.attach(entity(parts['detector']))
+  return arena, walker
+
+
 class _Task(composer.NullTask):
-  """Drives the walkers' actuators with the action."""
+  """Drives the walker's actuators with the action."""
 
   def __init__(self, arena, actuators):
     super().__init__(arena)
@@ -50,22 +66,25 @@ class _Task(composer.NullTask):
 
 @pytest.fixture(scope='module')
 def scene():
-  parts = _parts()
-  arena = DmControlEntity(parts['arena'])
-  walker = DmControlEntity(parts['ant'])
-  arena.add_free_entity(walker)
-  arena.add_free_entity(DmControlEntity(parts['ball']))
-  arena.attach(DmControlEntity(parts['target']))
-  box = DmControlEntity(parts['box'])
-  arena.add_free_entity(box)
-  actuators = list(parts['ant'].actuators) + list(parts['ball'].actuators)
-  task = _Task(arena, actuators)
-  env = composer.Environment(task)
-  return env, parts, walker, box
+  parts = _stepped_parts()
+  arena, walker = _compose(parts, DmControlEntity)
+  env = composer.Environment(_Task(arena, list(parts['ant'].actuators)))
+  return env, parts, walker
+
+
+def _assert_same_model(mine, theirs):
+  for size in ('nq', 'nv', 'nu', 'nbody', 'ngeom', 'nsite', 'nsensor'):
+    assert getattr(mine, size) == getattr(theirs, size), size
+  for i in range(mine.nbody):
+    assert mine.body(i).name == theirs.body(i).name
+  np.testing.assert_allclose(mine.body_mass, theirs.body_mass, rtol=1e-6)
+  np.testing.assert_allclose(mine.body_pos, theirs.body_pos, atol=1e-7)
+  np.testing.assert_allclose(mine.geom_size, theirs.geom_size, rtol=1e-6)
+  np.testing.assert_allclose(mine.qpos0, theirs.qpos0, atol=1e-7)
 
 
 def test_five_dm_control_classes_step_batched(scene):
-  env, parts, walker, box = scene
+  env, parts, walker = scene
   reset = jax.jit(jax.vmap(env.reset))
   step = jax.jit(jax.vmap(env.step))
   state = reset(jax.random.split(jax.random.key(0), _BATCH))
@@ -79,28 +98,32 @@ def test_five_dm_control_classes_step_batched(scene):
   )
   torso = np.asarray(physics.bind(parts['ant'].root_body).xpos)
   assert torso.shape == (_BATCH, 3) and np.all(np.isfinite(torso))
+  np.testing.assert_array_equal(
+      torso, np.asarray(state.data.xpos)[:, env.mj_model.body('ant/torso').id]
+  )
   # The MJCFFeature observables of the walker came along.
   assert 'joints_pos' in walker.observables.as_dict(fully_qualified=False)
 
 
 def test_the_composed_model_is_dm_controls(scene):
   env, *_ = scene
-  parts = _parts()
-  root = parts['arena'].mjcf_model
-  parts['arena'].add_free_entity(parts['ant'])
-  parts['arena'].add_free_entity(parts['ball'])
-  parts['arena'].attach(parts['target'])
-  parts['arena'].add_free_entity(parts['box'])
-  theirs = mjcf.Physics.from_mjcf_model(root).model.ptr
-  mine = env.mj_model
-  for size in ('nq', 'nv', 'nu', 'nbody', 'ngeom', 'nsite', 'nsensor'):
-    assert getattr(mine, size) == getattr(theirs, size), size
-  for i in range(mine.nbody):
-    assert mine.body(i).name == theirs.body(i).name
-  np.testing.assert_allclose(mine.body_mass, theirs.body_mass, rtol=1e-6)
-  np.testing.assert_allclose(mine.body_pos, theirs.body_pos, atol=1e-7)
-  np.testing.assert_allclose(mine.geom_size, theirs.geom_size, rtol=1e-6)
-  np.testing.assert_allclose(mine.qpos0, theirs.qpos0, atol=1e-7)
+  dm_arena, _ = _compose(_stepped_parts(), lambda part: part)
+  _assert_same_model(
+      env.mj_model, mjcf.Physics.from_mjcf_model(dm_arena.mjcf_model).model.ptr
+  )
+
+
+def test_a_corridor_with_a_rolling_ball_composes_as_dm_controls():
+  def compose(entity):
+    arena = entity(corridors.EmptyCorridor())
+    arena.add_free_entity(entity(jumping_ball.RollingBallWithHead(name='ball')))
+    return arena
+
+  spec, _ = compose(DmControlEntity).compose()
+  dm_root = compose(lambda part: part).mjcf_model
+  _assert_same_model(
+      spec.compile(), mjcf.Physics.from_mjcf_model(dm_root).model.ptr
+  )
 
 
 @pytest.mark.parametrize(
