@@ -1,6 +1,9 @@
-"""`mjx-composer train|play|export` on the CPU: one tiny reach run, resumed.
+"""`mjx-composer train|play|export` on the CPU: one tiny run, resumed.
 
-One module-scoped run folder (tiny networks, four worlds, one update per
+The task is the tests' pendulum swing, registered as 'swing' for this
+module: the commands are the same for every registered task, and the
+pendulum compiles in seconds where a bundled robot takes minutes. One
+module-scoped run folder (tiny networks, four worlds, one update per
 evaluation) is trained for two evaluations, then resumed for one more; the
 tests read it, play it, export it and break copies of it.
 """
@@ -14,6 +17,8 @@ import numpy as np
 import pytest
 
 from mjx_composer import cli
+from mjx_composer.observation import groups as groups_lib
+from mjx_composer.tasks import registry
 from mjx_composer.training import checkpoints
 from mjx_composer.training import config as config_lib
 from mjx_composer.training import export as export_lib
@@ -21,25 +26,46 @@ from mjx_composer.training import metrics as metrics_lib
 from mjx_composer.training import policy as policy_lib
 from mjx_composer.training import run_folder
 from mjx_composer.training import video
+from tests import conftest
 
 # 4 worlds x 5 steps x 2 minibatches of 4... : 40 env steps per update, one
-# update per evaluation; episodes of 5 control steps (0.1 s).
+# update per evaluation; episodes of 5 control steps (0.05 s).
 _STEPS_PER_EVAL = 40
 _TINY = [
     '--num-envs', '4', '--batch-size', '4', '--num-minibatches', '2',
     '--unroll-length', '5', '--num-updates-per-batch', '1',
-    '--num-evals', '3', '--num-eval-envs', '2', '--time-limit', '0.1',
+    '--num-evals', '3', '--num-eval-envs', '2', '--time-limit', '0.05',
     '--policy-layers', '8', '--value-layers', '8',
     '--video-every', '2', '--video-worlds', '2', '--video-steps', '6',
     '--video-size', '32', '48',
 ]  # fmt: skip
 
 
+class _Swing(conftest.SwingTask):
+  """The swing task with the policy and critic groups training reads."""
+
+  def observation_groups(self):
+    return {
+        'policy': groups_lib.ObservationGroup(keys=['tip'], flatten=True),
+        'critic': groups_lib.ObservationGroup(
+            keys=['tip'], corrupted=False, flatten=True
+        ),
+    }
+
+
+@pytest.fixture(scope='module', autouse=True)
+def swing():
+  """The 'swing' task, registered while this module's tests run."""
+  registry.register('swing', _Swing, description='The tests pendulum.')
+  yield
+  registry.unregister('swing')
+
+
 @pytest.fixture(scope='module')
 def trained(tmp_path_factory):
   """`(run path, the first part's newest checkpoint)` of a resumed run."""
-  path = str(tmp_path_factory.mktemp('runs') / 'reach')
-  argv = ['train', 'reach', '--run-dir', path, '--num-timesteps', '80']
+  path = str(tmp_path_factory.mktemp('runs') / 'swing')
+  argv = ['train', 'swing', '--run-dir', path, '--num-timesteps', '80']
   assert cli.main(argv + _TINY) == 0
   first = checkpoints.latest(run_folder.RunFolder(path))
   with open(os.path.join(path, 'summary.json')) as f:
@@ -52,7 +78,7 @@ def test_the_run_folder_holds_everything(trained):
   path, _, first_summary = trained
   run = run_folder.RunFolder(path)
   config = run.read_config()
-  assert config.task == 'reach' and config.num_timesteps == 120
+  assert config.task == 'swing' and config.num_timesteps == 120
   assert config.policy_layers == (8,) and config.num_envs == 4
   names = [os.path.basename(p) for p in checkpoints.paths(run)]
   assert names == [f'step_{s:012d}.pkl' for s in (40, 80, 120)]
@@ -144,8 +170,8 @@ def test_export_matches_the_jax_policy_in_onnxruntime(trained, tmp_path):
   assert sum(sizes) == meta['observation_size'] == obs['policy'].shape[-1]
   assert meta['control_timestep'] == pytest.approx(env.control_timestep())
   assert meta['action_size'] == brax_env.action_size
-  assert meta['step'] == 120 and meta['task'] == 'reach'
-  assert meta['default_joint_positions'] is None  # the arm has no home pose
+  assert meta['step'] == 120 and meta['task'] == 'swing'
+  assert meta['default_joint_positions'] is None  # no home pose
 
 
 def test_corrupted_run_folders_are_refused(trained, tmp_path, capsys):
@@ -168,7 +194,7 @@ def test_corrupted_run_folders_are_refused(trained, tmp_path, capsys):
 def test_mismatched_run_folders_are_refused(trained, tmp_path, capsys):
   path, _, _ = trained
   assert cli.main(['train', 'push', '--resume', path]) == 2
-  assert "trains task 'reach', not 'push'" in capsys.readouterr().err
+  assert "trains task 'swing', not 'push'" in capsys.readouterr().err
   assert cli.main(['train', '--resume', path, '--learning-rate', '1']) == 2
   assert "['learning_rate'] differ" in capsys.readouterr().err
   # A checkpoint whose networks no longer fit the task's observations.

@@ -125,6 +125,8 @@ def render_rollout(env, task, states, size=(120, 160), camera=None):
         if isinstance(state.task_state, dict)
         else None
     )
+    if target is not None and np.shape(target)[-1:] != (3,):
+      target = None  # Not a position (a target height, a speed...).
     images = rendering.render(
         env,
         state,
