@@ -550,7 +550,8 @@ class Environment:
     return self._transitions.initial
 
   def physics(self, state: State) -> physics_lib.Physics:
-    """The `Physics` of a state (a batch of them if the state is batched).
+    """The `Physics` of a state (a batch of them if the state is batched:
+    its bindings then read and write every world, behind the batch axes).
 
     Every derived quantity of its data is the forward pass's: where the
     state comes from a reset whose stage of the forward pass skipped some
