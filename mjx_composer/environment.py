@@ -93,7 +93,7 @@ class EpisodeInitializationError(RuntimeError):
   """
 
 
-def _choose_friction_cone(mj_model, impl):
+def _choose_friction_cone(mj_model):
   """Makes the compiled model's friction cone one MJX can run.
 
   composer's `Arena` asks for elliptic cones. MJX's JAX solver cannot run
@@ -101,14 +101,13 @@ def _choose_friction_cone(mj_model, impl):
   limit: it fails with "Indexer must have integer or boolean type"), nor
   with contacts of dimension 1. Without any contact the cone changes
   nothing, so such a model gets pyramidal cones (logged); with frictionless
-  contacts the cone matters and the build is refused with the fix. MuJoCo
-  Warp keeps the model's cone.
+  contacts the cone matters and the build is refused with the fix. Called
+  for impl='jax' only: MuJoCo Warp keeps the model's cone.
 
   Raises:
-    NotImplementedError: elliptic cones with a contact of `condim` 1, on
-      'jax'.
+    NotImplementedError: elliptic cones with a contact of `condim` 1.
   """
-  if impl != 'jax' or mj_model.opt.cone != mujoco.mjtCone.mjCONE_ELLIPTIC:
+  if mj_model.opt.cone != mujoco.mjtCone.mjCONE_ELLIPTIC:
     return
   dims = internals.contact_dims(mj_model)
   if not np.size(dims):
@@ -327,7 +326,7 @@ class Environment:
     )
     if impl == 'jax':
       model_checks.check_jax_collisions(self._mj_model)
-    _choose_friction_cone(self._mj_model, impl)
+      _choose_friction_cone(self._mj_model)
     mjx_model, data0 = backend.put(
         self._mj_model,
         impl,

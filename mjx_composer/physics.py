@@ -48,9 +48,9 @@ from typing import Any
 from flax import struct
 import jax
 import jax.numpy as jnp
-import numpy as np
 import mujoco
 from mujoco import mjx
+import numpy as np
 
 from mjx_composer import bindings
 from mjx_composer.model import element_index

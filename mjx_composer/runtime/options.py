@@ -75,9 +75,9 @@ class ExecutionOptions:
       slightly slower than the separate restart. False runs the sub-steps as
       a `lax.scan` of `mjx.step` and the restart separately. States are
       bit-identical either way; a reward, computed in other fusions of the
-      compiled program, may differ in its last bits (a few ulps). Models the fused loop cannot run exactly
-      (RK4, muscles, actuator gravity compensation) always take the
-      separate restart. None (default): True on a CPU with impl='jax', where
+      compiled program, may differ in its last bits (a few ulps). Models
+      the fused loop cannot run exactly (RK4, muscles, actuator gravity
+      compensation) always take the separate restart. None (default): True on a CPU with impl='jax', where
       runs are short and compiling dominates; False elsewhere (and with
       `auto_reset_batch`). impl='warp' refuses True (`backend`).
     auto_reset_batch: under `jax.vmap`, how many worlds' auto-resets are
