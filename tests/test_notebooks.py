@@ -63,15 +63,21 @@ def _code_cells(nb):
 
 
 def _text(nb) -> str:
-  """The notebook's printed and text/plain outputs, joined."""
+  """The notebook's printed and text/plain outputs, as a reader sees them.
+
+  The kernel sends stdout in chunks as its IO thread flushes, so one printed
+  line may arrive as two stream outputs: stdout chunks are concatenated as
+  they came (they carry their own newlines), and stderr, which may arrive
+  between them, is left out.
+  """
   parts = []
   for cell in _code_cells(nb):
     for output in cell.outputs:
-      if output.output_type == 'stream':
+      if output.output_type == 'stream' and output.name == 'stdout':
         parts.append(output.text)
       elif output.output_type in ('display_data', 'execute_result'):
-        parts.append(output.data.get('text/plain', ''))
-  return '\n'.join(parts)
+        parts.append(f"\n{output.data.get('text/plain', '')}\n")
+  return ''.join(parts)
 
 
 def _images(nb) -> list:
@@ -96,7 +102,9 @@ def _check_outputs(nb, name):
   assert _images(nb), f'{name}: no image/png output'
   text = _text(nb)
   for pattern in _EXPECTED_TEXT[name]:
-    assert re.search(pattern, text), f'{name}: no output matches {pattern!r}'
+    assert re.search(
+        pattern, text
+    ), f'{name}: no output matches {pattern!r} in:\n{text}'
   if name == 'getting_started.ipynb':
     # Domain randomization: the variator scales the ball's 0.06 m radius by
     # U(0.5, 2) per world, so the shown worlds differ within those bounds.
