@@ -15,13 +15,16 @@ import gzip
 import json
 import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
 import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-TASKS = ('reach', 'push', 'walk', 'joystick')
+TASKS = ('reach', 'push', 'walk', 'joystick', 'joystick_terrain')
 
 
 # -- environments ------------------------------------------------------------
@@ -46,6 +49,10 @@ def make_task(name='reach', **task_kwargs):
     from mjx_composer.tasks import joystick
 
     return joystick.Joystick(**task_kwargs)
+  if name == 'joystick_terrain':
+    from mjx_composer.tasks import joystick_terrain
+
+    return joystick_terrain.TerrainJoystick(**task_kwargs)
   # pylint: enable=g-import-not-at-top
   raise ValueError(f'Unknown task {name!r}; choose from {TASKS}.')
 
@@ -196,18 +203,20 @@ def raw_rollout(model, n_sub_steps, steps, jit=True):
   return jax.jit(rollout) if jit else rollout
 
 
-def raw_reset(model, noise=0.01, jit=True):
+def raw_reset(model, noise=0.01, jit=True, qpos=None):
   """Raw MJX's batched reset: `reset(keys) -> data`.
 
-  Per world: `mjx.make_data`, `qpos0` plus `noise` x a standard normal
-  sample from the world's key (so that the worlds differ and XLA cannot fold
-  the reset into a constant), then `mjx.forward`.
+  Per world: `mjx.make_data`, `qpos` (None: the model's `qpos0`) plus
+  `noise` x a standard normal sample from the world's key (so that the
+  worlds differ and XLA cannot fold the reset into a constant), then
+  `mjx.forward`.
   """
 
   def reset_one(key):
     data = mjx.make_data(model)
-    qpos = data.qpos + noise * jax.random.normal(key, data.qpos.shape)
-    return mjx.forward(model, data.replace(qpos=qpos))
+    start = data.qpos if qpos is None else jnp.asarray(qpos, data.qpos.dtype)
+    noisy = start + noise * jax.random.normal(key, data.qpos.shape)
+    return mjx.forward(model, data.replace(qpos=noisy))
 
   reset = jax.vmap(reset_one)
   return jax.jit(reset) if jit else reset
@@ -349,6 +358,23 @@ def print_device():
   device = jax.devices()[0]
   print(f'JAX {jax.__version__}, {device.platform}: {device.device_kind}')
   return device
+
+
+def run_isolated(script, argv):
+  """Runs `script` with `argv` in a fresh Python process; its JSON or None.
+
+  For `--isolated` measurements: the script is given `--out` (a temporary
+  file) after `argv` and must write its results there, as `write_results`
+  does. Returns the payload it wrote, or None if the process failed (its
+  output, not captured, says why).
+  """
+  with tempfile.TemporaryDirectory() as tmp:
+    out = os.path.join(tmp, 'results.json')
+    command = [sys.executable, os.path.abspath(script), *argv, '--out', out]
+    if subprocess.run(command, check=False).returncode:
+      return None
+    with open(out) as f:
+      return json.load(f)
 
 
 def write_results(path, device, results, **settings):

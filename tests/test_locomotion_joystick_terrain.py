@@ -5,13 +5,14 @@ worlds, 3 control steps) is built for the module.
 """
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from mjx_composer import environment
+from mjx_composer.tasks import joystick
 from mjx_composer.tasks import joystick_terrain
 from mjx_composer.tasks import registry
+from tests import terrain_tasks
 
 _WORLDS = 2
 _STEPS = 3
@@ -28,14 +29,9 @@ def run():
       scan_size=(0.4, 0.2),
       push_interval=0,
   )
-  env = environment.Environment(task, time_limit=1.0)
-  states = [
-      jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(2), _WORLDS))
-  ]
-  step = jax.jit(jax.vmap(env.step))
-  actions = np.random.default_rng(0).uniform(-0.3, 0.3, (_STEPS, _WORLDS, 12))
-  for action in actions:
-    states.append(step(states[-1], jnp.asarray(action, jnp.float32)))
+  env, states, _ = terrain_tasks.rollout(
+      task, worlds=_WORLDS, steps=_STEPS, time_limit=1.0
+  )
 
   @jax.jit
   @jax.vmap
@@ -48,18 +44,10 @@ def run():
 
 def test_worlds_spawn_on_a_tile_of_their_level(run):
   env, states, _ = run
-  first = states[0]
-  levels = first.metrics['terrain_level']
-  assert set(levels) <= {0.0, 1.0}
-  points = env.task.terrain.spawn_points
-  for world in range(_WORLDS):
-    level = int(levels[world])
-    xy = first.data.qpos[world, :2]
-    gaps = np.max(np.abs(points[level, :, :2] - xy), axis=-1)
-    assert gaps.min() <= 0.5 + 1e-5  # On a platform of its level.
-    kind = int(np.argmin(gaps))
-    height = first.data.qpos[world, 2] - points[level, kind, 2]
-    assert height == pytest.approx(env.task.go1.home_height + 0.01, abs=1e-5)
+  # Joystick's spread of the initial position: U(-0.5, 0.5) m per axis.
+  terrain_tasks.assert_spawned_on_its_level(
+      env, states[0], env.task.go1.home_height + 0.01, spread=0.5
+  )
 
 
 def test_policy_sees_the_height_scan_and_the_critic_its_clean_twin(run):
@@ -96,3 +84,22 @@ def test_registered():
   assert 'joystick_terrain' in registry.names()
   with pytest.raises(TypeError, match='terrain'):
     joystick_terrain.TerrainJoystick(terrain='rough')
+
+
+def test_height_scan_off_leaves_joystick_groups():
+  off = environment.Environment(
+      joystick_terrain.TerrainJoystick(
+          kinds=('flat',), levels=1, initial_levels=(0, 0), height_scan=False
+      ),
+      time_limit=1.0,
+  )
+  flat = environment.Environment(
+      joystick.Joystick(terrain='flat'), time_limit=1.0
+  )
+  assert off.task.height_scan is None
+  assert not {'height_scan', 'privileged_height_scan'} & set(
+      off.task.task_observables
+  )
+  assert {k: v.shape for k, v in off.observation_spec().items()} == {
+      k: v.shape for k, v in flat.observation_spec().items()
+  }

@@ -15,7 +15,8 @@ a reusable piece of `mjx_composer.locomotion`:
   (+U(-0.5, 0.5) m around the platform's centre);
 * the policy sees a `HeightScan` of the terrain (a 1.6 m x 1.0 m grid every
   0.1 m around the trunk, aligned with its heading) with U(-0.1, 0.1) m
-  noise per ray, and the critic its clean twin;
+  noise per ray, and the critic its clean twin (`height_scan=False`: no
+  scan, `Joystick`'s observation groups);
 * an `ActuationDelay` delays the motors by a per-episode draw of
   `actuation_delay` physics sub-steps;
 * the command is `Joystick`'s `VelocityCommand`.
@@ -27,11 +28,9 @@ simulation time; the defaults keep 5 levels of 4 m tiles.
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from mjx_composer.locomotion import actuation_delay as delay_lib
 from mjx_composer.locomotion import curriculum as curriculum_lib
-from mjx_composer.locomotion import height_scan as height_scan_lib
 from mjx_composer.locomotion import sub_terrains
 from mjx_composer.locomotion import terrain as terrain_lib
 from mjx_composer.observation import groups as groups_lib
@@ -40,38 +39,6 @@ from mjx_composer.tasks import locomotion
 from mjx_composer.utils import validation
 
 HEIGHT_SCAN_NOISE = 0.1  # Metres, per ray (Isaac Lab's height_scan noise).
-
-
-def _check_arguments(**kwargs):
-  """`TerrainJoystick`'s own arguments, checked before anything is built."""
-  v, owner = validation, 'TerrainJoystick'
-  kinds = kwargs['kinds']
-  if (
-      isinstance(kinds, str)
-      or not isinstance(kinds, (tuple, list))
-      or not kinds
-  ):
-    raise TypeError(
-        f'{owner}: `kinds` must be a non-empty sequence of sub-terrain '
-        f'names, got {kinds!r}. Pass e.g. kinds=sub_terrains.KINDS.'
-    )
-  v.check_integer('levels', kwargs['levels'], owner=owner, minimum=1)
-  for name in ('initial_levels', 'actuation_delay'):
-    pair = kwargs[name]
-    v.check_range_pair(name, pair, owner=owner, nonnegative=True)
-    for i, bound in enumerate(pair):
-      v.check_integer(f'{name}[{i}]', bound, owner=owner, minimum=0)
-  size = kwargs['scan_size']
-  if isinstance(size, str) or np.ndim(size) != 1 or len(size) != 2:
-    raise TypeError(
-        f'{owner}: `scan_size` must be a (length, width) pair, got {size!r}. '
-        'Pass two positive numbers of metres, e.g. (1.6, 1.0).'
-    )
-  v.check_positive('scan_size', size, owner=owner)
-  v.check_positive('scan_resolution', kwargs['scan_resolution'], owner=owner)
-  v.check_integer(
-      'terrain_seed', kwargs['terrain_seed'], owner=owner, minimum=0
-  )
 
 
 class TerrainJoystick(joystick.Joystick):
@@ -86,6 +53,8 @@ class TerrainJoystick(joystick.Joystick):
     scan_size: (length, width) of the height scan's grid, metres.
     scan_resolution: the height scan's spacing, metres.
     terrain_seed: the seed of the random sub-terrains.
+    height_scan: whether the policy and the critic observe the height scan
+      (False: neither does, and no rays are cast).
     **kwargs: `Joystick`'s arguments (not `terrain`).
   """
 
@@ -99,9 +68,11 @@ class TerrainJoystick(joystick.Joystick):
       scan_size=(1.6, 1.0),
       scan_resolution=0.1,
       terrain_seed=0,
+      height_scan=True,
       **kwargs,
   ):
-    _check_arguments(
+    locomotion.check_terrain_arguments(
+        'TerrainJoystick',
         kinds=kinds,
         levels=levels,
         initial_levels=initial_levels,
@@ -109,6 +80,7 @@ class TerrainJoystick(joystick.Joystick):
         scan_size=scan_size,
         scan_resolution=scan_resolution,
         terrain_seed=terrain_seed,
+        height_scan=height_scan,
     )
     if 'terrain' in kwargs:
       raise TypeError(
@@ -131,21 +103,18 @@ class TerrainJoystick(joystick.Joystick):
         self._arena, initial_levels=initial_levels
     )
     self._delay = delay_lib.ActuationDelay(self.go1.actuators, actuation_delay)
-    scan = height_scan_lib.HeightScan(
+    self._scan = self._scan_twin = None
+    if not height_scan:
+      return
+    self._scan, self._scan_twin = locomotion.policy_height_scan(
         self.go1.trunk,
-        size=scan_size,
-        resolution=scan_resolution,
-        geomgroup=self._arena.geomgroup,
-    )
-    noise = self._noise_level * HEIGHT_SCAN_NOISE
-    locomotion.policy_observable(
-        scan,
+        self._arena,
+        scan_size,
+        scan_resolution,
         self.physics_steps_per_control_step,
-        corruptor=locomotion.uniform_noise(noise) if noise else None,
+        noise=self._noise_level * HEIGHT_SCAN_NOISE,
         delay=self._observation_delay,
     )
-    self._scan = scan
-    self._scan_twin = locomotion.clean_twin(scan)
 
   def _build_arena(self, terrain):
     del terrain
@@ -178,10 +147,13 @@ class TerrainJoystick(joystick.Joystick):
 
   @property
   def height_scan(self):
+    """The policy's `HeightScan` (None with `height_scan=False`)."""
     return self._scan
 
   @property
   def task_observables(self):
+    if self._scan is None:
+      return super().task_observables
     return {
         **super().task_observables,
         'height_scan': self._scan,
@@ -190,6 +162,8 @@ class TerrainJoystick(joystick.Joystick):
 
   def observation_groups(self):
     groups = super().observation_groups()
+    if self._scan is None:
+      return groups
     policy, critic = groups['policy'], groups['critic']
     return {
         'policy': groups_lib.ObservationGroup(

@@ -1,0 +1,70 @@
+"""benchmarks/locomotion_parts.py: the programs' environments and the
+derived figures (host builds only; nothing is compiled)."""
+
+import os
+import sys
+
+import mujoco
+import numpy as np
+import pytest
+
+sys.path.insert(
+    0, os.path.join(os.path.dirname(os.path.dirname(__file__)), 'benchmarks')
+)
+import locomotion_parts  # pylint: disable=g-import-not-at-top,wrong-import-position
+
+
+def test_parts_off_switches_off_what_the_constructor_allows():
+  envs = locomotion_parts.make_envs(['raw', 'parts_off'])
+  assert set(envs) == {'parts_on', 'parts_off'}  # raw steps parts_on's model
+  on, off = envs['parts_on'].task, envs['parts_off'].task
+  assert on.height_scan is not None and off.height_scan is None
+  assert off.terrain.kinds == ('flat',) and off.terrain.levels == 1
+  assert len(off.terrain.boxes) == 0 and not off.terrain.heights.any()
+  assert off.curriculum.initial_levels == (0, 0)
+  assert off.actuation_delay.delay_range == (0, 0)
+  assert on.actuation_delay.delay_range == (0, 2)
+  assert len(on.terrain.boxes) > 0
+
+
+def test_raw_starts_on_the_first_spawn_platform():
+  env = locomotion_parts.make_envs(['parts_on'])['parts_on']
+  qpos = locomotion_parts.raw_start(env)
+  model = env.mj_model
+  (free,) = np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_FREE)
+  adr = model.jnt_qposadr[free]
+  spawn = env.task.terrain.spawn_points[0, 0]
+  np.testing.assert_allclose(
+      qpos[adr : adr + 3], spawn + [0, 0, env.task.go1.home_height + 0.01]
+  )
+  np.testing.assert_array_equal(
+      np.delete(qpos, range(adr, adr + 3)),
+      np.delete(model.qpos0, range(adr, adr + 3)),
+  )
+
+
+def test_derive_divides_and_takes_the_scan_cost():
+  measured = lambda per_s, seconds, state, compile_s: {
+      'control_steps_per_s': per_s,
+      'seconds_per_call': seconds,
+      'state_bytes_per_world': state,
+      'rollout_compile_s': compile_s,
+  }
+  row = {
+      'worlds': 10,
+      'raw': measured(400.0, 0.5, 100, 1.0),
+      'parts_on': measured(100.0, 2.0, 900, 9.0),
+      'parts_on_no_scan': measured(200.0, 1.0, 500, 6.0),
+      'joystick': measured(250.0, 0.8, 400, 5.0),
+  }
+  locomotion_parts.derive(row, steps=20)
+  assert row['parts_on/raw'] == pytest.approx(0.25)
+  assert row['parts_on/joystick'] == pytest.approx(0.4)
+  assert row['parts_on_no_scan/raw'] == pytest.approx(0.5)
+  assert 'joystick/joystick' not in row and 'raw/raw' not in row
+  scan = row['height_scan']
+  # (2.0 s - 1.0 s) over 10 worlds x 20 steps.
+  assert scan['seconds_per_world_step'] == pytest.approx(1.0 / 200)
+  assert scan['throughput_ratio'] == pytest.approx(0.5)
+  assert scan['state_bytes_per_world'] == 400
+  assert scan['rollout_compile_s'] == pytest.approx(3.0)
