@@ -141,8 +141,39 @@ def forward(stage, model, data, sensors=True):
   return mjx.fwd_actuation(model, _STAGE_FNS[stage](model, data, sensors))
 
 
+def _trace_key(tree) -> tuple:
+  """What a trace of a function of `tree` can depend on: its structure
+  (with MJX's static fields, which drive MJX's Python branches) and its
+  leaves' shapes and dtypes, not their values."""
+  leaves, treedef = jax.tree.flatten(tree)
+  return treedef, tuple(
+      (np.shape(x), str(getattr(x, 'dtype', type(x).__name__))) for x in leaves
+  )
+
+
+# `written`'s answers, by what its trace depends on. Every environment of a
+# model asks for the same few stages (the reset's choice, the control
+# step's), and environments of one model ask again: each trace of a full
+# forward pass takes seconds.
+_WRITTEN: dict = {}
+_WRITTEN_MAX = 256
+
+
 def written(stage, model, data, sensors=True) -> frozenset[str]:
-  """The leaves of `data` that `forward(stage, ...)` writes (by tracing)."""
+  """The leaves of `data` that `forward(stage, ...)` writes (by tracing).
+
+  The answer depends on the shapes and structure of `model` and `data`
+  only, so it is traced once per structure (and kept for this process).
+  """
+  key = (stage, bool(sensors), _trace_key(model), _trace_key(data))
+  if key not in _WRITTEN:
+    if len(_WRITTEN) >= _WRITTEN_MAX:
+      _WRITTEN.pop(next(iter(_WRITTEN)))
+    _WRITTEN[key] = _trace_written(stage, model, data, sensors)
+  return _WRITTEN[key]
+
+
+def _trace_written(stage, model, data, sensors) -> frozenset[str]:
   out = {}
 
   def run(data):

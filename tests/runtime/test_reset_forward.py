@@ -98,6 +98,40 @@ def test_the_test_model_has_every_sensor_the_stages_compute(sensor_model):
   )
 
 
+def test_what_a_stage_writes_is_traced_once_per_model_structure(
+    sensor_model, monkeypatch
+):
+  m, model, d = sensor_model
+  data = mjx.put_data(m, d)
+  traced = []
+  trace = reset_forward._trace_written  # pylint: disable=protected-access
+  monkeypatch.setattr(reset_forward, '_WRITTEN', {})
+  monkeypatch.setattr(
+      reset_forward,
+      '_trace_written',
+      lambda *args: traced.append(args[0]) or trace(*args),
+  )
+  full = reset_forward.written('full', model, data)
+  # Abstract data of the same shapes, and another put_model of the same
+  # model: the same answer, without a second trace.
+  assert (
+      reset_forward.written('full', model, jax.eval_shape(lambda: data)) == full
+  )
+  assert reset_forward.written('full', mjx.put_model(m), data) == full
+  assert traced == ['full']
+  assert full == trace('full', model, data, True)
+  # A model that differs in a static field MJX branches on (its sensors
+  # disabled) is traced anew, and its forward pass writes no sensordata.
+  m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_SENSOR
+  try:
+    no_sensors = mjx.put_model(m)
+  finally:
+    m.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+  without = reset_forward.written('full', no_sensors, data)
+  assert traced == ['full', 'full']
+  assert 'sensordata' in full and 'sensordata' not in without
+
+
 @pytest.mark.parametrize('stage', ['position', 'velocity'])
 def test_reduced_stages_compute_what_the_forward_pass_does(sensor_model, stage):
   m, model, d = sensor_model
