@@ -15,9 +15,12 @@ give composer's view of a `physics.Physics`:
   same state; those MJX keeps in its implementation data (`cinert`, `crb`,
   actuator and tendon velocities) are read there.
 * no stale read: dm_control's bindings run `mj_forward` before reading
-  anything after a write of `STATE_INPUT_FIELDS`. Here a read of a
-  quantity that such a write made stale, with no forward pass between,
-  raises `StaleReadError` while tracing (`check_fresh`).
+  anything after a write of `STATE_INPUT_FIELDS` or of a model field (but
+  the visual ones, `marks_stale`). Here a read of a quantity that such a
+  write made stale, with no forward pass between, raises `StaleReadError`
+  while tracing (`check_fresh`), or, in the `initialize_episode` hooks
+  (`Physics.forward_stale_reads`), reads it from the stage of the forward
+  pass that computes it (`stale_stage`, `KINEMATICS_FIELDS`).
 """
 
 from __future__ import annotations
@@ -93,15 +96,31 @@ _FIELD_STAGE = {
 }  # fmt: skip
 # The first stage that a write of each input makes stale: positions change
 # everything, velocities the velocity and acceleration stages, the rest
-# (controls, activations, applied forces) the acceleration stage only.
+# (controls, activations, applied forces) the acceleration stage only. A
+# model field (not in `STATE_INPUT_FIELDS`) changes everything, as
+# dm_control's bindings treat it.
 _INPUT_STAGE = {'qpos': 1, 'qvel': 2}
+# Model attributes whose write dm_control's bindings do not mark dirty (its
+# `MJMODEL_DOESNT_TRIGGER_DIRTY`): appearance, which no forward pass reads.
+_VISUAL_ATTRIBUTES = frozenset({
+    'rgba', 'matid', 'emission', 'specular', 'shininess', 'reflectance',
+    'needstage',
+})  # fmt: skip
+# What `Physics.kinematics()` computes (`mjx.kinematics`, then
+# `mjx.com_pos`): a stale read of one of these needs no more than it.
+KINEMATICS_FIELDS = frozenset({
+    'xpos', 'xquat', 'xmat', 'xipos', 'ximat', 'xanchor', 'xaxis',
+    'geom_xpos', 'geom_xmat', 'site_xpos', 'site_xmat', 'subtree_com',
+    'cinert', 'cdof',
+})  # fmt: skip
 
 
 class StaleReadError(ValueError):
   """A binding read a derived quantity after a write with no forward pass.
 
-  dm_control's bindings run `mj_forward` lazily before such a read; here
-  the hook must call `physics.forward()` (or `physics.kinematics()`) itself.
+  dm_control's bindings run `mj_forward` lazily before such a read; here a
+  step hook must call `physics.forward()` (or `physics.kinematics()`)
+  itself (`initialize_episode` hooks read through the forward pass).
   """
 
 
@@ -163,25 +182,45 @@ def check_writable(field: str) -> None:
     )
 
 
-def check_fresh(unsynced, field: str, index, mj_model) -> None:
-  """Raises `StaleReadError` where `field[index]` is derived from the
-  `unsynced` writes (`STATE_INPUT_FIELDS` written with no forward pass
-  since) and would read its value from before them."""
+def marks_stale(source: str, field: str) -> bool:
+  """Whether writing `source` ('data' or 'model') field `field` makes
+  derived quantities stale until the next forward pass: the
+  `STATE_INPUT_FIELDS`, and every model field but the visual ones (what
+  dm_control's bindings mark dirty)."""
+  if source == 'data':
+    return field in STATE_INPUT_FIELDS
+  return field.split('_', 1)[-1] not in _VISUAL_ATTRIBUTES
+
+
+def stale_stage(unsynced, field: str, index, mj_model) -> int:
+  """The forward-pass stage (1-3) that `field[index]` needs where the
+  `unsynced` writes (`marks_stale` fields written with no forward pass
+  since) made it stale; 0 where it is fresh."""
   if not unsynced or field in _NOT_DERIVED:
-    return
-  stale_from = min(_INPUT_STAGE.get(name, 3) for name in unsynced)
+    return 0
+  stale_from = min(
+      _INPUT_STAGE.get(name, 3 if name in STATE_INPUT_FIELDS else 1)
+      for name in unsynced
+  )
   if field == 'sensordata':
     stage = _sensor_stage(mj_model, index)
   else:
     stage = _FIELD_STAGE.get(field, 3)
-  if stage >= stale_from:
+  return stage if stage >= stale_from else 0
+
+
+def check_fresh(unsynced, field: str, index, mj_model) -> None:
+  """Raises `StaleReadError` where `field[index]` is derived from the
+  `unsynced` writes and would read its value from before them."""
+  if stale_stage(unsynced, field, index, mj_model):
     raise StaleReadError(
         f'This physics wrote {sorted(unsynced)} and then read {field!r}, '
         'which is derived from them, with no forward pass between: it '
         'would read the value from before the write. dm_control runs '
         'mj_forward before such a read; here call `physics = '
         'physics.forward()` (or `physics.kinematics()` for positions '
-        'only) after the write and read from the result.'
+        'only) after the write and read from the result. (In '
+        'initialize_episode hooks the read runs that forward pass itself.)'
     )
 
 

@@ -450,8 +450,8 @@ class Entity(abc.ABC):
 
     A free entity gets its freejoint's qpos written. A fixed entity gets its
     attachment frame's *model* `body_pos`/`body_quat` written, which makes
-    those model fields per-world. Call `physics.forward()` before reading
-    derived quantities.
+    those model fields per-world. In a step hook, call `physics.forward()`
+    before reading derived quantities (`initialize_episode` reads run it).
     """
     frame = self._require_frame()
     joint = self.freejoint

@@ -32,12 +32,20 @@ Fields that MJX computes only when a sensor needs them (`subtree_linvel`,
 binding, so they hold what MuJoCo's `mj_forward` followed by
 `mj_subtreeVel` / `mj_rnePostConstraint` gives on the same state.
 
-Unlike dm_control there is no lazy "dirty" forward: after writing positions or
-velocities (`qpos`, `qvel`, `act`, `ctrl`, `qfrc_applied`, `xfrc_applied`),
-call `physics.forward()` (or `physics.kinematics()`) before reading derived
-quantities such as `xpos`. A binding read of a derived quantity after such a
-write, with no forward pass between, raises at trace time (`StaleReadError`)
-where dm_control would have run `mj_forward` first.
+dm_control's bindings run `mj_forward` lazily: a read after a write of
+`qpos`, `qvel`, `act`, `ctrl`, `qfrc_applied`, `xfrc_applied` or a model field
+(but the visual ones, such as `rgba`) sees the new state. Here a binding read
+of a derived quantity after such a write, with no forward pass between:
+
+* in the `initialize_episode` hooks (`forward_stale_reads`), reads it from the
+  stage of the forward pass that computes it (kinematics for positions, the
+  full pass otherwise), as composer's reset context does; the hooks start
+  from the reset's state, whose positions are computed and whose velocities
+  and sensors are not (`mark_written`);
+* in the step hooks, raises at trace time (`StaleReadError`): there an
+  unseen forward pass would add a second copy of the physics to every
+  control step. Call `physics.forward()` (or `physics.kinematics()`)
+  yourself.
 """
 
 from __future__ import annotations
@@ -90,6 +98,10 @@ class Physics:
       keyed by the entity's full identifier (`entity_state(entity)`).
     scheduled_hooks: `(name, hook)` pairs registered with
       `schedule_before_step` (static).
+    forward_stale_reads: whether a binding read of a quantity that a write
+      made stale runs the forward-pass stage that computes it (True in the
+      `initialize_episode` hooks) instead of raising `StaleReadError`
+      (static).
   """
 
   model: mjx.Model
@@ -102,6 +114,7 @@ class Physics:
   initialization_failed: Any = None
   entity_states: Any = None
   scheduled_hooks: tuple = struct.field(pytree_node=False, default=())
+  forward_stale_reads: bool = struct.field(pytree_node=False, default=False)
 
   @property
   def mj_model(self) -> mujoco.MjModel:
@@ -288,7 +301,15 @@ class Physics:
     """The value at `address`, in dm_control's shape (`FLAT_MATRIX_FIELDS`
     flat; `ON_DEMAND_FIELDS` computed from the data)."""
     if address.source == 'data':
-      self._check_fresh(address.field, address.index)
+      stage = bindings.stale_stage(
+          self.unsynced_writes, address.field, address.index, self.mj_model
+      )
+      if stage and self.forward_stale_reads:
+        return self._synced(address.field).read(address)
+      if stage:
+        bindings.check_fresh(
+            self.unsynced_writes, address.field, address.index, self.mj_model
+        )
     if (
         address.source == 'data'
         and self.batch_ndim
@@ -341,9 +362,12 @@ class Physics:
           self.replace(data=self.data.replace(**{address.field: new})),
           address.field,
       )
-    return self._derived(
+    new = self._derived(
         self.replace(model=self.model.replace(**{address.field: new}))
     )
+    if bindings.marks_stale('model', address.field):
+      new = new.mark_written(address.field)
+    return new
 
   # -- writes a hook must keep, and reads a write makes stale ---------------
   #
@@ -354,9 +378,12 @@ class Physics:
   # * `_wrote_result`: a write was called on this very object, so its
   #   result was a new `Physics` (`wrote_to_result`; the hooks' runner
   #   refuses a hook that returns the object it received after that).
-  # * `_unsynced`: the `STATE_INPUT_FIELDS` written since the data was last
-  #   replaced by anything but such a write (a forward pass, a step, the
-  #   environment's reset forward); `read` refuses derived fields then.
+  # * `_unsynced`: the fields written (`bindings.marks_stale`: the
+  #   `STATE_INPUT_FIELDS` and the non-visual model fields) since the data
+  #   was last replaced by anything but such a write (a forward pass, a
+  #   step, the environment's reset forward); `read` refuses derived fields
+  #   then, or computes them (`forward_stale_reads`, `_synced`).
+  # * `_synced_cache`: the forward passes `_synced` ran on this object.
 
   def _derived(self, new: 'Physics') -> 'Physics':
     object.__setattr__(self, '_wrote_result', True)
@@ -369,11 +396,38 @@ class Physics:
       object.__setattr__(new, '_unsynced', self.unsynced_writes | {field})
     return new
 
+  def mark_written(self, *fields: str) -> 'Physics':
+    """This physics, its derived quantities recorded as stale from `fields`.
+
+    A binding read of a quantity derived from them then refuses, or runs
+    the forward pass (`forward_stale_reads`). The environment marks what a
+    reset writes and recomputes only in part (it computes positions, not
+    the velocities' and sensors' stages), and `Physics.write` marks the
+    model fields it writes.
+    """
+    new = self.replace()
+    object.__setattr__(new, '_unsynced', self.unsynced_writes | set(fields))
+    return new
+
   @property
   def unsynced_writes(self) -> frozenset:
-    """The `STATE_INPUT_FIELDS` written through bindings (or `set_control`)
-    since this physics' derived quantities were last computed."""
+    """The fields written through bindings (or `set_control`; the
+    `STATE_INPUT_FIELDS` and the non-visual model fields) since this
+    physics' derived quantities were last computed."""
     return getattr(self, '_unsynced', frozenset())
+
+  def _synced(self, field: str) -> 'Physics':
+    """This physics with `field` recomputed by the cheapest of
+    `kinematics()` and `forward()` that computes it, run once per object
+    (its reads share it)."""
+    stage = 'kinematics' if field in bindings.KINEMATICS_FIELDS else 'forward'
+    cache = getattr(self, '_synced_cache', None)
+    if cache is None:
+      cache = {}
+      object.__setattr__(self, '_synced_cache', cache)
+    if stage not in cache:
+      cache[stage] = getattr(self, stage)()
+    return cache[stage]
 
   def wrote_to_result(self) -> bool:
     """Whether a write method (a binding's `set`, `set_control`,
@@ -384,11 +438,6 @@ class Physics:
   def forget_writes(self) -> None:
     """Clears `wrote_to_result` (the hooks' runner, before each hook)."""
     object.__setattr__(self, '_wrote_result', False)
-
-  def _check_fresh(self, field: str, index):
-    bindings.check_fresh(
-        self.unsynced_writes, field, index, self.index.mj_model
-    )
 
 
 def changed_model_fields(before: mjx.Model, after: mjx.Model) -> list[str]:

@@ -88,9 +88,11 @@ class Task(abc.ABC):
     Python side effects (printing, appending to lists) happen once, at
     trace time.
 
-  After a hook moves bodies (writes `qpos`), call `physics.forward()` (or
-  `physics.kinematics()`) before reading positions: MJX has no lazy
-  forward pass.
+  After a step hook moves bodies (writes `qpos`), call `physics.forward()`
+  (or `physics.kinematics()`) before reading positions: MJX has no lazy
+  forward pass, and a stale read is a trace-time `StaleReadError`. In
+  `initialize_episode` such a read runs the forward pass's stage it needs,
+  as composer's reset context does.
   """
 
   @property

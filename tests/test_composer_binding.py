@@ -306,6 +306,63 @@ def test_write_then_derived_read_is_refused(scene):
     trace(lambda p: push(p).bind(foot).set(pos=jnp.ones(3)).bind(torso).cacc)
 
 
+def test_a_model_write_makes_derived_reads_stale_but_appearance_does_not(
+    scene,
+):
+  """As dm_control's bindings mark dirty: every model field but colours
+  and materials."""
+  geom = scene.handle('geom', 'torso_geom')
+  data = jax.eval_shape(lambda: mjx.put_data(scene.model, scene.data))
+
+  def trace(read):
+    jax.eval_shape(lambda data: read(scene.physics(data)), data)
+
+  with pytest.raises(physics_lib.StaleReadError, match='geom_pos'):
+    trace(lambda p: p.bind(geom).set(pos=jnp.ones(3)).bind(geom).xpos)
+  trace(lambda p: p.bind(geom).set(rgba=jnp.ones(4)).bind(geom).xpos)
+
+
+def test_stale_reads_in_reset_hooks_are_dm_controls(scene):
+  """With `forward_stale_reads` (the `initialize_episode` hooks), a read
+  after a write sees the written state, as dm_control's lazy forward pass
+  gives it: positions, a model write's, velocities and sensors."""
+  hip = scene.handle('joint', 'hip')
+  foot = scene.handle('site', 'foot')
+  geom = scene.handle('geom', 'torso_geom')
+  torso = scene.handle('body', 'torso')
+  sensors = [scene.handle('sensor', n) for n in ('acc', 'touch', 'zaxis')]
+  pos = np.array([0.05, -0.02, 0.3], np.float32)
+
+  @jax.jit
+  def reads(data):
+    physics = scene.physics(data).replace(forward_stale_reads=True)
+    moved = physics.bind(hip).set(qpos=0.7)
+    placed = moved.bind(geom).set(pos=pos)
+    return dict(
+        foot=moved.bind(foot).xpos,
+        geom=placed.bind(geom).xpos,
+        com_vel=moved.bind(torso).subtree_linvel,
+        sensors=moved.bind(sensors).sensordata,
+    )
+
+  ours = reads(mjx.put_data(scene.model, scene.data))
+  dm = scene.dm_physics.copy(share_model=False)
+  bind = lambda kind, name: dm.bind(scene.dm_element(kind, name))
+  bind('joint', 'hip').qpos = 0.7
+  expected = dict(
+      foot=bind('site', 'foot').xpos.copy(),
+      com_vel=bind('body', 'torso').subtree_linvel.copy(),
+      sensors=np.concatenate(
+          [bind('sensor', n).sensordata for n in ('acc', 'touch', 'zaxis')]
+      ),
+  )
+  bind('geom', 'torso_geom').pos = pos
+  expected['geom'] = bind('geom', 'torso_geom').xpos.copy()
+  assert not np.allclose(expected['foot'], scene.data.site('foot').xpos)
+  for name, value in expected.items():
+    np.testing.assert_allclose(ours[name], value, rtol=2e-5, atol=2e-5)
+
+
 def test_variation_as_a_corruptor():
   """composer's idiom: `corruptor=noises.Additive(distributions.Normal(...))`
   builds, and the noise is the variation's draw with the corruptor's key."""

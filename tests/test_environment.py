@@ -1,5 +1,6 @@
 """Environment: hook order, stepping, episode ends, auto-reset, keys, errors."""
 
+import copy
 import dataclasses
 import inspect
 import math
@@ -611,6 +612,94 @@ def test_persistent_state_and_model_fields_survive_auto_reset(auto_reset):
   # A fresh reset starts the world afresh.
   again = reset(jax.random.split(jax.random.key(3), 4))
   np.testing.assert_array_equal(again.persistent['episodes'], 1)
+
+
+class _SensingPendulum(conftest.Pendulum):
+  """The pendulum with an accelerometer and a position sensor at its tip."""
+
+  def _build(self, **kwargs):  # pylint: disable=arguments-differ
+    super()._build(**kwargs)
+    site = dict(objtype=mujoco.mjtObj.mjOBJ_SITE, objname='tip')
+    self.accelerometer = self._spec.add_sensor(
+        name='acc', type=mujoco.mjtSensor.mjSENS_ACCELEROMETER, **site
+    )
+    self.tip_pos = self._spec.add_sensor(
+        name='tip_pos', type=mujoco.mjtSensor.mjSENS_FRAMEPOS, **site
+    )
+
+
+class _ReadingTask(conftest.PendulumTask):
+  """An `initialize_episode` that reads as composer's hooks may: at the
+  reset state, then after moving the pendulum (`qpos`) and a fixed ball
+  (its frame's `body_pos`, a model field), with no forward pass between."""
+
+  def __init__(self):
+    self.arena = composer.Arena()
+    # A limited hinge: MJX computes acceleration sensors only where the
+    # model has constraint rows.
+    self.pendulum = _SensingPendulum(
+        limited=mujoco.mjtLimited.mjLIMITED_TRUE, range=[-2, 2]
+    )
+    self.arena.attach(self.pendulum)
+    self.ball = conftest.Ball(collides=False)
+    self.arena.attach(self.ball)
+
+  def initial_task_state(self):
+    names = ('acc_at_reset', 'tip', 'tip_sensor', 'acc', 'ball')
+    return {name: jnp.zeros(3) for name in names}
+
+  def initialize_episode(self, physics, key):
+    acc_at_reset = physics.bind(self.pendulum.accelerometer).sensordata
+    angle_key, ball_key = jax.random.split(key)
+    physics = physics.bind(self.pendulum.joint).set(
+        qpos=jax.random.uniform(angle_key, (1,), minval=-1, maxval=1)
+    )
+    physics = self.ball.set_pose(
+        physics, position=jax.random.uniform(ball_key, (3,))
+    )
+    return physics.update_task_state(
+        acc_at_reset=acc_at_reset,
+        tip=physics.bind(self.pendulum.tip).xpos,
+        tip_sensor=physics.bind(self.pendulum.tip_pos).sensordata,
+        acc=physics.bind(self.pendulum.accelerometer).sensordata,
+        ball=physics.bind(self.ball.geom).xpos,
+    )
+
+  def get_reward(self, physics):
+    return 0.0
+
+
+def test_reset_hooks_read_what_they_wrote():
+  """composer runs the hooks in a reset context whose bindings forward
+  lazily: a hook's read sees the reset state and its own writes. Here the
+  reads run the forward pass's stage they need; the values are MuJoCo's
+  (`mj_forward` on each world's state and model)."""
+  env = composer.Environment(_ReadingTask())
+  task = env.task
+  states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(1), 3))
+  model = copy.copy(env.mj_model)
+  data = mujoco.MjData(model)
+  mujoco.mj_forward(model, data)
+  pendulum = f'{task.pendulum.name}/'
+  acc_at_reset = data.sensor(pendulum + 'acc').data.copy()
+  assert np.linalg.norm(acc_at_reset) > 9.0  # gravity's reaction
+  frame = model.body(f'{task.ball.name}/').id
+  for world in range(3):
+    one = jax.tree.map(lambda x, w=world: x[w], states)
+    read = {k: np.asarray(v) for k, v in one.task_state.items()}
+    model.body_pos[frame] = np.asarray(one.model_fields['body_pos'][frame])
+    data.qpos[:] = np.asarray(one.data.qpos)
+    mujoco.mj_forward(model, data)
+    expected = {
+        'acc_at_reset': acc_at_reset,
+        'tip': data.site(pendulum + 'tip').xpos,
+        'tip_sensor': data.sensor(pendulum + 'tip_pos').data,
+        'acc': data.sensor(pendulum + 'acc').data,
+        'ball': data.geom(f'{task.ball.name}/geom').xpos,
+    }
+    assert not np.allclose(expected['tip'], [0.0, 0.0, 0.5])
+    for name, value in expected.items():
+      np.testing.assert_allclose(read[name], value, rtol=1e-5, atol=1e-5)
 
 
 class _FlakyTask(conftest.SwingTask):

@@ -205,6 +205,29 @@ def test_observations_activation_and_reward_equal_dm_control(port, reference):
   assert touched >= _BATCH, touched
 
 
+def test_reset_activation_equals_dm_control(port, reference):
+  """The `Button`'s `initialize_episode` reads its touch sensor after the
+  task moved the creature and the button, with no forward pass between;
+  composer's reset context forwards before that read, and so does ours:
+  the press count and the colour at reset are dm_control's on that state."""
+  env, states = port
+  button = env.task._button  # pylint: disable=protected-access
+  dm_button = reference.task._button  # pylint: disable=protected-access
+  physics = reference.physics
+  frame = physics.model.name2id(dm_button.mjcf_model.model + '/', 'body')
+  geom = physics.bind(dm_button._geom).element_id  # pylint: disable=protected-access
+  for world in range(_BATCH):
+    one = _world(states[0], world)
+    _set_state(physics, dm_button, one, frame, 0)
+    dm_button.initialize_episode(physics, None)
+    count = one.entity_states[button.full_identifier]['num_activated_steps']
+    assert int(count) == dm_button.num_activated_steps
+    np.testing.assert_array_equal(
+        np.asarray(one.model_fields['geom_rgba'][geom]),
+        physics.bind(dm_button._geom).rgba,  # pylint: disable=protected-access
+    )
+
+
 def test_observation_noise_is_composers(port):
   """Additive N(0, 0.01) on positions, multiplicative LogN(0, 0.01) on speeds."""
   _, states = port

@@ -278,11 +278,11 @@ class PositionDetector(entity.Entity):
     if not self._retain_substep_detections:
       return physics
     # The task's hook (which runs first) and initializers may have moved
-    # bodies with no forward pass since: detect from their new positions.
-    # (composer reads the stale ones here.)
-    moved = physics.kinematics()
+    # bodies with no forward pass since: the positions read here are then
+    # computed for the read (`Physics.forward_stale_reads`), so detection
+    # sees the new ones.
     return physics.update_entity_state(
-        self, detected=self._instantaneous(moved)
+        self, detected=self._instantaneous(physics)
     )
 
   def before_step(self, physics, key):

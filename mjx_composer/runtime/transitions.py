@@ -368,9 +368,14 @@ class Transitions:
       # constraint code out of every program that contains a reset (the
       # step program does, through auto-reset). Every attempt starts from
       # the initial data, whose kinematics the host knows.
+      # As in composer's reset context, a hook's read of what a write made
+      # stale sees the new state: the read runs the forward pass's stage
+      # that computes it (`Physics.forward_stale_reads`). The reset wrote
+      # the initial velocities and controls and computed only positions.
       physics = physics.replace(
-          data=self._initial_kinematics.apply(physics.model, self.initial.data)
-      )
+          data=self._initial_kinematics.apply(physics.model, self.initial.data),
+          forward_stale_reads=True,
+      ).mark_written('qvel', 'act', 'ctrl')
       physics = self.hooks.initialize_episode(physics, key, writers)
       # A hook that drew a NaN (or an infinity) into the state fails the
       # attempt, as an initializer that finds no valid pose does.

@@ -20,12 +20,11 @@ the physics. The PyMJCF models (`Leg`, `make_creature`, the `Button`'s)
 are unchanged. Changed because hooks are pure: the `Button`'s activation
 count lives in its per-world entity state (`initial_state`), read with
 `num_activated_steps(physics)`; traced values branch with `jnp.where` and
-`&`, and `UniformCircle` uses `jnp` for its traced heading; the button reads
-its sensor after `physics.forward()` (dm_control's bindings run `mj_forward`
-before that read); the MJCF variator runs per episode in
-`initialize_episode` (the model compiles once); the `Button`'s colour, a
-model field written in `after_substep`, is declared per world; the arena is
-an MjSpec (`add_light`).
+`&`, and `UniformCircle` uses `jnp` for its traced heading. Changed beyond
+that: the MJCF variator runs per episode in `initialize_episode` (the model
+compiles once); the `Button`'s colour, a model field written in
+`after_substep`, is declared per world; the arena is an MjSpec
+(`add_light`).
 """
 
 # PyMJCF
@@ -175,7 +174,7 @@ class Button(composer.Entity):
     )
 
   def initialize_episode(self, physics, key):
-    return self._update_activation(physics.forward())
+    return self._update_activation(physics)
 
   def after_substep(self, physics, key):
     return self._update_activation(physics)

@@ -75,7 +75,7 @@ class RobotArm(robot.Robot, metaclass=abc.ABCMeta):
         key, (len(addresses),), dtype, jnp.asarray(low), jnp.asarray(high)
     )
     data = physics.data.replace(qpos=physics.data.qpos.at[addresses].set(qpos))
-    return physics.replace(data=data)
+    return physics.replace(data=data).mark_written('qpos')
 
   def set_site_to_xpos(
       self,
@@ -149,7 +149,8 @@ class RobotArm(robot.Robot, metaclass=abc.ABCMeta):
 
     init = (jnp.zeros((), jnp.int32), physics.data.qpos, jnp.zeros((), bool))
     _, qpos, success = jax.lax.while_loop(trying, attempt, init)
-    return physics.replace(data=physics.data.replace(qpos=qpos)), success
+    physics = physics.replace(data=physics.data.replace(qpos=qpos))
+    return physics.mark_written('qpos'), success
 
 
 class RobotHand(robot.Robot, metaclass=abc.ABCMeta):
