@@ -27,7 +27,8 @@ walkers, arenas and props) attaches wrapped in
 
 Hooks. The build-time hooks `initialize_episode_mjcf(random_state)` and
 `after_compile(physics, random_state)` run once on the host when the
-environment is built (with a `numpy.random.RandomState`). The per-episode and
+environment is built (with a `numpy.random.RandomState`); an `MJCFVariator`
+that `initialize_episode_mjcf` applies composer's way runs every episode. The per-episode and
 per-step hooks are pure functions on the device: they take a `Physics` and a
 JAX PRNG key and must return the new `Physics`. Unlike composer, they cannot
 mutate anything in place, and must not keep per-world state on `self` (declare
@@ -149,7 +150,11 @@ class Entity(abc.ABC):
   # Build time (host). `random_state` is a numpy RandomState.
 
   def initialize_episode_mjcf(self, random_state):
-    """Edits the spec before compilation. Runs once, at environment build."""
+    """Edits the spec before compilation. Runs once, at environment build.
+
+    An `MJCFVariator` applied here composer's way,
+    `apply_variations(random_state)`, is applied at every reset, per world.
+    """
 
   def after_compile(self, physics, random_state):
     """Runs once after compilation; may return a Physics whose model is kept."""

@@ -506,7 +506,8 @@ class Environment:
   def per_world_model_fields(self) -> dict[str, tuple[str, ...]]:
     """`{model field: the hooks that made it per-world}`.
 
-    Filled in as `reset` and `step` are traced; fields declared with
+    From abstract traces of the `initialize_episode` and step hooks (run
+    on first use: they read shapes only); fields declared with
     `ExecutionOptions(per_world_model_fields=...)` are listed as declared.
     """
     return self._transitions.per_world_model_fields()

@@ -261,7 +261,9 @@ class Task(abc.ABC):
     every episode; the model here is compiled once). It may add, remove or
     edit elements of the entities' specs. Per-episode changes belong in
     `initialize_episode` instead (a variation writes per-world model
-    fields).
+    fields), except composer's `mjcf_variator.apply_variations(random_state)`:
+    called here, it has the environment apply that `MJCFVariator` at every
+    reset, per world, before the `initialize_episode` hooks.
 
     Args:
       random_state: a `numpy.random.RandomState` (the `Environment`'s
@@ -315,11 +317,10 @@ class Task(abc.ABC):
     The default writes `action` into the actuators' controls. Overrides
     must still set the control, through `super().before_step(...)` or
     `physics.set_control(...)` (e.g. to clip or transform the action). It
-    may write state, task state, persistent entries and model fields (the
-    latter only those declared in
-    `ExecutionOptions(per_world_model_fields=...)` or written by
-    `initialize_episode` too); it may not add persistent entries or task
-    state keys (their structure is fixed at reset).
+    may write state, task state, persistent entries and model fields (a
+    model field it writes is made per world from the reset on, found by an
+    abstract trace of the step hooks); it may not add persistent entries or
+    task state keys (their structure is fixed at reset).
 
     Args:
       physics: one world's `Physics`.

@@ -499,31 +499,64 @@ def test_hook_must_return_physics():
       physics.bind(self.pendulum.joint).set(qpos=0.0)  # result dropped
 
   env = composer.Environment(Forgetful())
-  # Raised while the step is traced: no need to compile or run it.
-  state = jax.eval_shape(env.reset, jax.random.key(0))
+  # Raised while tracing, no need to compile or run anything: by the reset,
+  # which traces the step hooks to find the model fields they write.
   with pytest.raises(TypeError, match='must return the \\(new\\) Physics'):
-    jax.eval_shape(env.step, state, jnp.zeros(1))
+    jax.eval_shape(env.reset, jax.random.key(0))
 
 
-def test_undeclared_model_write_in_step_is_a_clear_error():
-  class Recolor(conftest.SwingTask):
+class _Recolour(conftest.SwingTask):
+  """Colours the ball after every sub-step by the pendulum's angle: a model
+  field that a step hook writes, different in every world."""
 
-    def after_step(self, physics, key):
-      return physics.bind(self.ball.geom).set(rgba=[1.0, 0.0, 0.0, 1.0])
+  def after_substep(self, physics, key):
+    angle = physics.bind(self.pendulum.joint).qpos[0]
+    red = jnp.abs(jnp.sin(angle))
+    return physics.bind(self.ball.geom).set(
+        rgba=jnp.stack([red, 0.0, 0.0, 1.0])
+    )
 
-  env = composer.Environment(Recolor())
-  state = jax.eval_shape(env.reset, jax.random.key(0))
-  with pytest.raises(ValueError, match='per_world_model_fields'):
-    jax.eval_shape(env.step, state, jnp.zeros(1))  # raised while tracing
+
+def test_model_writes_in_step_hooks_are_found_and_per_world():
+  """A model field written in `after_substep` is per world without being
+  declared, and runs as the declared field does, bit for bit."""
+  found = composer.Environment(_Recolour())
   declared = composer.Environment(
-      Recolor(),
+      _Recolour(),
       options=composer.ExecutionOptions(per_world_model_fields=('geom_rgba',)),
   )
-  state = jax.jit(lambda key: declared.step(declared.reset(key), jnp.zeros(1)))(
-      jax.random.key(0)
+  assert found.per_world_model_fields == {
+      'geom_rgba': ('_Recolour.after_substep',)
+  }
+  assert declared.per_world_model_fields['geom_rgba'] == (
+      '_Recolour.after_substep',
+      'ExecutionOptions(per_world_model_fields=...)',
   )
-  ball = declared.physics(state).bind(declared.task.ball.geom)
-  np.testing.assert_array_equal(ball.rgba, [1.0, 0.0, 0.0, 1.0])
+  keys = jax.random.split(jax.random.key(2), 3)
+  actions = jnp.full((3, 1), 0.5)
+  runs = []
+  for env in (found, declared):
+    states = jax.jit(jax.vmap(env.reset))(keys)
+    states = jax.jit(jax.vmap(env.step))(states, actions)
+    runs.append(states)
+  assert set(runs[0].model_fields) == {'geom_rgba'}
+  found_run, declared_run = (
+      jax.tree.map(
+          lambda x: jax.random.key_data(x)
+          if jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
+          else x,
+          run,
+      )
+      for run in runs
+  )
+  jax.tree.map(np.testing.assert_array_equal, found_run, declared_run)
+  # Each world's colour is its own last sub-step's angle.
+  hinge = found.mj_model.joint(f'{found.task.pendulum.name}/hinge').qposadr[0]
+  ball = found.mj_model.geom(f'{found.task.ball.name}/geom').id
+  rgba = np.asarray(runs[0].model_fields['geom_rgba'])[:, ball]
+  red = np.abs(np.sin(np.asarray(runs[0].data.qpos)[:, hinge]))
+  np.testing.assert_allclose(rgba[:, 0], red, rtol=1e-6)
+  assert len(np.unique(rgba[:, 0])) == 3
 
 
 def test_bad_constructor_arguments():

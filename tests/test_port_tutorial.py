@@ -216,6 +216,11 @@ def test_reset_activation_equals_dm_control(port, reference):
   physics = reference.physics
   frame = physics.model.name2id(dm_button.mjcf_model.model + '/', 'body')
   geom = physics.bind(dm_button._geom).element_id  # pylint: disable=protected-access
+  # The colour, written by the button's hooks, is found to be per world.
+  assert set(env.per_world_model_fields['geom_rgba']) == {
+      f'Button({button.name!r}).initialize_episode',
+      f'Button({button.name!r}).after_substep',
+  }
   for world in range(_BATCH):
     one = _world(states[0], world)
     _set_state(physics, dm_button, one, frame, 0)

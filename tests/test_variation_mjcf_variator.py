@@ -267,6 +267,85 @@ def test_schedules_state_and_derived_fields_across_auto_resets(rollout):
 # -- bind-time errors ----------------------------------------------------------
 
 
+class ComposersCallTask(composer.Task):
+  """dm_control's idiom: the MJCF variator applied in
+  `initialize_episode_mjcf` with composer's `apply_variations(random_state)`;
+  `initialize_episode` records the ball's mass and radius it then sees."""
+
+  def __init__(self):
+    self.arena = composer.Arena()
+    self.arena.mjcf_model.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
+    self.ball = _ball()
+    self.arena.add_free_entity(self.ball)
+    self.set_timesteps(control_timestep=0.01, physics_timestep=0.01)
+    self.variator = variation.MJCFVariator()
+    self.variator.bind_attributes(
+        self.ball.geom, size=distributions.Uniform([0.03, 0, 0], [0.08, 0, 0])
+    )
+
+  @property
+  def root_entity(self):
+    return self.arena
+
+  def initial_task_state(self):
+    return {'mass': jnp.zeros(()), 'radius': jnp.zeros(())}
+
+  def initialize_episode_mjcf(self, random_state):
+    self.variator.apply_variations(random_state)
+
+  def initialize_episode(self, physics, key):
+    return physics.update_task_state(
+        mass=physics.bind(self.ball.body).mass,
+        radius=physics.bind(self.ball.geom).size[0],
+    )
+
+  def get_reward(self, physics):
+    return 0.0
+
+
+def test_composers_call_in_initialize_episode_mjcf_varies_every_episode():
+  """Each world's episode gets its own draw, applied before
+  `initialize_episode`, equal to the model recompiled with it."""
+  task = ComposersCallTask()
+  env = composer.Environment(task)
+  assert 'ComposersCallTask.initialize_episode_mjcf' in (
+      env.per_world_model_fields['geom_size']
+  )
+  states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(0), 4))
+  geom = env.mj_model.geom('ball/geom').id
+  radius = _field(states, 'geom_size', geom)[:, 0]
+  assert np.all((radius >= 0.03) & (radius <= 0.08))
+  assert len(np.unique(radius)) == 4
+  np.testing.assert_array_equal(states.task_state['radius'], radius)
+  body = env.mj_model.body('ball/body').id
+  np.testing.assert_array_equal(
+      states.task_state['mass'],
+      np.asarray(states.model_fields['body_mass'])[:, body],
+  )
+  # World 1 against the spec recompiled with its radius.
+  handle = task.ball.geom
+  saved = np.array(handle.size)
+  try:
+    handle.size = [float(radius[1]), 0.0, 0.0]
+    spec, _ = task.root_entity.compose()
+    reference = mjx.put_model(spec.compile())
+  finally:
+    handle.size = saved
+  for name, value in states.model_fields.items():
+    for mine, theirs in zip(
+        jax.tree.leaves(value), jax.tree.leaves(getattr(reference, name))
+    ):
+      np.testing.assert_allclose(
+          np.asarray(mine)[1], theirs, rtol=1e-5, atol=1e-6, err_msg=name
+      )
+
+
+def test_composers_call_outside_initialize_episode_mjcf_says_where():
+  variator = variation.MJCFVariator()
+  with pytest.raises(TypeError, match='initialize_episode_mjcf'):
+    variator.apply_variations(np.random.RandomState(0))
+
+
 def test_unsupported_attribute_lists_what_is_supported():
   ball = _ball()
   variator = variation.MJCFVariator()

@@ -33,9 +33,10 @@ COMPOSER_OPTIONS = {
     ),
     'recompile_mjcf_every_episode': (
         'the model is compiled once, when the Environment is built: '
-        'initialize_episode_mjcf and after_compile run once, on the host. '
-        'Per-episode changes belong in initialize_episode (variations write '
-        'per-world model fields).'
+        'initialize_episode_mjcf and after_compile run once, on the host '
+        '(an MJCFVariator they apply with apply_variations(random_state) '
+        'is applied every episode). Other per-episode changes belong in '
+        'initialize_episode (variations write per-world model fields).'
     ),
     'legacy_step': (
         "a control step's hooks, observations and reward see what "

@@ -7,7 +7,10 @@ in depth-first attachment order, then hooks added with
 hook and pure device hooks:
 
 * build time (host, once): `initialize_episode_mjcf(random_state)` and
-  `after_compile(physics, random_state)`;
+  `after_compile(physics, random_state)`; an MJCF variator that an
+  `initialize_episode_mjcf` hook applies the composer way
+  (`apply_variations(random_state)`) is applied per episode on the device,
+  before the `initialize_episode` hooks (`episode_variations`);
 * device (pure, traced): `initialize_episode(physics, key)`,
   `before_step(physics, action, key)`, `before_substep(physics, action,
   key)`, `after_substep(physics, key)`, `after_step(physics, key)`. The task
@@ -20,10 +23,11 @@ identifier; an extra hook's registration slot), so overriding one more hook,
 or attaching another entity, never changes the draws of the others.
 
 Model fields: a device hook that writes a model field (a variator writing
-`geom_size`) makes that field per-world. `model_field_writers` says which
-participant writes which field (an abstract trace of the hooks), so that the
-environment can report why a field is carried per world. Step hooks may
-update, never add, per-world fields and entries (`check_step_writes`).
+`geom_size`, a step hook recolouring a geom) makes that field per-world.
+`model_field_writers` and `step_model_field_writers` say which participant
+writes which field (abstract traces of the hooks), so that the environment
+carries those fields per world from the reset on, and can report why. Step
+hooks may update, never add, per-world entries (`check_step_writes`).
 
 Porting checks, at trace time: a device hook whose parameter is named
 `random_state` is refused (it receives a JAX key); so is a hook that wrote
@@ -46,6 +50,7 @@ from mjx_composer import entity as entity_lib
 from mjx_composer import physics as physics_lib
 from mjx_composer import task as task_lib
 from mjx_composer.runtime import keys as keys_lib
+from mjx_composer.variation import mjcf_variator
 
 HOOK_NAMES = (
     'initialize_episode_mjcf',
@@ -94,6 +99,9 @@ class EnvironmentHooks:
   def __init__(self, task):
     self._task = task
     self._extra: dict[str, list[Callable]] = {name: [] for name in HOOK_NAMES}
+    # The MJCF variators that `initialize_episode_mjcf` hooks applied the
+    # composer way, as participants (`episode_variations`).
+    self._episode_variators: list[Participant] = []
 
   def add_extra_hook(self, hook_name: str, hook: Callable):
     """See `Environment.add_extra_hook`."""
@@ -145,6 +153,11 @@ class EnvironmentHooks:
   def has(self, name: str) -> bool:
     return bool(self.participants(name))
 
+  def initializes(self) -> bool:
+    """Whether a reset runs anything per episode: `initialize_episode`
+    hooks or `episode_variations`."""
+    return self.has('initialize_episode') or bool(self._episode_variators)
+
   def model_field_writers(
       self, name: str, physics, key, action=None
   ) -> dict[str, tuple[str, ...]]:
@@ -161,11 +174,65 @@ class EnvironmentHooks:
     )
     return dict(sorted(writers.items()))
 
+  def step_model_field_writers(
+      self, physics, key, action
+  ) -> dict[str, tuple[str, ...]]:
+    """`{model field: the hooks that write it}` of a control step's hooks.
+
+    From an abstract trace (`jax.eval_shape`; `physics`, `key` and `action`
+    may be shapes) of the scheduled, `before_step`, `before_substep`,
+    `after_substep` and `after_step` hooks in a step's order, each seeing
+    its derived quantities as fresh where the step's physics recomputes
+    them (after the physics step, and after the last one).
+    """
+    writers = {}
+
+    def run(physics, key, action):
+      physics = self.scheduled(physics, key, writers)
+      physics = self._run('before_step', physics, key, action, writers)
+      physics = self._run('before_substep', physics, key, action, writers)
+      # The physics step (`replace` drops the record of unsynced writes).
+      physics = self._run(
+          'after_substep', physics.replace(), key, None, writers
+      )
+      return self._run('after_step', physics.replace(), key, None, writers)
+
+    jax.eval_shape(run, physics, key, action)
+    return dict(sorted(writers.items()))
+
   # -- build time (host) ----------------------------------------------------
 
   def initialize_episode_mjcf(self, random_state):
-    for participant in self._host_participants('initialize_episode_mjcf'):
-      participant(random_state)
+    """Runs `initialize_episode_mjcf`, and records the MJCF variators that
+    each hook applies composer's way (`apply_variations(random_state)`)."""
+    self._episode_variators = []
+    owners = [('task', type(self._task).__name__, self._task)] + [
+        (
+            f'entity:{entity.full_identifier}',
+            f'{type(entity).__name__}({entity.name!r})',
+            entity,
+        )
+        for entity in self._task.root_entity.iter_entities()
+    ]
+    hooks = [
+        (identity, describe, owner.initialize_episode_mjcf)
+        for identity, describe, owner in owners
+    ] + [
+        (f'extra:initialize_episode_mjcf:{slot}', repr(hook), hook)
+        for slot, hook in enumerate(self._extra['initialize_episode_mjcf'])
+    ]
+    for identity, describe, hook in hooks:
+      with mjcf_variator.collecting_episode_calls() as calls:
+        hook(random_state)
+      for i, variator in enumerate(calls):
+        self._episode_variators.append(
+            Participant(
+                f'{identity}:mjcf_variator:{i}',
+                describe,
+                variator.apply_variations,
+                False,
+            )
+        )
 
   def after_compile(self, physics, random_state):
     """Runs `after_compile`; returns the physics the last hook returned."""
@@ -182,6 +249,20 @@ class EnvironmentHooks:
     return [getattr(owner, name) for owner in owners] + self._extra[name]
 
   # -- device (pure) ----------------------------------------------------------
+
+  def episode_variations(self, physics, key, writers=None):
+    """Applies the MJCF variators that `initialize_episode_mjcf` hooks
+    applied composer's way, in their order, each with the key of its own
+    identity (its owner's, and its place among that owner's calls);
+    `writers` as in `initialize_episode`."""
+    name = 'initialize_episode_mjcf'
+    for participant in self._episode_variators:
+      result = self._call(participant, name, physics, key, None)
+      _record_writers(
+          writers, f'{participant.describe}.{name}', physics, result
+      )
+      physics = result
+    return physics
 
   def initialize_episode(self, physics, key, writers=None):
     """Runs `initialize_episode`; `writers`, where given, a dict that
@@ -200,24 +281,21 @@ class EnvironmentHooks:
   def after_step(self, physics, key):
     return self._run('after_step', physics, key)
 
-  def scheduled(self, physics, key):
-    """Runs the hooks registered with `Physics.schedule_before_step`."""
+  def scheduled(self, physics, key, writers=None):
+    """Runs the hooks registered with `Physics.schedule_before_step`;
+    `writers` as in `initialize_episode`."""
     for name, hook in physics.scheduled_hooks:
       participant = Participant(f'scheduled:{name}', name, hook, False)
-      physics = self._call(participant, 'scheduled', physics, key, None)
+      result = self._call(participant, 'scheduled', physics, key, None)
+      _record_writers(writers, f'{name} (scheduled)', physics, result)
+      physics = result
     return physics
 
   def _run(self, name, physics, key, action=None, writers=None):
     for participant in self.participants(name):
       result = self._call(participant, name, physics, key, action)
-      if writers is not None:
-        label = f'{participant.describe}.{name}'
-        for field in physics_lib.changed_model_fields(
-            physics.model, result.model
-        ):
-          labels = writers.get(field, ())
-          if label not in labels:
-            writers[field] = labels + (label,)
+      label = f'{participant.describe}.{name}'
+      _record_writers(writers, label, physics, result)
       physics = result
     return physics
 
@@ -246,6 +324,17 @@ class EnvironmentHooks:
     return result
 
 
+def _record_writers(writers, label, before, after):
+  """Adds `label` to `writers[field]` for each model field that a hook
+  wrote from `before` to `after` (nothing where `writers` is None)."""
+  if writers is None:
+    return
+  for field in physics_lib.changed_model_fields(before.model, after.model):
+    labels = writers.get(field, ())
+    if label not in labels:
+      writers[field] = labels + (label,)
+
+
 def _check_takes_key(participant, name):
   """Refuses a device hook whose parameter is composer's `random_state`."""
   try:
@@ -266,7 +355,9 @@ def check_step_writes(before, after, fields, hook_names):
 
   Raises a `ValueError` (while the step is traced) where the `hook_names`
   hooks, run from the `Physics` `before` to `after`, wrote a model field
-  that is not among the per-world `fields`, scheduled a hook, or added,
+  that is not among the per-world `fields` (the reset makes per-world every
+  field that `step_model_field_writers` finds written, so this means a hook
+  wrote differently when the step was traced), scheduled a hook, or added,
   removed or reshaped a persistent entry or entity state.
   """
   changed = physics_lib.changed_model_fields(before.model, after.model)

@@ -44,8 +44,9 @@ class ExecutionOptions:
       ended episode's reward, discount and metrics (what Brax and
       Playground's training loops expect).
     per_world_model_fields: model field names (e.g. 'geom_rgba', 'opt')
-      that step hooks may write per world, in addition to those that
-      `initialize_episode` hooks write (which are found automatically).
+      made per world whatever the hooks write. Not needed for the fields
+      that hooks write (`initialize_episode` and step hooks alike), which
+      are found automatically by an abstract trace of the hooks.
     impl: which MJX implementation runs the physics: 'jax' (MJX's XLA
       implementation), 'warp' (MuJoCo Warp kernels through JAX's FFI, on a
       CUDA GPU or the CPU; `pip install 'mjx-composer[warp]'`), or None:

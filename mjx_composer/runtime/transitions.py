@@ -97,12 +97,15 @@ class ResetShapes:
     failures: the shape of the failed attempts' count.
     state: the shapes of the reset's `State`.
     writers: `{model field: the initialize_episode hooks that write it}`.
+    step_writers: `{model field: the step hooks that write it}`
+      (`hooks.EnvironmentHooks.step_model_field_writers`).
   """
 
   carry: Any
   failures: Any
   state: Any
   writers: dict
+  step_writers: dict = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,7 +119,9 @@ class Transitions:
     episode: the `episode.EpisodeRules`.
     n_sub_steps: physics steps per control step.
     max_reset_attempts: initialization attempts per reset.
-    declared_model_fields: model fields that step hooks may write.
+    declared_model_fields: model fields made per-world whatever the hooks
+      write (`ExecutionOptions.per_world_model_fields`); those that the
+      hooks write are found (`reset_shapes`).
     reset_forward_mode: 'observed' (a reset runs the stage of the forward
       pass that its readers need, `reset_forward`) or 'full'.
     action_shape: one world's action shape (the readers' analysis traces
@@ -164,12 +169,42 @@ class Transitions:
 
   @functools.cached_property
   def reset_shapes(self) -> ResetShapes:
-    """The shapes of a reset (`ResetShapes`), from one abstract trace of
-    its `initialize_episode` hooks and of its first state."""
+    """The shapes of a reset (`ResetShapes`), from abstract traces of its
+    `initialize_episode` hooks and of its first state, and of the step
+    hooks on that state: the model fields that step hooks write are
+    per-world from the reset on (traced again with them, where the reset's
+    hooks do not write them too)."""
+    shapes = self._reset_shapes(self.declared_model_fields)
+    step_writers = self.hooks.step_model_field_writers(
+        self.physics(shapes.state),
+        shapes.state.key,
+        jax.ShapeDtypeStruct(self.action_shape, jnp.float32),
+    )
+    if set(step_writers) - set(shapes.carry.model_fields):
+      shapes = self._reset_shapes(
+          tuple(sorted(set(self.declared_model_fields) | set(step_writers)))
+      )
+    return dataclasses.replace(shapes, step_writers=step_writers)
+
+  @functools.cached_property
+  def step_model_fields(self) -> tuple[str, ...]:
+    """The model fields per-world whatever the `initialize_episode` hooks
+    write: the declared ones and those the step hooks write."""
+    return tuple(
+        sorted(
+            set(self.declared_model_fields)
+            | set(self.reset_shapes.step_writers)
+        )
+    )
+
+  def _reset_shapes(self, step_fields) -> ResetShapes:
+    """`reset_shapes` with `step_fields` per-world (see `_attempt`)."""
     writers = {}
 
     def initialize(key):
-      carry = self._attempt(key, self.start_carry(None, key), writers)
+      carry = self._attempt(
+          key, self.start_carry(None, key), writers, step_fields
+      )
       return carry, carry.initialization_failed.astype(jnp.int32)
 
     carry, failures = jax.eval_shape(initialize, keys_lib.key_shape())
@@ -185,8 +220,11 @@ class Transitions:
 
   def per_world_model_fields(self) -> dict[str, tuple[str, ...]]:
     """`{model field: what made it per-world}`: the `initialize_episode`
-    hooks that write it, and `DECLARED` for `declared_model_fields`."""
+    and step hooks that write it, and `DECLARED` for
+    `declared_model_fields`."""
     fields = dict(self.reset_shapes.writers)
+    for name, labels in self.reset_shapes.step_writers.items():
+      fields[name] = fields.get(name, ()) + labels
     for name in self.declared_model_fields:
       fields[name] = fields.get(name, ()) + (DECLARED,)
     return dict(sorted(fields.items()))
@@ -356,13 +394,20 @@ class Transitions:
         ),
     )
 
-  def _attempt(self, key, start, writers=None):
+  def _attempt(self, key, start, writers=None, step_fields=None):
     """One run of the `initialize_episode` hooks from `start`.
 
     `writers`: as in `hooks.EnvironmentHooks.initialize_episode`.
+    `step_fields`: the model fields per-world whatever these hooks write
+    (default `step_model_fields`).
     """
+    if step_fields is None:
+      step_fields = self.step_model_fields
     physics = self.restore(start)
-    if self.hooks.has('initialize_episode'):
+    if self.hooks.initializes():
+      # The MJCF variations composer applies in `initialize_episode_mjcf`,
+      # before it compiles the episode's model and resets its data.
+      physics = self.hooks.episode_variations(physics, key, writers)
       # Composer runs a whole forward pass here; the hooks read poses, so
       # kinematics suffices, and keeps a second copy of the collision and
       # constraint code out of every program that contains a reset (the
@@ -385,7 +430,7 @@ class Transitions:
     changed = physics_lib.changed_model_fields(
         self.initial.model, physics.model
     )
-    fields = sorted(set(changed) | set(self.declared_model_fields))
+    fields = sorted(set(changed) | set(step_fields))
     return physics.carry(fields)
 
   @_named_scope
@@ -397,7 +442,7 @@ class Transitions:
     so a failed attempt leaves no trace but its key. The hooks are traced
     once: the loop's body evaluates that trace.
     """
-    if self.max_reset_attempts == 1 or not self.hooks.has('initialize_episode'):
+    if self.max_reset_attempts == 1 or not self.hooks.initializes():
       carry = self._attempt(init_key, start)
       return carry, carry.initialization_failed.astype(jnp.int32)
     attempt, shapes = control_flow.trace_once(

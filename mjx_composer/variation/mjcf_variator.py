@@ -29,10 +29,17 @@ biasprm[1] = -kp) and `kv` (biasprm[2] = -kv). Attributes that cannot be
 made equal are refused with a message (`compiler.attributes.CATALOGUE` lists
 the supported ones).
 
+Where to call it: composer's `apply_variations(random_state)` in an
+`initialize_episode_mjcf` hook works as in composer. That hook runs once, on
+the host, when the environment is built; the call records this variator,
+and every reset applies it on the device, per world, before the
+`initialize_episode` hooks (where composer's recompiled model is in place),
+with a key of its own (`collecting_episode_calls`). Or call
+`apply_variations(physics, key)` in `initialize_episode` yourself, where
+other hooks' writes decide the order.
+
 Differences from composer:
 
-* call `apply_variations(physics, key)` in `initialize_episode` (not
-  `initialize_episode_mjcf`): it runs on the device, per world;
 * initial values are the attribute values of the compiled spec, read when
   reset is traced (composer reads them when binding);
 * the world's current values (what cumulative variations build on) are
@@ -53,8 +60,13 @@ step they are dropped.
 
 from __future__ import annotations
 
-import jax.numpy as jnp
+import contextlib
+import contextvars
 
+import jax.numpy as jnp
+import numpy as np
+
+from mjx_composer import bindings
 from mjx_composer import compiler
 from mjx_composer.compiler import attributes
 from mjx_composer.model import pymjcf
@@ -88,8 +100,32 @@ class _Plan:
 
   def write(self, physics, values):
     fields = self._compiler(physics.model, values)
-    physics = physics.replace(model=physics.model.replace(**fields))
-    return physics, {'values': tuple(values)}
+    # What the write makes stale, as a binding's model write records it.
+    stale = [f for f in fields if bindings.marks_stale('model', f)]
+    written = physics.replace(model=physics.model.replace(**fields))
+    written = written.mark_written(*physics.unsynced_writes, *stale)
+    return written, {'values': tuple(values)}
+
+
+# The variators that composer's `apply_variations(random_state)` named,
+# while `collecting_episode_calls` collects them (None elsewhere).
+_EPISODE_CALLS = contextvars.ContextVar('mjcf_episode_calls', default=None)
+
+
+@contextlib.contextmanager
+def collecting_episode_calls():
+  """Collects the variators whose `apply_variations(random_state)` (composer's
+  call) runs inside: what an `initialize_episode_mjcf` hook asks for.
+
+  Yields the list they are appended to, in call order; the environment
+  applies each per episode (`apply_variations(physics, key)`).
+  """
+  calls = []
+  token = _EPISODE_CALLS.set(calls)
+  try:
+    yield calls
+  finally:
+    _EPISODE_CALLS.reset(token)
 
 
 class MJCFVariator(variator_base.Variator):
@@ -100,6 +136,32 @@ class MJCFVariator(variator_base.Variator):
     name: the name of this variator's persistent entry (derived from its
       bindings by default).
   """
+
+  def apply_variations(self, physics, key=None, *, in_step: bool = False):
+    """Samples the bound attributes for this world (see `Variator`'s).
+
+    `apply_variations(random_state)`, composer's call from an
+    `initialize_episode_mjcf` hook, records this variator instead, to be
+    applied per episode by the environment (module docstring), and returns
+    None as composer's does.
+
+    Raises:
+      TypeError: `apply_variations(random_state)` outside an
+        `initialize_episode_mjcf` hook run by an `Environment`.
+    """
+    if not isinstance(physics, np.random.RandomState):
+      return super().apply_variations(physics, key, in_step=in_step)
+    calls = _EPISODE_CALLS.get()
+    if calls is None or key is not None or in_step:
+      raise TypeError(
+          f"{self.label}: apply_variations(random_state), composer's call, "
+          'works in an initialize_episode_mjcf hook, which the Environment '
+          'runs when it is built: it then applies this variator at every '
+          'reset, per world. Elsewhere call apply_variations(physics, key) '
+          'from initialize_episode.'
+      )
+    calls.append(self)
+    return None
 
   def _check_binding(self, element, attr, variation):
     spec = None  # Keeps a converted PyMJCF model alive for its handle.

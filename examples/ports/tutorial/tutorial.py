@@ -21,10 +21,7 @@ are unchanged. Changed because hooks are pure: the `Button`'s activation
 count lives in its per-world entity state (`initial_state`), read with
 `num_activated_steps(physics)`; traced values branch with `jnp.where` and
 `&`, and `UniformCircle` uses `jnp` for its traced heading. Changed beyond
-that: the MJCF variator runs per episode in `initialize_episode` (the model
-compiles once); the `Button`'s colour, a model field written in
-`after_substep`, is declared per world; the arena is an MjSpec
-(`add_light`).
+that: the arena is an MjSpec (`add_light`).
 """
 
 # PyMJCF
@@ -262,8 +259,10 @@ class PressWithSpecificForce(composer.Task):
   def task_observables(self):
     return self._task_observables
 
+  def initialize_episode_mjcf(self, random_state):
+    self._mjcf_variator.apply_variations(random_state)
+
   def initialize_episode(self, physics, key):
-    physics = self._mjcf_variator.apply_variations(physics, key)
     physics = self._physics_variator.apply_variations(physics, key)
     creature_pose, button_pose = variation.evaluate(
         (self._creature_initial_pose, self._button_initial_pose),
@@ -279,9 +278,5 @@ class PressWithSpecificForce(composer.Task):
 def make_environment():
   creature = Creature(num_legs=4)
   task = PressWithSpecificForce(creature)
-  env = composer.Environment(
-      task,
-      random_state=np.random.RandomState(42),
-      options=composer.ExecutionOptions(per_world_model_fields=('geom_rgba',)),
-  )
+  env = composer.Environment(task, random_state=np.random.RandomState(42))
   return env
