@@ -112,6 +112,9 @@ ACCEPTED = {
     ('TerrainJoystick', 'scan_size', '(0.5, 0.1)'): (
         'a (length, width) size, not a (low, high) range'
     ),
+    ('TerrainWalk', 'scan_size', '(0.5, 0.1)'): (
+        'a (length, width) size, not a (low, high) range'
+    ),
     ('HeightScan', 'size', '(0.5, 0.1)'): (
         'a (length, width) size, not a (low, high) range'
     ),
@@ -127,6 +130,7 @@ _REGISTERED = {
     'reach': 'Reach',
     'push': 'Push',
     'walk': 'Walk',
+    'walk_terrain': 'TerrainWalk',
     'joystick': 'Joystick',
     'joystick_rough': 'Joystick',
     'joystick_terrain': 'TerrainJoystick',

@@ -245,6 +245,12 @@ class TerrainGenerator(arena.Arena):
     return self._tile
 
   @property
+  def half_extent(self):
+    """(x, y) half-sizes of the whole terrain, border included, metres
+    (it is centred on the world's origin)."""
+    return self._hfield_half.copy()
+
+  @property
   def group(self):
     """The geom group of the terrain's geoms (for a `HeightScan`)."""
     return self._group

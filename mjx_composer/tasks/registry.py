@@ -23,9 +23,10 @@ available to them by name. Its training defaults, if it needs its own, go to
 `mjx_composer.training.config.register_defaults`.
 
 The bundled tasks (reach, push, walk, joystick, joystick_rough,
-joystick_terrain) are registered when this module is imported, but their
-modules are imported only when a task is built: building the walk task does
-not import the Go1's, and `mjx-composer list` imports none.
+joystick_terrain, walk_terrain) are registered when this module is
+imported, but their modules are imported only when a task is built: building
+the walk task does not import the Go1's, and `mjx-composer list` imports
+none.
 """
 
 from __future__ import annotations
@@ -270,3 +271,17 @@ def _joystick_terrain():
   from mjx_composer.tasks import joystick_terrain
 
   return joystick_terrain.TerrainJoystick()
+
+
+@register(
+    'walk_terrain',
+    description=(
+        'The humanoid walks on generated terrain (slopes, waves, stairs) '
+        'with a terrain curriculum and a height scan.'
+    ),
+    distance='distance walked',
+)
+def _walk_terrain():
+  from mjx_composer.tasks import walk_terrain
+
+  return walk_terrain.TerrainWalk()

@@ -176,7 +176,7 @@ class Walk(task.Task):
         initial_pose_noise=initial_pose_noise,
     )
     self._move_speed = float(move_speed)
-    self._arena = arenas.Floor(size=(20.0, 20.0))
+    self._arena = self._build_arena()
     self._humanoid = humanoid_lib.Humanoid()
     frame = self._arena.add_free_entity(self._humanoid)
     frame.pos = [0.0, 0.0, self._humanoid.initial_height]
@@ -193,6 +193,21 @@ class Walk(task.Task):
     self._configure_observables(noise_level, observation_delay, history)
 
   # -- set-up ----------------------------------------------------------------
+
+  def _build_arena(self):
+    """The arena (a subclass may build its own; its first ground geom's
+    friction is randomized)."""
+    return arenas.Floor(size=(20.0, 20.0))
+
+  def _start(self, physics, key):
+    """Where this episode starts: `(physics, torso position (3,))`."""
+    del key
+    position = jnp.array([0.0, 0.0, self._humanoid.initial_height])
+    return physics, position.astype(jnp.float32)
+
+  def head_height(self, physics):
+    """The head's height above the ground, metres: its z on the floor."""
+    return self._humanoid.head_height(physics)
 
   def _bind_randomization(self):
     scale = lambda low, high: noises.Multiplicative(
@@ -272,7 +287,8 @@ class Walk(task.Task):
     variation_key, yaw_key, pose_key = jax.random.split(key, 3)
     physics = self._variator.apply_variations(physics, variation_key)
     humanoid = self._humanoid
-    position = jnp.array([0.0, 0.0, humanoid.initial_height], jnp.float32)
+    # A key folded from the episode's: the draws above stay as they were.
+    physics, position = self._start(physics, jax.random.fold_in(key, 11))
     yaw = 0.0
     if self._randomize:
       yaw = jax.random.uniform(yaw_key, (), minval=-np.pi, maxval=np.pi)
@@ -314,7 +330,7 @@ class Walk(task.Task):
     """Playground's reward factors: standing, upright, small_control, move."""
     humanoid = self._humanoid
     standing = locomotion.tolerance(
-        humanoid.head_height(physics),
+        self.head_height(physics),
         bounds=(STAND_HEIGHT, float('inf')),
         margin=STAND_HEIGHT / 4,
     )
@@ -358,7 +374,7 @@ class Walk(task.Task):
     )
 
   def fallen(self, physics):
-    return self._humanoid.head_height(physics) < self._fall_height
+    return self.head_height(physics) < self._fall_height
 
   def should_terminate_episode(self, physics):
     if not self._terminate_on_fall:
@@ -374,6 +390,6 @@ class Walk(task.Task):
     return {
         'distance': jnp.linalg.norm(torso_xy - physics.task_state['start_xy']),
         'speed': jnp.linalg.norm(self._com_velocity(physics)[:2]),
-        'head_height': self._humanoid.head_height(physics),
+        'head_height': self.head_height(physics),
         **{f'reward/{k}': v for k, v in terms.items()},
     }

@@ -147,6 +147,8 @@ TASK_DEFAULTS['joystick_rough'] = dict(TASK_DEFAULTS['joystick'])
 # The Go1 on generated terrain: the joystick's settings (its critic sees the
 # clean height scan and the privileged state).
 TASK_DEFAULTS['joystick_terrain'] = dict(TASK_DEFAULTS['joystick'])
+# The humanoid on generated terrain: the walk's settings.
+TASK_DEFAULTS['walk_terrain'] = dict(TASK_DEFAULTS['walk'])
 
 
 def field_names() -> tuple[str, ...]:

@@ -1,0 +1,241 @@
+"""The humanoid walk on generated terrain, composed from the locomotion kit.
+
+`Walk`'s humanoid, reward, observation and randomization (`tasks/walk.py`)
+on the kit's terrain, each locomotion part a reusable piece of
+`mjx_composer.locomotion`:
+
+* the arena is a `TerrainGenerator` (by default the kinds a biped can walk
+  over, `KINDS`: flat, rough, slopes up and down, waves, stairs up and
+  down; 5 levels of 8 m tiles, Isaac Lab's tile size for its humanoids),
+  its geoms in geom group `TERRAIN_GROUP` (2), apart from the humanoid's
+  (group 0), so that rays see the terrain only;
+* a `TerrainCurriculum` keeps each world's level: a humanoid that walked
+  more than half a tile from its spawn point goes up a level at its next
+  episode, one that covered less than half of `move_speed` x its episode's
+  duration goes down; the level is reported as the `terrain_level` metric;
+* every episode starts on the platform of a tile of the world's level (a
+  kind drawn per episode), the torso `initial_height` above the platform,
+  with `Walk`'s random heading and joint angles;
+* the reward is `Walk`'s, `standing * upright * small_control * move`,
+  with the head's height measured above the terrain directly below it (a
+  one-ray `HeightScan` down from the head) rather than above z = 0; the
+  same height decides falls (`fall_height`);
+* the policy sees a `HeightScan` of the terrain (a 1.6 m x 1.0 m grid every
+  0.1 m around the torso, aligned with its heading) with U(-0.1, 0.1) m
+  noise per ray, delayed as `Walk`'s other policy inputs, and the critic
+  its clean twin (`height_scan=False`: neither);
+* an episode also ends, as a truncation (discount 1), when the torso comes
+  within `OUT_OF_BOUNDS_MARGIN` of the terrain's edge: beyond it there is
+  no ground.
+
+Deviations from `Walk`:
+
+* the humanoid's XML caps MJX's candidate pairs per pair of geom types
+  (`max_geom_pairs`, 8), and MJX picks them by the distance between the
+  geoms' centres less their bounding spheres' radii: on stairs, nested
+  boxes whose largest is the lowest step, the 8 picked are pairs with the
+  large outer boxes and the platform the feet stand on is never collided
+  (the feet sank through it, 11 cm in 0.25 s). The task lifts that cap:
+  every humanoid geom is collided with every box, at every sub-step. The
+  XML's `max_contact_points` (8: the deepest contacts are kept) stays;
+* the randomized ground friction is the height field's (the first ground
+  geom, as `Walk` randomizes its floor's); the stairs' boxes keep MuJoCo's
+  default friction.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjx_composer.locomotion import curriculum as curriculum_lib
+from mjx_composer.locomotion import height_scan as height_scan_lib
+from mjx_composer.locomotion import terrain as terrain_lib
+from mjx_composer.observation import groups as groups_lib
+from mjx_composer.tasks import joystick_terrain
+from mjx_composer.tasks import locomotion
+from mjx_composer.tasks import walk
+from mjx_composer.utils import validation
+
+# The sub-terrain kinds a biped walks over (no stepping stones, beams,
+# grids or obstacles: footholds the suite humanoid's round feet miss).
+KINDS = (
+    'flat',
+    'random_uniform',
+    'pyramid_slope',
+    'inverted_pyramid_slope',
+    'waves',
+    'pyramid_stairs',
+    'inverted_pyramid_stairs',
+)
+TERRAIN_GROUP = 2  # The humanoid's geoms are in group 0.
+OUT_OF_BOUNDS_MARGIN = 1.0  # Metres from the terrain's edge.
+_OWNER = 'TerrainWalk'
+
+
+class TerrainWalk(walk.Walk):
+  """`Walk` on a generated terrain with a curriculum (module docstring).
+
+  Args:
+    kinds: the terrain's sub-terrain kinds (`sub_terrains.KINDS`).
+    levels: the terrain's difficulty levels.
+    tile_size: the side of a tile, metres.
+    initial_levels: (low, high) of a world's first level.
+    scan_size: (length, width) of the height scan's grid, metres.
+    scan_resolution: the height scan's spacing, metres.
+    terrain_seed: the seed of the random sub-terrains.
+    height_scan: whether the policy and the critic observe the height scan
+      (False: neither does; the head's height is still measured by a ray).
+    **kwargs: `Walk`'s arguments.
+  """
+
+  def __init__(
+      self,
+      kinds=KINDS,
+      levels=5,
+      tile_size=8.0,
+      initial_levels=(0, 1),
+      scan_size=(1.6, 1.0),
+      scan_resolution=0.1,
+      terrain_seed=0,
+      height_scan=True,
+      **kwargs,
+  ):
+    locomotion.check_terrain_arguments(
+        _OWNER,
+        kinds=kinds,
+        levels=levels,
+        initial_levels=initial_levels,
+        scan_size=scan_size,
+        scan_resolution=scan_resolution,
+        terrain_seed=terrain_seed,
+        height_scan=height_scan,
+    )
+    tile_size = validation.check_positive('tile_size', tile_size, owner=_OWNER)
+    self._terrain_args = dict(
+        kinds=kinds,
+        levels=levels,
+        tile_size=tile_size,
+        border=tile_size / 4,
+        group=TERRAIN_GROUP,
+        seed=terrain_seed,
+    )
+    super().__init__(**kwargs)
+    spec = self._arena.mjcf_model
+    for numeric in list(spec.numerics):
+      if numeric.name == 'max_geom_pairs':  # See the module docstring.
+        spec.delete(numeric)
+    self._curriculum = curriculum_lib.TerrainCurriculum(
+        self._arena, initial_levels=initial_levels
+    )
+    # The ground below the head: one ray, straight down from above it.
+    self._head_ray = height_scan_lib.HeightScan(
+        self.humanoid.head,
+        points=np.zeros((1, 2), np.float32),
+        alignment='world',
+        geomgroup=self._arena.geomgroup,
+    )
+    self._scan = self._scan_twin = None
+    if height_scan:
+      self._scan, self._scan_twin = locomotion.policy_height_scan(
+          self.humanoid.torso,
+          self._arena,
+          scan_size,
+          scan_resolution,
+          self.physics_steps_per_control_step,
+          noise=self._noise_level * joystick_terrain.HEIGHT_SCAN_NOISE,
+          delay=self._observation_delay,
+      )
+
+  def _build_arena(self):
+    return terrain_lib.TerrainGenerator(**self._terrain_args)
+
+  def _configure_observables(self, noise_level, delay, history):
+    self._noise_level = float(noise_level)
+    self._observation_delay = int(delay)
+    super()._configure_observables(noise_level, delay, history)
+
+  def _start(self, physics, key):
+    """Starts on a tile of this world's level (the curriculum's)."""
+    physics, spawn = self._curriculum.reset(physics, key)
+    lift = jnp.array([0.0, 0.0, self.humanoid.initial_height], jnp.float32)
+    return physics, spawn + lift
+
+  # -- composition -----------------------------------------------------------
+
+  @property
+  def terrain(self):
+    return self._arena
+
+  @property
+  def curriculum(self):
+    return self._curriculum
+
+  @property
+  def height_scan(self):
+    """The policy's `HeightScan` (None with `height_scan=False`)."""
+    return self._scan
+
+  @property
+  def task_observables(self):
+    if self._scan is None:
+      return super().task_observables
+    return {
+        **super().task_observables,
+        'height_scan': self._scan,
+        'privileged_height_scan': self._scan_twin,
+    }
+
+  def observation_groups(self):
+    groups = super().observation_groups()
+    if self._scan is None:
+      return groups
+    policy, critic = groups['policy'], groups['critic']
+    return {
+        'policy': groups_lib.ObservationGroup(
+            keys=list(policy.keys) + ['height_scan'], flatten=True
+        ),
+        'critic': groups_lib.ObservationGroup(
+            keys=list(critic.keys) + ['privileged_height_scan'],
+            corrupted=False,
+            flatten=True,
+        ),
+    }
+
+  # -- episode ---------------------------------------------------------------
+
+  def after_step(self, physics, key):
+    del key
+    return self._curriculum.record(
+        physics,
+        physics.bind(self.humanoid.torso).xpos,
+        self._move_speed,
+        self.control_timestep,
+    )
+
+  # -- outcome ---------------------------------------------------------------
+
+  def head_height(self, physics):
+    """The head's height above the terrain directly below it, metres."""
+    return -self._head_ray.scan(physics)[0][0]
+
+  def out_of_bounds(self, physics):
+    """Whether the torso is within `OUT_OF_BOUNDS_MARGIN` of the edge."""
+    xy = physics.bind(self.humanoid.torso).xpos[:2]
+    limit = jnp.asarray(self._arena.half_extent - OUT_OF_BOUNDS_MARGIN)
+    return jnp.any(jnp.abs(xy) > limit)
+
+  def should_terminate_episode(self, physics):
+    return jnp.logical_or(
+        super().should_terminate_episode(physics), self.out_of_bounds(physics)
+    )
+
+  def get_discount(self, physics):
+    """0 after a fall (as `Walk`'s); 1 when leaving the terrain."""
+    fell = super().should_terminate_episode(physics)
+    return jnp.where(fell, 0.0, 1.0)
+
+  def get_metrics(self, physics):
+    return {
+        **super().get_metrics(physics),
+        **self._curriculum.metrics(physics),
+    }
