@@ -4,9 +4,9 @@
 on the kit's terrain, each locomotion part a reusable piece of
 `mjx_composer.locomotion`:
 
-* the arena is a `TerrainGenerator` (by default the kinds a biped can walk
-  over, `KINDS`: flat, rough, slopes up and down, waves, stairs up and
-  down; 5 levels of 8 m tiles, Isaac Lab's tile size for its humanoids),
+* the arena is a `TerrainGenerator` (by default `KINDS`: flat, rough,
+  slopes up and down, waves, stairs up and down; 5 levels of 8 m tiles,
+  Isaac Lab's tile size),
   its geoms in geom group `TERRAIN_GROUP` (2), apart from the humanoid's
   (group 0), so that rays see the terrain only;
 * a `TerrainCurriculum` keeps each world's level: a humanoid that walked
@@ -56,8 +56,9 @@ from mjx_composer.tasks import locomotion
 from mjx_composer.tasks import walk
 from mjx_composer.utils import validation
 
-# The sub-terrain kinds a biped walks over (no stepping stones, beams,
-# grids or obstacles: footholds the suite humanoid's round feet miss).
+# The default sub-terrain kinds: continuous ground and stairs, without the
+# stepping stones, beams, grids and obstacles (`kinds=sub_terrains.KINDS`
+# adds them).
 KINDS = (
     'flat',
     'random_uniform',
