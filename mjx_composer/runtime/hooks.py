@@ -218,7 +218,11 @@ class EnvironmentHooks:
         (identity, describe, owner.initialize_episode_mjcf)
         for identity, describe, owner in owners
     ] + [
-        (f'extra:initialize_episode_mjcf:{slot}', repr(hook), hook)
+        (
+            f'extra:initialize_episode_mjcf:{slot}',
+            getattr(hook, '__qualname__', repr(hook)),
+            hook,
+        )
         for slot, hook in enumerate(self._extra['initialize_episode_mjcf'])
     ]
     for identity, describe, hook in hooks:
