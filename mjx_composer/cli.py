@@ -324,6 +324,15 @@ def train(argv=None):
     config, run, resume = resolve_train_config(list(argv or []))
   except (run_folder.RunFolderError, ValueError, KeyError) as e:
     return _error(e.args[0] if e.args else e)
+  if config.processes > 1:
+    # pylint: disable=g-import-not-at-top
+    from mjx_composer.training import launcher
+
+    # pylint: enable=g-import-not-at-top
+    try:
+      return launcher.launch(run.path, resume, config.processes)
+    except ValueError as e:
+      return _error(e)
   try:
     trainer.train(config, run, resume=resume)
   except (run_folder.RunFolderError, ValueError) as e:

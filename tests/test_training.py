@@ -240,3 +240,38 @@ def test_bad_settings_are_named(tmp_path, capsys):
   assert cli.main(argv) == 2
   assert 'must be a multiple of num_envs' in capsys.readouterr().err
   assert not os.path.exists(tmp_path / 'r')  # no folder for a refused run
+
+
+def test_two_processes_train_one_run(tmp_path):
+  """`--processes 2`: two processes on the CPU joined by `jax.distributed`,
+  the task sent to them pickled; process 0 writes the run folder."""
+  path = str(tmp_path / 'swing')
+  no_video = _TINY[: _TINY.index('--video-every')]
+  argv = ['train', 'swing', '--run-dir', path, '--num-timesteps', '80']
+  assert cli.main(argv + no_video + ['--processes', '2']) == 0
+  run = run_folder.RunFolder(path)
+  assert run.read_config().processes == 2
+  with open(run.summary_path) as f:
+    summary = json.load(f)
+  assert (summary['processes'], summary['devices']) == (2, 1)
+  # Brax's step count is of both processes' worlds: 4 worlds, 2 in each.
+  assert summary['steps'] == 80
+  rows = metrics_lib.read_csv(run.metrics_csv)
+  assert [r['step'] for r in rows] == [0, 40, 80]  # written once
+  last = checkpoints.latest(run)
+  assert (last.step, last.evaluations) == (80, 2)
+  assert all(np.isfinite(x).all() for x in jax.tree.leaves(last.params))
+  with open(os.path.join(path, 'logs', 'process_1.log')) as f:
+    assert 'in each of 2 processes (this is process 1)' in f.read()
+
+
+def test_processes_need_an_importable_factory(tmp_path, capsys):
+  registry.register('swing_lambda', lambda: _Swing())
+  try:
+    argv = ['train', 'swing_lambda', '--run-dir', str(tmp_path / 'r')]
+    assert cli.main(argv + ['--processes', '2']) == 2
+  finally:
+    registry.unregister('swing_lambda')
+  err = capsys.readouterr().err
+  assert "Task 'swing_lambda' cannot be sent to the training processes" in err
+  assert 'module-level function or class' in err

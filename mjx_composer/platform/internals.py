@@ -2,7 +2,7 @@
 
 The package needs a few things that JAX, MJX and MuJoCo Warp do not export:
 a lowering rule of JAX's Cholesky primitive, JAX's dead-code elimination of
-a jaxpr, JAX's partitioner setting, MJX's implementation data
+a jaxpr, JAX's partitioner setting, the barrier of JAX's coordination service, MJX's implementation data
 (`mjx.Data._impl`, `mjx.Option._impl`), MJX's collision tables, ray-geom
 table and quaternion math, and MuJoCo Warp's default constraint rows. This
 module is the only one that imports a private module (`jax._src`,
@@ -104,6 +104,25 @@ cholesky_p = _linalg.cholesky_p
 # Cholesky (a LAPACK call), which `cpu_linalg.enable(enabled=False)` puts
 # back.
 lapack_cholesky_cpu_lowering = _linalg._cholesky_cpu_lowering
+
+
+def wait_for_processes(barrier: str, timeout_s: float) -> None:
+  """Blocks until every `jax.distributed` process reaches `barrier`.
+
+  The coordination service's barrier (`jax._src.distributed`'s client),
+  with a timeout of our choosing: the public `multihost_utils` barrier is a
+  collective, which JAX's CPU collectives (Gloo) give up on when another
+  process is more than 30 s late, e.g. still compiling. A single process
+  returns at once.
+  """
+  # pylint: disable=g-import-not-at-top
+  from jax._src import distributed as _distributed
+
+  # pylint: enable=g-import-not-at-top
+  client = _distributed.global_state.client
+  if client is None:
+    return
+  client.wait_at_barrier(barrier, int(timeout_s * 1000))
 
 
 def register_cpu_lowering(primitive, rule) -> None:

@@ -75,6 +75,9 @@ class TrainConfig:
   """Random seed of the run."""
   devices: Optional[int] = None
   """Local devices to train on (Brax pmaps over them); None: all."""
+  processes: int = 1
+  """Training processes on this host, one per GPU, joined by
+  jax.distributed (each process launches only its GPU's programs)."""
   impl: Optional[Literal['jax', 'warp']] = None
   """Physics implementation (None: the Environment's default)."""
   video_every: int = 0
@@ -268,6 +271,8 @@ def check(config: TrainConfig) -> None:
     )
   if config.devices is not None and config.devices < 1:
     raise ValueError(f'devices must be at least 1, got {config.devices}.')
+  if config.processes < 1:
+    raise ValueError(f'processes must be at least 1, got {config.processes}.')
   if config.critic_obs not in ('policy', 'critic'):
     raise ValueError(
         f"critic_obs must be 'policy' or 'critic', got {config.critic_obs!r}."

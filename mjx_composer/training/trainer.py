@@ -21,6 +21,10 @@ After each evaluation the run gets a checkpoint, a `metrics.csv` row and
 TensorBoard scalars (`metrics.MetricsWriter`), and every `video_every`
 evaluations a video of the deterministic policy (`video`); at the end a
 `summary.json`.
+
+In several processes (`jax.distributed`; `launcher`), every process trains
+its share of the worlds on its local devices, and process 0, which Brax
+alone evaluates and reports to, writes the run folder.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import tqdm
 
 from mjx_composer import platform
 from mjx_composer.adapters import brax as brax_adapter
+from mjx_composer.platform import internals
 from mjx_composer.platform import partitioner
 from mjx_composer.training import checkpoints
 from mjx_composer.training import config as config_lib
@@ -43,11 +48,15 @@ from mjx_composer.training import policy as policy_lib
 from mjx_composer.training import run_folder
 from mjx_composer.training import video
 
+# How long processes wait for process 0's first evaluation (its compile).
+_START_TIMEOUT_S = 3600.0
+
 # What a resumed run may change; the rest would change what it trains.
 RESUMABLE = frozenset(
     {
         'num_timesteps',
         'devices',
+        'processes',
         'video_every',
         'video_worlds',
         'video_steps',
@@ -97,7 +106,8 @@ def _devices(config, log):
     raise ValueError(
         f'devices={devices}, but this process has {local} local devices.'
     )
-  config_lib.check_devices(config, devices)
+  # Brax splits the batch over every process's devices.
+  config_lib.check_devices(config, devices * jax.process_count())
   impl = config.impl
   if devices > 1:
     # MuJoCo Warp's contact buffer belongs to the whole batch; Brax's pmap
@@ -109,9 +119,16 @@ def _devices(config, log):
       )
     impl = 'jax'
   device = jax.devices()[0]
+  processes = jax.process_count()
   log(
       f'JAX {jax.__version__} on {device.platform}: {device.device_kind} x '
-      f'{devices} (of {local}).'
+      f'{devices} (of {local})'
+      + (
+          f' in each of {processes} processes (this is process '
+          f'{jax.process_index()}).'
+          if processes > 1
+          else '.'
+      )
   )
   return devices, impl
 
@@ -125,7 +142,8 @@ def train(
   """Trains `config` into `run` (a new run, or `resume` its checkpoint).
 
   Returns:
-    The summary written to `summary.json`.
+    The summary written to `summary.json` (in processes but the first,
+    which write nothing, only the process index and the task).
 
   Raises:
     RunFolderError: when resuming a run without a usable checkpoint, or one
@@ -157,10 +175,12 @@ def train(
     )
     offset, evaluations = restored.step, restored.evaluations
     spe = restored.steps_per_evaluation
+  # Process 0 writes the run folder (Brax reports to it alone).
+  lead = jax.process_index() == 0
   writer = metrics_lib.MetricsWriter(
       run.metrics_csv,
-      run.events_dir if config.tensorboard else None,
-      config_lib.to_dict(config) if config.wandb else None,
+      run.events_dir if config.tensorboard and lead else None,
+      config_lib.to_dict(config) if config.wandb and lead else None,
       os.path.basename(os.path.abspath(run.path)),
   )
   if resume and writer.rows:
@@ -199,6 +219,8 @@ def train(
   def keep(step, make_policy, params):
     latest.update(make_policy=make_policy, params=params)
     state = checkpoints.training_state_of_caller()
+    if step == 0 and jax.process_count() > 1:
+      _join_processes(f'mjx_composer_train_start_{offset}')
     if step == 0:
       if restored is not None:
         done['restored_ok'] = all(
@@ -289,12 +311,15 @@ def train(
     bar.close()
     writer.close()
 
+  if not lead:
+    return {'process': jax.process_index(), 'task': config.task}
   rows = writer.rows
   device = jax.devices()[0]
   summary = {
       'task': config.task,
       'device': f'{device.platform}: {device.device_kind}',
       'devices': devices,
+      'processes': jax.process_count(),
       'impl': env.impl,
       'jax': jax.__version__,
       'steps': rows[-1]['step'] if rows else offset,
@@ -316,6 +341,24 @@ def train(
       f'run folder {run.path}.'
   )
   return summary
+
+
+def _join_processes(barrier: str) -> None:
+  """Waits for every process, then connects their collectives.
+
+  Brax calls `policy_params_fn` at step 0 in every process, after process
+  0's first evaluation (which compiles the evaluator), and before the first
+  training epoch. JAX's CPU collectives (Gloo) give up when a process
+  reaches its first collective more than 30 s after another, e.g. still
+  compiling; once connected, a collective waits as long as it takes. So the
+  processes wait for each other at the coordination service's barrier (no
+  such limit), then run one collective over every device.
+  """
+  internals.wait_for_processes(barrier, _START_TIMEOUT_S)
+  ones = jax.numpy.ones((jax.local_device_count(),))
+  jax.block_until_ready(
+      jax.pmap(lambda x: jax.lax.psum(x, 'i'), axis_name='i')(ones)
+  )
 
 
 def _video(env, brax_env, config, latest, path):
