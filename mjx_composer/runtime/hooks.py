@@ -182,19 +182,20 @@ class EnvironmentHooks:
     From an abstract trace (`jax.eval_shape`; `physics`, `key` and `action`
     may be shapes) of the scheduled, `before_step`, `before_substep`,
     `after_substep` and `after_step` hooks in a step's order, each seeing
-    its derived quantities as fresh where the step's physics recomputes
-    them (after the physics step, and after the last one).
+    its physics as the step passes it on: rebuilt from the sub-step
+    loop's carry before `before_substep`, after the physics step, and after
+    the last one's forward pass (a new `Physics`, with no record of
+    unsynced writes: `replace`).
     """
     writers = {}
 
     def run(physics, key, action):
       physics = self.scheduled(physics, key, writers)
       physics = self._run('before_step', physics, key, action, writers)
+      physics = physics.replace()
       physics = self._run('before_substep', physics, key, action, writers)
-      # The physics step (`replace` drops the record of unsynced writes).
-      physics = self._run(
-          'after_substep', physics.replace(), key, None, writers
-      )
+      physics = physics.replace()
+      physics = self._run('after_substep', physics, key, None, writers)
       return self._run('after_step', physics.replace(), key, None, writers)
 
     jax.eval_shape(run, physics, key, action)
