@@ -20,8 +20,8 @@ once and appears once in the lowered program. The auto-reset that shares
 the step's forward pass is `fused_restart`.
 
 What shapes the programs is decided by analyses of shapes, not of values
-(`analyse`): the fields the reset's hooks make per-world, the reset's stage
-of the forward pass, and whether the sensors are computed once per control
+(`analyse`): the fields the reset's and the step's hooks make per-world,
+the reset's stage of the forward pass, and whether the sensors are computed once per control
 step. Each runs once, by abstract evaluation, and is independent of which
 program is traced first.
 """
@@ -152,8 +152,8 @@ class Transitions:
   def analyse(self) -> 'Transitions':
     """Runs every analysis now (each otherwise runs on first use).
 
-    `reset_shapes` (the reset's `initialize_episode` hooks, traced
-    abstractly), `reset_forward` and `sensors_once_per_step` (their readers'
+    `reset_shapes` (the reset's `initialize_episode` hooks and the step
+    hooks, traced abstractly), `reset_forward` and `sensors_once_per_step` (their readers'
     jaxprs). They read shapes only, so they answer the same whenever they
     run; running them at build keeps their traces out of the first trace of
     `reset` or `step`. Raises what tracing those hooks raises.
