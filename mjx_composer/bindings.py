@@ -106,6 +106,15 @@ _VISUAL_ATTRIBUTES = frozenset({
     'rgba', 'matid', 'emission', 'specular', 'shininess', 'reflectance',
     'needstage',
 })  # fmt: skip
+# Model attributes the kinematics (`KINEMATICS_FIELDS`) read: frames, joint
+# anchors and axes, masses and inertias (centres of mass, composite
+# inertias). A write of any other model field (friction, sizes, gains,
+# solver parameters) leaves the kinematics fresh: dm_control would run
+# `mj_forward` before the read and read the same value.
+_KINEMATIC_ATTRIBUTES = frozenset({
+    'pos', 'quat', 'ipos', 'iquat', 'axis', 'mass', 'inertia', 'subtreemass',
+    'sameframe',
+})  # fmt: skip
 # What `Physics.kinematics()` computes (`mjx.kinematics`, then
 # `mjx.com_pos`): a stale read of one of these needs no more than it.
 KINEMATICS_FIELDS = frozenset({
@@ -196,6 +205,13 @@ def stale_stage(unsynced, field: str, index, mj_model) -> int:
   """The forward-pass stage (1-3) that `field[index]` needs where the
   `unsynced` writes (`marks_stale` fields written with no forward pass
   since) made it stale; 0 where it is fresh."""
+  if field in KINEMATICS_FIELDS:
+    unsynced = [
+        name
+        for name in unsynced
+        if name in STATE_INPUT_FIELDS
+        or name.split('_', 1)[-1] in _KINEMATIC_ATTRIBUTES
+    ]
   if not unsynced or field in _NOT_DERIVED:
     return 0
   stale_from = min(

@@ -43,6 +43,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
+from mjx_composer.platform import internals
 from mjx_composer.platform import partitioner
 from mjx_composer.platform import sharding
 from mjx_composer import variation
@@ -316,7 +317,11 @@ def _worker_multihost(out, port, process_id):
   report['process_devices'] = [d.process_index for d in mesh.devices.flat]
   report['local_rows'] = len(trajectory[-1]['.step_type'])
   # Every world on every process (an all-gather), and the local rows joined
-  # back into one batch.
+  # back into one batch: the first collective, after both processes have
+  # compiled everything (the coordination service's barrier waits as long
+  # as that takes; Gloo gives up on a process 30 s late to its first
+  # collective).
+  internals.wait_for_processes('test_sharding_gather', 1800.0)
   gathered = _flatten(sharding.gather_worlds(states))
   local = sharding.local_worlds(states.observation['tip'])
   rejoined = sharding.gather_worlds(sharding.put_local_worlds(local, mesh))
