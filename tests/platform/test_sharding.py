@@ -272,28 +272,6 @@ def _worker_meshes(out):
     )
 
 
-def _put_mjx_on_a_local_device():
-  """Makes `mjx.put_model` and `mjx.make_data` default to a local device.
-
-  MJX (3.17) puts a model or data on `jax.devices()[0]` unless given a
-  device. With several processes that is process 0's device, which the
-  other processes cannot address, so `Environment(task)` fails there
-  ("Number of addressable output shards must match ...: 0 vs. 1"). The fix
-  belongs in `Environment` (pass `device=jax.local_devices()[0]`); until it
-  is there, this worker does it for MJX.
-  """
-  from mujoco import mjx  # pylint: disable=g-import-not-at-top
-
-  for name in ('put_model', 'make_data'):
-
-    def local(*args, _original=getattr(mjx, name), device=None, **kwargs):
-      if device is None:
-        device = jax.local_devices()[0]
-      return _original(*args, device=device, **kwargs)
-
-    setattr(mjx, name, local)
-
-
 def _worker_multihost(out, port, process_id):
   """One of 2 processes of 2 devices: 8 worlds over the 4 global devices.
 
@@ -308,7 +286,6 @@ def _worker_multihost(out, port, process_id):
       process_id=process_id,
   )
   assert jax.device_count() == 4 and jax.local_device_count() == 2
-  _put_mjx_on_a_local_device()
   env = _make_env()
   mesh = sharding.world_mesh()
   trajectory, report, states = _trajectory(
