@@ -19,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.locomotion import height_scan as height_scan_lib
+from mjx_composer.observation import groups as groups_lib
 from mjx_composer.utils import validation
 
 # -- rewards -------------------------------------------------------------------
@@ -345,6 +346,30 @@ def policy_height_scan(
       delay=delay,
   )
   return scan, clean_twin(scan)
+
+
+def with_height_scan(observables, scan, twin):
+  """`observables` with the policy's height `scan` as 'height_scan' and its
+  `twin` as 'privileged_height_scan' (as they were with `scan` None)."""
+  if scan is None:
+    return observables
+  return {**observables, 'height_scan': scan, 'privileged_height_scan': twin}
+
+
+def groups_with_height_scan(groups):
+  """`groups` with 'height_scan' in the policy's and its clean twin,
+  'privileged_height_scan', in the critic's (`with_height_scan`)."""
+  policy, critic = groups['policy'], groups['critic']
+  return {
+      'policy': groups_lib.ObservationGroup(
+          keys=list(policy.keys) + ['height_scan'], flatten=True
+      ),
+      'critic': groups_lib.ObservationGroup(
+          keys=list(critic.keys) + ['privileged_height_scan'],
+          corrupted=False,
+          flatten=True,
+      ),
+  }
 
 
 # -- small helpers -------------------------------------------------------------

@@ -50,7 +50,6 @@ import numpy as np
 from mjx_composer.locomotion import curriculum as curriculum_lib
 from mjx_composer.locomotion import height_scan as height_scan_lib
 from mjx_composer.locomotion import terrain as terrain_lib
-from mjx_composer.observation import groups as groups_lib
 from mjx_composer.tasks import joystick_terrain
 from mjx_composer.tasks import locomotion
 from mjx_composer.tasks import walk
@@ -178,29 +177,15 @@ class TerrainWalk(walk.Walk):
 
   @property
   def task_observables(self):
-    if self._scan is None:
-      return super().task_observables
-    return {
-        **super().task_observables,
-        'height_scan': self._scan,
-        'privileged_height_scan': self._scan_twin,
-    }
+    return locomotion.with_height_scan(
+        super().task_observables, self._scan, self._scan_twin
+    )
 
   def observation_groups(self):
     groups = super().observation_groups()
     if self._scan is None:
       return groups
-    policy, critic = groups['policy'], groups['critic']
-    return {
-        'policy': groups_lib.ObservationGroup(
-            keys=list(policy.keys) + ['height_scan'], flatten=True
-        ),
-        'critic': groups_lib.ObservationGroup(
-            keys=list(critic.keys) + ['privileged_height_scan'],
-            corrupted=False,
-            flatten=True,
-        ),
-    }
+    return locomotion.groups_with_height_scan(groups)
 
   # -- episode ---------------------------------------------------------------
 
