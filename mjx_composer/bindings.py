@@ -122,6 +122,26 @@ KINEMATICS_FIELDS = frozenset({
     'geom_xpos', 'geom_xmat', 'site_xpos', 'site_xmat', 'subtree_com',
     'cinert', 'cdof',
 })  # fmt: skip
+# Of the `KINEMATICS_FIELDS`, those a write of a model field of these
+# elements' `_KINEMATIC_ATTRIBUTES` can change: a geom's or a site's frame
+# places only that geom or site (MuJoCo's `mj_kinematics` reads `geom_pos`
+# for `geom_xpos` alone, `geom_quat` for `geom_xmat`), a body's inertial
+# frame and mass only the inertial quantities (`mj_comPos` places `cinert`
+# and `cdof` about the subtree's centre of mass). Every other kinematic
+# model field (a body's or a joint's frame) may change them all.
+_KINEMATICS_WRITTEN = {
+    'geom_pos': frozenset({'geom_xpos'}),
+    'geom_quat': frozenset({'geom_xmat'}),
+    'geom': frozenset({'geom_xpos', 'geom_xmat'}),
+    'site_pos': frozenset({'site_xpos'}),
+    'site_quat': frozenset({'site_xmat'}),
+    'site': frozenset({'site_xpos', 'site_xmat'}),
+    'body_ipos': frozenset({'xipos', 'subtree_com', 'cinert', 'cdof'}),
+    'body_iquat': frozenset({'ximat', 'cinert'}),
+    'body_mass': frozenset({'subtree_com', 'cinert', 'cdof'}),
+    'body_subtreemass': frozenset({'subtree_com', 'cinert', 'cdof'}),
+    'body_inertia': frozenset({'cinert'}),
+}
 
 
 class StaleReadError(ValueError):
@@ -201,17 +221,25 @@ def marks_stale(source: str, field: str) -> bool:
   return field.split('_', 1)[-1] not in _VISUAL_ATTRIBUTES
 
 
+def kinematics_written(name: str) -> frozenset:
+  """The `KINEMATICS_FIELDS` that a write of `name` (a
+  `STATE_INPUT_FIELDS` field or a model field) can change."""
+  if name in STATE_INPUT_FIELDS:
+    return KINEMATICS_FIELDS if name == 'qpos' else frozenset()
+  element, _, attribute = name.partition('_')
+  if attribute not in _KINEMATIC_ATTRIBUTES:
+    return frozenset()
+  return _KINEMATICS_WRITTEN.get(
+      name, _KINEMATICS_WRITTEN.get(element, KINEMATICS_FIELDS)
+  )
+
+
 def stale_stage(unsynced, field: str, index, mj_model) -> int:
   """The forward-pass stage (1-3) that `field[index]` needs where the
   `unsynced` writes (`marks_stale` fields written with no forward pass
   since) made it stale; 0 where it is fresh."""
   if field in KINEMATICS_FIELDS:
-    unsynced = [
-        name
-        for name in unsynced
-        if name in STATE_INPUT_FIELDS
-        or name.split('_', 1)[-1] in _KINEMATIC_ATTRIBUTES
-    ]
+    unsynced = [name for name in unsynced if field in kinematics_written(name)]
   if not unsynced or field in _NOT_DERIVED:
     return 0
   stale_from = min(
@@ -240,6 +268,14 @@ def check_fresh(unsynced, field: str, index, mj_model) -> None:
     )
 
 
+def _renamed_element_id() -> AttributeError:
+  return AttributeError(
+      "dm_control's `binding.element_id` is `binding.element_ids` here: the "
+      'compiled ids of the bound elements, a tuple (`element_ids[0]` for one '
+      'element, `np.array(binding.element_ids)` where an array is needed).'
+  )
+
+
 class Binding:
   """Attribute access for bound elements, like dm_control's `physics.bind`."""
 
@@ -261,6 +297,8 @@ class Binding:
   def __getattr__(self, attr: str) -> jax.Array:
     if attr.startswith('_'):
       raise AttributeError(attr)
+    if attr == 'element_id':
+      raise _renamed_element_id()
     return self._physics.read(self._address(attr))
 
   def __setattr__(self, attr, value):
@@ -274,7 +312,8 @@ class Binding:
 
   @property
   def element_ids(self) -> tuple:
-    """The compiled ids of the bound elements."""
+    """The compiled ids of the bound elements (dm_control's
+    `element_id`, which is refused with this name)."""
     return self._ids
 
   def set(self, **values) -> Physics:
@@ -300,6 +339,8 @@ class EmptyBinding:
   def __getattr__(self, attr: str) -> jax.Array:
     if attr.startswith('_'):
       raise AttributeError(attr)
+    if attr == 'element_id':
+      raise _renamed_element_id()
     return jnp.zeros((0,), self._physics.data.qpos.dtype)
 
   def __setattr__(self, attr, value):

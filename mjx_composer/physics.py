@@ -72,6 +72,13 @@ StaleReadError = bindings.StaleReadError
 Binding = bindings.Binding
 EmptyBinding = bindings.EmptyBinding
 
+
+class ReadOnlyPhysicsError(TypeError):
+  """A write to the physics handed to a method that only reads it (the
+  task's outcome methods: `get_reward`, `get_discount`,
+  `should_terminate_episode`, `get_metrics`), raised at trace time."""
+
+
 _MODEL_FIELD_NAMES = tuple(f.name for f in dataclasses.fields(mjx.Model))
 
 
@@ -102,6 +109,13 @@ class Physics:
       made stale runs the forward-pass stage that computes it (True in the
       `initialize_episode` hooks) instead of raising `StaleReadError`
       (static).
+    read_only: where the physics is read only, the method that received it
+      (e.g. `'Task.get_reward'`), else `''` (static). Every write then
+      raises `ReadOnlyPhysicsError` at trace time: the outcome methods
+      (`get_reward`, `get_discount`, `should_terminate_episode`,
+      `get_metrics`) return values, and a physics they wrote would be
+      dropped. `forward()` and `kinematics()` stay allowed (they compute
+      what a read needs).
   """
 
   model: mjx.Model
@@ -115,6 +129,7 @@ class Physics:
   entity_states: Any = None
   scheduled_hooks: tuple = struct.field(pytree_node=False, default=())
   forward_stale_reads: bool = struct.field(pytree_node=False, default=False)
+  read_only: str = struct.field(pytree_node=False, default='')
 
   @property
   def mj_model(self) -> mujoco.MjModel:
@@ -199,6 +214,7 @@ class Physics:
 
   def step(self) -> 'Physics':
     """Advances one physics timestep (`mjx.step`)."""
+    self._check_writable('step()')
     return self.replace(data=mjx.step(self.model, self.data))
 
   def update_task_state(self, **values) -> 'Physics':
@@ -208,7 +224,8 @@ class Physics:
             task_state=_updated(
                 self.task_state, values, 'Task.initial_task_state()'
             )
-        )
+        ),
+        'update_task_state()',
     )
 
   def entity_state(self, entity):
@@ -222,7 +239,9 @@ class Physics:
     new[key] = _updated(
         new[key], values, f'{type(entity).__name__}' '.initial_state()'
     )
-    return self._derived(self.replace(entity_states=new))
+    return self._derived(
+        self.replace(entity_states=new), 'update_entity_state()'
+    )
 
   # -- state that outlives an episode, and initialization failures ---------
 
@@ -246,7 +265,9 @@ class Physics:
     """
     persistent = dict(self.persistent or {})
     persistent[name] = value
-    return self._derived(self.replace(persistent=persistent))
+    return self._derived(
+        self.replace(persistent=persistent), 'set_persistent()'
+    )
 
   def schedule_before_step(self, name: str, hook) -> 'Physics':
     """Registers `hook(physics, key) -> physics` to run at every control step.
@@ -264,6 +285,7 @@ class Physics:
       hook: a hashable callable, e.g. a bound method (part of the `State`'s
         static structure).
     """
+    self._check_writable('schedule_before_step()')
     for known, known_hook in self.scheduled_hooks:
       if known == name:
         if known_hook != hook:
@@ -292,7 +314,8 @@ class Physics:
             initialization_failed=jnp.logical_or(
                 previous, jnp.asarray(failed, bool)
             )
-        )
+        ),
+        'fail_initialization()',
     )
 
   # -- what bindings read and write -------------------------------------------
@@ -363,7 +386,8 @@ class Physics:
           address.field,
       )
     new = self._derived(
-        self.replace(model=self.model.replace(**{address.field: new}))
+        self.replace(model=self.model.replace(**{address.field: new})),
+        f'a write of {address.field}',
     )
     if bindings.marks_stale('model', address.field):
       new = new.mark_written(address.field)
@@ -385,13 +409,14 @@ class Physics:
   #   then, or computes them (`forward_stale_reads`, `_synced`).
   # * `_synced_cache`: the forward passes `_synced` ran on this object.
 
-  def _derived(self, new: 'Physics') -> 'Physics':
+  def _derived(self, new: 'Physics', what: str = 'a write') -> 'Physics':
+    self._check_writable(what)
     object.__setattr__(self, '_wrote_result', True)
     object.__setattr__(new, '_unsynced', self.unsynced_writes)
     return new
 
   def _written(self, new: 'Physics', field: str) -> 'Physics':
-    new = self._derived(new)
+    new = self._derived(new, f'a write of {field}')
     if field in STATE_INPUT_FIELDS:
       object.__setattr__(new, '_unsynced', self.unsynced_writes | {field})
     return new
@@ -405,6 +430,7 @@ class Physics:
     the velocities' and sensors' stages), and `Physics.write` marks the
     model fields it writes.
     """
+    self._check_writable(f'mark_written{fields}')
     new = self.replace()
     object.__setattr__(new, '_unsynced', self.unsynced_writes | set(fields))
     return new
@@ -428,6 +454,27 @@ class Physics:
     if stage not in cache:
       cache[stage] = getattr(self, stage)()
     return cache[stage]
+
+  def reading_only(self, method: str) -> 'Physics':
+    """This physics, every write refused (`read_only`) with a message
+    naming `method` (e.g. `'MyTask.get_reward'`); its record of stale
+    reads is kept."""
+    new = self.replace(read_only=method)
+    object.__setattr__(new, '_unsynced', self.unsynced_writes)
+    return new
+
+  def _check_writable(self, what: str = 'a write') -> None:
+    """Raises `ReadOnlyPhysicsError` where this physics is `read_only`."""
+    if self.read_only:
+      raise ReadOnlyPhysicsError(
+          f'{self.read_only} received a read-only physics and called '
+          f'{what} on it: {self.read_only} returns a value, and the physics '
+          'a write returns there would be dropped. Move the write (a step '
+          'counter, task or entity state, persistent entries, bindings) '
+          "to the task's after_step hook (it runs after the control step's "
+          'physics and before the outcome methods, and returns the '
+          'physics), and read the written value here.'
+      )
 
   def wrote_to_result(self) -> bool:
     """Whether a write method (a binding's `set`, `set_control`,

@@ -386,6 +386,10 @@ class Task(abc.ABC):
 
   # -- outcome -------------------------------------------------------------
   # Pure functions of the physics after a control step; they write nothing.
+  # The physics they receive is read only (`Physics.read_only`): a write
+  # raises `physics.ReadOnlyPhysicsError` while the step is traced. A
+  # count or other state that composer's tasks update in `get_reward`
+  # is updated in `after_step`, and read here.
 
   @abc.abstractmethod
   def get_reward(self, physics):

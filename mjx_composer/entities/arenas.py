@@ -1,7 +1,8 @@
 """Arenas: the root entities of bundled scenes.
 
 `Floor` is locomotion's flat checkered floor; `WalledArena` adds four walls
-around it; `RoughTerrain` is a height field whose profile each world samples.
+around it. The terrain arenas (`RoughTerrain`, `TerrainGenerator`) live in
+`mjx_composer.locomotion.terrain`.
 Where a composer arena's `regenerate` changed the MJCF and needed a
 recompile every episode, here `regenerate_world(physics, key)` writes the
 equivalent per-world model fields instead (the arena's `initialize_episode`
@@ -10,13 +11,13 @@ Composer's host-side `regenerate(random_state)` keeps its meaning: a build
 time edit of the spec (a no-op for `Floor` and `WalledArena`).
 """
 
-import jax
+import warnings
+
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 
 from mjx_composer import arena
-from mjx_composer.model import element_index
 from mjx_composer.variation import base as variation_base
 
 _GROUNDPLANE_QUAD_SIZE = 0.25
@@ -46,7 +47,7 @@ class Floor(arena.Arena):
     super()._build(name=name)
     self._size = tuple(float(s) for s in size)
     spec = self.mjcf_model
-    _add_grid_and_light(
+    add_grid_and_light(
         spec,
         rgb1=[0.2, 0.3, 0.4],
         rgb2=[0.1, 0.2, 0.3],
@@ -223,251 +224,11 @@ class WalledArena(Floor):
     return self.regenerate_world(physics, key)
 
 
-class RoughTerrain(arena.Arena):
-  """A height-field ground whose profile every world samples per episode.
+def add_grid_and_light(spec, rgb1, rgb2, **material):
+  """The ground's checker material 'grid' and a directional light 'top'.
 
-  The profile is smooth bumps about `bump_spacing` apart plus a fraction
-  `roughness` of cell-scale noise, normalized to [0, 1] as MuJoCo's compiler
-  normalizes elevation data, so surface heights span [0, `max_height`] above
-  the arena's origin. MJX reads a height field's elevations from the
-  `mjx.Model` field `hfield_data` (its grid sizes are static), so a world can
-  carry its own: `regenerate_world(physics, key)` (run by the arena's
-  `initialize_episode` when `per_world`) samples a profile and writes this
-  arena's slice of `hfield_data`, which makes that field per-world (one
-  float32 per grid point per world: 16 KiB at the default 64 x 64). The
-  world then equals the model compiled with that profile as the height
-  field's `elevation`. The task's hooks run before the arena's: a task that
-  places things on the terrain calls `regenerate_world` itself first, and
-  builds the arena with `auto_regenerate=False`. Composer's `regenerate(random_state)` samples one
-  profile on the host at build time instead, shared by every world (with
-  `per_world=False`, the only one).
-
-  MJX collides height fields with spheres, capsules, boxes and meshes (not
-  with planes, cylinders or ellipsoids). Worlds extend `size` around the
-  origin; beyond the edges there is no ground. Rendering draws the compiled
-  profile, not a world's own.
-
-  Args:
-    size: (half-x, half-y) extent in metres.
-    resolution: (rows, columns) of the elevation grid (y, x samples).
-    max_height: the height of the highest point, in metres (MJCF's
-      hfield `size[2]`).
-    base: the thickness of the solid below height 0 (`size[3]`).
-    bump_spacing: metres between the smooth bumps' control points.
-    roughness: the weight of the per-cell noise against the bumps (0: only
-      smooth bumps).
-    per_world: sample a profile per world and episode (else every world has
-      the compiled one).
-    auto_regenerate: with `per_world`, whether the arena's own
-      `initialize_episode` samples the profile (False: the task calls
-      `regenerate_world`).
-    name: the arena's name.
+  The look of the bundled arenas' grounds (`Floor`, the terrain arenas).
   """
-
-  def _build(
-      self,
-      size=(8.0, 8.0),
-      resolution=(64, 64),
-      max_height=0.06,
-      base=0.5,
-      bump_spacing=1.0,
-      roughness=0.25,
-      per_world=True,
-      auto_regenerate=True,
-      name='rough_terrain',
-  ):
-    super()._build(name=name)
-    self._size = tuple(float(s) for s in size)
-    self._rows, self._cols = (int(r) for r in resolution)
-    if self._rows < 2 or self._cols < 2:
-      raise ValueError(f'resolution must be at least (2, 2), got {resolution}.')
-    self._max_height = float(max_height)
-    self._roughness = float(roughness)
-    self._per_world = bool(per_world)
-    self._auto_regenerate = bool(auto_regenerate)
-    # Bilinear upsampling from the bumps' control grid, as two matrices.
-    coarse = [
-        max(2, int(np.ceil(2 * s / bump_spacing)) + 1) for s in self._size
-    ]
-    self._coarse_shape = (coarse[1], coarse[0])
-    self._upsample_rows = _linear_upsampling(coarse[1], self._rows)
-    self._upsample_cols = _linear_upsampling(coarse[0], self._cols)
-    spec = self.mjcf_model
-    self._hfield = spec.add_hfield(
-        name='terrain',
-        size=[self._size[0], self._size[1], self._max_height, float(base)],
-        nrow=self._rows,
-        ncol=self._cols,
-    )
-    self.regenerate(np.random.RandomState(0))
-    _add_grid_and_light(
-        spec,
-        rgb1=[0.25, 0.3, 0.35],
-        rgb2=[0.15, 0.2, 0.25],
-        texrepeat=[8, 8],
-        texuniform=True,
-    )
-    self._ground = spec.worldbody.add_geom(
-        name='ground',
-        type=mujoco.mjtGeom.mjGEOM_HFIELD,
-        hfieldname='terrain',
-        material='grid',
-    )
-    spec.worldbody.add_camera(
-        name='overview', pos=[1.6, -1.6, 1.4], xyaxes=[1, 1, 0, -0.4, 0.4, 1]
-    )
-
-  @property
-  def ground_geoms(self):
-    return (self._ground,)
-
-  @property
-  def size(self):
-    return self._size
-
-  @property
-  def resolution(self):
-    return (self._rows, self._cols)
-
-  @property
-  def max_height(self):
-    return self._max_height
-
-  @property
-  def per_world(self):
-    return self._per_world
-
-  # -- profiles --------------------------------------------------------------
-
-  def profile(self, bumps, noise):
-    """The normalized elevation grid (rows, cols) from uniform draws.
-
-    Works on numpy and jax arrays alike.
-
-    Args:
-      bumps: the control grid's heights, shape `(rows, cols)` of the bumps'
-        grid (`coarse_shape`), in [0, 1).
-      noise: per-cell noise of shape `resolution`, in [0, 1).
-    """
-    xp = jnp if isinstance(bumps, jnp.ndarray) else np
-    smooth = self._upsample_rows @ bumps @ self._upsample_cols.T
-    heights = smooth + self._roughness * noise
-    low, high = xp.min(heights), xp.max(heights)
-    return (heights - low) / xp.maximum(high - low, 1e-6)
-
-  @property
-  def coarse_shape(self):
-    """The shape of the bumps' control grid that `profile` takes."""
-    return self._coarse_shape
-
-  def sample_profile(self, key):
-    """A random profile (rows, cols) in [0, 1], from a JAX key."""
-    bump_key, noise_key = jax.random.split(key)
-    return self.profile(
-        jax.random.uniform(bump_key, self._coarse_shape),
-        jax.random.uniform(noise_key, (self._rows, self._cols)),
-    )
-
-  def regenerate(self, random_state=None):
-    """Composer's build-time regeneration: a new compiled profile."""
-    random_state = random_state or np.random
-    heights = self.profile(
-        random_state.uniform(size=self._coarse_shape),
-        random_state.uniform(size=(self._rows, self._cols)),
-    )
-    # Row-major, rows along y: MuJoCo's elevation layout.
-    self._hfield.userdata = np.ravel(heights).tolist()
-
-  def regenerate_world(self, physics, key):
-    """Writes a freshly sampled profile into this world's `hfield_data`.
-
-    Does nothing unless `per_world`.
-    """
-    if not self._per_world:
-      return physics
-    start, count = self._data_range(physics)
-    data = physics.model.hfield_data
-    heights = jnp.ravel(self.sample_profile(key)).astype(data.dtype)
-    return physics.replace(
-        model=physics.model.replace(
-            hfield_data=data.at[start : start + count].set(heights)
-        )
-    )
-
-  def initialize_episode(self, physics, key):
-    if not (self._per_world and self._auto_regenerate):
-      return physics
-    return self.regenerate_world(physics, key)
-
-  # -- queries (device) -----------------------------------------------------
-
-  def _data_range(self, physics):
-    model = physics.mj_model
-    hfield = model.geom_dataid[
-        physics.index.element_id(
-            element_index.KINDS_BY_NAME['geom'], self._ground
-        )
-    ]
-    return int(model.hfield_adr[hfield]), self._rows * self._cols
-
-  def heights(self, physics):
-    """This world's surface heights (rows, cols) in metres, rows along y."""
-    start, count = self._data_range(physics)
-    data = physics.model.hfield_data[start : start + count]
-    base_z = physics.bind(self._ground).pos[2]
-    return base_z + self._max_height * data.reshape(self._rows, self._cols)
-
-  def _grid(self):
-    xs = np.linspace(-self._size[0], self._size[0], self._cols)
-    ys = np.linspace(-self._size[1], self._size[1], self._rows)
-    return xs, ys
-
-  def height_at(self, physics, xy):
-    """The surface height below `xy` (2,), as MuJoCo's collision sees it.
-
-    Each grid cell is two triangles split along the diagonal from its
-    (row, col) corner to its (row + 1, col + 1) one; outside the grid, the
-    nearest edge's height.
-    """
-    heights = self.heights(physics)
-    xy = jnp.asarray(xy, jnp.float32)
-    col = (xy[0] + self._size[0]) / (2 * self._size[0]) * (self._cols - 1)
-    row = (xy[1] + self._size[1]) / (2 * self._size[1]) * (self._rows - 1)
-    col = jnp.clip(col, 0.0, self._cols - 1.0)
-    row = jnp.clip(row, 0.0, self._rows - 1.0)
-    c0 = jnp.clip(jnp.floor(col).astype(jnp.int32), 0, self._cols - 2)
-    r0 = jnp.clip(jnp.floor(row).astype(jnp.int32), 0, self._rows - 2)
-    fc, fr = col - c0, row - r0
-    h00, h01 = heights[r0, c0], heights[r0 + 1, c0]
-    h10, h11 = heights[r0, c0 + 1], heights[r0 + 1, c0 + 1]
-    upper = h00 + fc * (h11 - h01) + fr * (h01 - h00)  # fr >= fc
-    lower = h00 + fc * (h10 - h00) + fr * (h11 - h10)  # fc >= fr
-    return jnp.where(fr >= fc, upper, lower)
-
-  def max_height_near(self, physics, xy, radius):
-    """The highest grid point within `radius` of `xy`, or `height_at`."""
-    xs, ys = self._grid()
-    xy = jnp.asarray(xy, jnp.float32)
-    near = (xs[None, :] - xy[0]) ** 2 + (ys[:, None] - xy[1]) ** 2 <= (
-        radius**2
-    )
-    highest = jnp.max(jnp.where(near, self.heights(physics), -jnp.inf))
-    return jnp.maximum(highest, self.height_at(physics, xy))
-
-
-def _linear_upsampling(coarse, fine):
-  """(fine, coarse) weights interpolating `coarse` points onto `fine` ones."""
-  positions = np.linspace(0.0, coarse - 1.0, fine)
-  lower = np.clip(np.floor(positions).astype(int), 0, coarse - 2)
-  frac = positions - lower
-  weights = np.zeros((fine, coarse), np.float32)
-  weights[np.arange(fine), lower] = 1 - frac
-  weights[np.arange(fine), lower + 1] += frac
-  return weights
-
-
-def _add_grid_and_light(spec, rgb1, rgb2, **material):
-  """The ground's checker material 'grid' and a directional light 'top'."""
   spec.add_texture(
       name='grid',
       type=mujoco.mjtTexture.mjTEXTURE_2D,
@@ -484,3 +245,19 @@ def _add_grid_and_light(spec, rgb1, rgb2, **material):
       dir=[0, 0, -1],
       type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
   )
+
+
+def __getattr__(name):
+  """`arenas.RoughTerrain`, kept for this release: it moved to
+  `mjx_composer.locomotion.terrain`."""
+  if name != 'RoughTerrain':
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+  warnings.warn(
+      'mjx_composer.entities.arenas.RoughTerrain moved to '
+      'mjx_composer.locomotion.terrain.RoughTerrain; import it from there.',
+      DeprecationWarning,
+      stacklevel=2,
+  )
+  from mjx_composer.locomotion import terrain  # pylint: disable=g-import-not-at-top
+
+  return terrain.RoughTerrain

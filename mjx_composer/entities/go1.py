@@ -14,11 +14,15 @@ changes in code, each for a reason:
   `mujoco-menagerie` downloads them at run time): the mesh geoms and assets
   are removed and the collision primitives are drawn instead (group 2).
   Bodies have explicit inertials, so the dynamics do not change.
-* Contacts for MJX (`collisions='minimal'`, the default). As MuJoCo
-  Playground's `go1_mjx_feetonly.xml`, only the feet collide, and only with
-  the ground (contype 0, conaffinity 1: not with each other); the trunk's
-  box does too, so a fallen robot lies on the floor instead of sinking
-  through it (a cheap box-plane pair) and `trunk_contact` can report falls.
+* Contacts for MJX (`collisions`). 'feet': as MuJoCo Playground's
+  `go1_mjx_feetonly.xml`, only the feet collide, and only with the ground
+  (contype 0, conaffinity 1: not with each other nor the rest of the robot);
+  on a height field each foot costs a 2 x 2 cell patch, where the trunk's
+  box would cost dozens (see `locomotion.terrain.generator`), so a fall is
+  read from the trunk's pose (`trunk_below`), not from a contact.
+  'minimal' (the default): the trunk's box collides with the ground too,
+  so a fallen robot lies on the floor instead of sinking through it (a
+  cheap box-plane pair) and `trunk_contact` can report falls.
   Feet keep Menagerie's priority, friction and soft `solimp`, but use
   `condim=3` instead of 6 (torsional and rolling friction would add six
   constraint rows per foot contact), and no contact margin (Menagerie's
@@ -54,7 +58,7 @@ from mjx_composer.observation import observable
 ASSET_DIR = pathlib.Path(__file__).parent / 'assets' / 'go1'
 XML_PATH = ASSET_DIR / 'go1.xml'
 FEET = ('FR', 'FL', 'RR', 'RL')
-COLLISIONS = ('minimal', 'full')
+COLLISIONS = ('feet', 'minimal', 'full')
 # Playground's MJX settings for this robot (go1_mjx_feetonly.xml).
 MJX_OPTIONS = {
     'timestep': 0.004,
@@ -149,8 +153,9 @@ class Go1(robot.Robot):
 
   Args:
     name: the entity's name (its compiled names' prefix).
-    collisions: 'minimal' (feet and the trunk's box against the ground) or
-      'full' (Menagerie's collision geoms).
+    collisions: 'feet' (the feet against the ground), 'minimal' (the feet
+      and the trunk's box against the ground) or 'full' (Menagerie's
+      collision geoms, the robot's own pairs included).
     kp: position gain of every actuator (Menagerie: 100), or None.
     kd: damping of every leg joint (Menagerie: 1 abduction, 2 others), or
       None.
@@ -213,7 +218,10 @@ class Go1(robot.Robot):
       geom.rgba = _FOOT_RGBA
     if collisions == 'full':
       return
-    ground_only = set(id(g) for g in self._foot_geoms + (self._trunk_geom,))
+    ground_only = self._foot_geoms
+    if collisions == 'minimal':
+      ground_only += (self._trunk_geom,)
+    ground_only = set(id(g) for g in ground_only)
     for geom in self._spec.geoms:
       if id(geom) in ground_only:
         # Collides with geoms whose contype has bit 0 (the ground), never
@@ -374,6 +382,19 @@ class Go1(robot.Robot):
   def trunk_contact(self, physics):
     """Whether the trunk's box touches anything (a fall, in 'minimal')."""
     return self._sensordata(physics, 'trunk_contact')[0] > 0
+
+  def trunk_below(self, physics, ground_height):
+    """Whether the trunk's box reaches below `ground_height` (a scalar).
+
+    Its lowest corner, from the trunk's pose and the box's half-sizes,
+    against the ground's height below the trunk: the fall that
+    `trunk_contact` reports where the box collides ('minimal'), read from
+    the pose where it does not ('feet').
+    """
+    geom = physics.bind(self._trunk_geom)
+    rotation = jnp.reshape(geom.xmat, (3, 3))
+    reach = jnp.sum(jnp.abs(rotation[2]) * geom.size)
+    return geom.xpos[2] - reach < ground_height
 
 
 def _remove_meshes(spec):

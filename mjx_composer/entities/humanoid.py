@@ -17,7 +17,12 @@ vendored unchanged; `_build` adapts it to composition, in code:
   are not carried into the composed model (MjSpec keeps the root's and warns
   where they differ), and MJX reads its limits from unprefixed numerics.
   `apply_simulation_options(root_spec)` writes them on the root, as tasks
-  built on this robot do (see `simulation_options`).
+  built on this robot do (see `simulation_options`);
+* `collisions='feet'` (the default: 'all', the XML's) keeps the contacts
+  of the foot capsules with the ground only (contype 0, conaffinity 1: not
+  with each other nor the rest of the body), as a robot on a height field
+  wants them: MJX collides each geom with the grid cells around it at every
+  physics step (`locomotion.terrain`).
 
     arena = arenas.Floor()
     humanoid = Humanoid()
@@ -40,6 +45,14 @@ ASSET_DIR = pathlib.Path(__file__).parent / 'assets' / 'humanoid'
 XML_PATH = ASSET_DIR / 'humanoid.xml'
 # Playground's order of the extremities observation: per side, hand and foot.
 EXTREMITIES = ('left_hand', 'left_foot', 'right_hand', 'right_foot')
+# The two capsules of each foot, right foot first.
+FOOT_GEOMS = (
+    'right_right_foot',
+    'left_right_foot',
+    'left_left_foot',
+    'right_left_foot',
+)
+COLLISIONS = ('all', 'feet')
 
 
 class HumanoidObservables(observable.Observables):
@@ -105,9 +118,16 @@ class Humanoid(robot.Robot):
 
   Args:
     name: the entity's name (its compiled names' prefix).
+    collisions: 'all' (the XML's contacts, the body's own pairs included)
+      or 'feet' (the foot capsules against the ground only).
   """
 
-  def _build(self, name='humanoid'):
+  def _build(self, name='humanoid', collisions='all'):
+    if collisions not in COLLISIONS:
+      raise ValueError(
+          f'Humanoid: collisions must be one of {COLLISIONS}, got '
+          f'{collisions!r}.'
+      )
     spec = mujoco.MjSpec.from_file(str(XML_PATH))
     spec.modelname = name
     spec.delete(spec.geom('floor'))
@@ -132,6 +152,12 @@ class Humanoid(robot.Robot):
     self._velocimeter = spec.sensor('torso_vel')
     self._gyro = spec.sensor('torso_gyro')
     self._accelerometer = spec.sensor('torso_accel')
+    self._foot_geoms = tuple(spec.geom(n) for n in FOOT_GEOMS)
+    if collisions == 'feet':
+      feet = set(id(g) for g in self._foot_geoms)
+      for geom in spec.geoms:
+        # Collides with geoms whose contype has bit 0 (the ground).
+        geom.contype, geom.conaffinity = (0, 1) if id(geom) in feet else (0, 0)
 
   def _build_observables(self):
     return HumanoidObservables(self)
@@ -162,6 +188,11 @@ class Humanoid(robot.Robot):
   @property
   def head(self):
     return self._head
+
+  @property
+  def foot_geoms(self):
+    """The feet's capsules, `FOOT_GEOMS` order."""
+    return self._foot_geoms
 
   @property
   def extremity_bodies(self):

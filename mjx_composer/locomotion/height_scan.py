@@ -30,6 +30,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer.locomotion.terrain import surface as terrain_surface
 from mjx_composer.model import element_index
 from mjx_composer.observation import observable
 from mjx_composer.utils import validation
@@ -56,36 +57,6 @@ def grid_pattern(size, resolution):
   ys = np.arange(-size[1] / 2, size[1] / 2 + 1e-6, resolution)
   grid_x, grid_y = np.meshgrid(xs, ys, indexing='xy')
   return np.stack([grid_x.ravel(), grid_y.ravel()], axis=-1).astype(np.float32)
-
-
-def hfield_surface(heights, half_size, xy):
-  """The surface height of a height field at local `xy` (2,).
-
-  Args:
-    heights: (nrow, ncol) surface heights in the geom's frame (rows along
-      y, columns along x).
-    half_size: (x, y) half-extent of the grid.
-    xy: a point in the geom's frame.
-
-  Returns:
-    `(height, inside)`: the height of the triangle above `xy` (cells split
-    along the diagonal from corner (row, col) to (row + 1, col + 1)) and
-    whether `xy` lies over the grid.
-  """
-  nrow, ncol = heights.shape
-  col = (xy[0] + half_size[0]) / (2 * half_size[0]) * (ncol - 1)
-  row = (xy[1] + half_size[1]) / (2 * half_size[1]) * (nrow - 1)
-  inside = (
-      (col >= 0.0) & (col <= ncol - 1.0) & (row >= 0.0) & (row <= nrow - 1.0)
-  )
-  c0 = jnp.clip(jnp.floor(col).astype(jnp.int32), 0, ncol - 2)
-  r0 = jnp.clip(jnp.floor(row).astype(jnp.int32), 0, nrow - 2)
-  fc, fr = col - c0, row - r0
-  h00, h01 = heights[r0, c0], heights[r0 + 1, c0]
-  h10, h11 = heights[r0, c0 + 1], heights[r0 + 1, c0 + 1]
-  upper = h00 + fc * (h11 - h01) + fr * (h01 - h00)  # fr >= fc
-  lower = h00 + fc * (h10 - h00) + fr * (h11 - h10)  # fc >= fr
-  return jnp.where(fr >= fc, upper, lower), inside
 
 
 def _yaw_matrix(xmat):
@@ -290,7 +261,9 @@ class HeightScan(observable.Observable):
     heights = size[2] * data.reshape(nrow, ncol)
     xmat = physics.data.geom_xmat[geom]
     local = xmat.T @ (origin - physics.data.geom_xpos[geom])
-    surface, inside = hfield_surface(heights, size[:2], local[:2])
+    surface, inside = terrain_surface.surface_height(
+        heights, size[:2], local[:2]
+    )
     distance = local[2] - surface
     return jnp.where(inside & (distance >= 0), distance, jnp.inf)
 

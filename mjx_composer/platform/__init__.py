@@ -81,10 +81,14 @@ def safe_defaults() -> None:
   with the environment variable or `cpu_linalg.enable(enabled=False)`.
 
   Also MJX's missing ray-geom functions (`internals.add_missing_ray_functions`:
-  a touch sensor on a cylinder site), with MuJoCo's semantics.
+  a touch sensor on a cylinder site), with MuJoCo's semantics, and errors
+  that say what to use where a dm_control idiom meets MJX's classes
+  (`internals.explain_dm_control_idioms`: indexing or iterating
+  `physics.data.contact`, `physics.model.ptr`).
 
   The other settings of `configure` change speed, not correctness, and
   write to disk (the cache): a user asks for them.
   """
   _internals.add_missing_ray_functions()
+  _internals.explain_dm_control_idioms()
   _cpu_linalg.enable()

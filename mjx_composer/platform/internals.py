@@ -20,6 +20,7 @@ from __future__ import annotations
 from typing import Any, Callable
 
 import jax.numpy as jnp
+from mujoco import mjx
 
 # pylint: disable=protected-access
 from jax._src.interpreters import mlir as _mlir
@@ -295,6 +296,77 @@ def add_missing_ray_functions() -> None:
   replaced.
   """
   _mjx_ray._RAY_FUNC.setdefault(_mjx_ray.GeomType.CYLINDER, _ray_cylinder)
+
+
+# What a port of dm_control code meets on MJX's classes, and what to use.
+CONTACT_INDEXING_MESSAGE = (
+    "MJX's contact list (`physics.data.contact`) cannot be indexed or "
+    "iterated as dm_control's `physics.data.contact[:physics.data.ncon]`: "
+    'it holds a fixed number of candidate slots per world, most of them not '
+    'touching, and a Python loop or `if` cannot branch on traced values. Ask '
+    'the question as one function of the physics: '
+    '`mjx_composer.observation.contacts.between(physics, geoms_a, geoms_b)` '
+    '(`.touching`, `.count`, `.normal_force`, `.force`; `geoms_b=None`: '
+    'anything else) or, per row of geoms, '
+    '`mjx_composer.observation.contact_sensor`.'
+)
+MUJOCO_POINTER_MESSAGE = (
+    "{kind} is MJX's `mjx.{kind}`, not dm_control's wrapper of MuJoCo's "
+    "Mj{kind}: it has no `ptr`, and MuJoCo's C functions (`mujoco.mj_*`, "
+    "dm_control's `mjlib`) cannot run on a traced world. Use MJX's function "
+    '(`mujoco.mjx`), a binding (`physics.bind(...)`), or, for what the '
+    'compiled model knows (names, ids, sizes, defaults), `physics.mj_model`: '
+    'the host MjModel shared by every world, read while tracing.'
+)
+
+
+def explain_dm_control_idioms() -> None:
+  """Clear errors for dm_control idioms on MJX's `Contact`, `Model` and
+  `Data`, where Python's own errors say nothing of what to use.
+
+  * `mjx.Contact` (`physics.data.contact`, through MJX's deprecated
+    forwarding to `data._impl.contact`) gets a `__getitem__` that raises
+    a `TypeError` (`CONTACT_INDEXING_MESSAGE`). Python's iteration falls
+    back to it, so `for c in physics.data.contact` and `contact[:ncon]`
+    raise it too; MJX defines neither, and `Contact` stays a plain pytree
+    (not an `Iterable` to `isinstance`).
+  * `mjx.Model.ptr` and `mjx.Data.ptr` (dm_control's way to hand MuJoCo's
+    C functions the model and data) raise an `AttributeError` that says
+    what to use (`MUJOCO_POINTER_MESSAGE`); `hasattr` stays False. MJX's
+    own `__getattr__` answers every other missing name as before.
+
+  A name MJX defines itself is never replaced; calling this again does
+  nothing.
+  """
+  if '__getitem__' not in vars(mjx.Contact):
+
+    def refuse_indexing(self, key):
+      del self, key
+      raise TypeError(CONTACT_INDEXING_MESSAGE)
+
+    mjx.Contact.__getitem__ = refuse_indexing
+  for cls in (mjx.Model, mjx.Data):
+    original = vars(cls).get('__getattr__')
+    if 'ptr' in vars(cls) or getattr(original, '_explains_ptr', False):
+      continue
+    cls.__getattr__ = _explaining_ptr(cls.__name__, original)
+
+
+def _explaining_ptr(kind: str, original):
+  """`original` (a class's `__getattr__`, or None), answering `ptr` with
+  `MUJOCO_POINTER_MESSAGE`."""
+
+  def __getattr__(self, name):  # pylint: disable=invalid-name
+    if name == 'ptr':
+      raise AttributeError(MUJOCO_POINTER_MESSAGE.format(kind=kind))
+    if original is None:
+      raise AttributeError(
+          f"'{type(self).__name__}' object has no attribute '{name}'"
+      )
+    return original(self, name)
+
+  __getattr__._explains_ptr = True  # pylint: disable=protected-access
+  return __getattr__
 
 
 # -- MuJoCo Warp ----------------------------------------------------------------

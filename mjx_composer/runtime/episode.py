@@ -64,6 +64,7 @@ import math
 import jax
 import jax.numpy as jnp
 
+from mjx_composer import physics as physics_lib
 from mjx_composer.platform import backend
 from mjx_composer.runtime import state as state_lib
 
@@ -148,6 +149,34 @@ def overflowed(data) -> jax.Array:
   return backend.overflow(data) != 0
 
 
+def outcome(task, method: str, physics):
+  """`task.<method>(physics)` (an outcome method: `get_reward`,
+  `get_discount`, `should_terminate_episode` or `get_metrics`), given a
+  read-only physics.
+
+  The outcome methods return values; a physics they wrote would be
+  dropped, so a write raises `ReadOnlyPhysicsError` while the step is
+  traced, and so does a result that holds a `Physics`: both name the
+  method and say to move the write to `after_step`.
+  """
+  name = f'{type(task).__name__}.{method}'
+  result = getattr(task, method)(physics.reading_only(name))
+  if any(
+      isinstance(leaf, physics_lib.Physics)
+      for leaf in jax.tree.leaves(
+          result, is_leaf=lambda x: isinstance(x, physics_lib.Physics)
+      )
+  ):
+    raise physics_lib.ReadOnlyPhysicsError(
+        f'{name} returned a Physics: it returns only its value, and a '
+        "physics it returns is not kept. Move the write to the task's "
+        "after_step hook (it runs after the control step's physics and "
+        f'before {method}, and returns the physics), and return the value '
+        'alone.'
+    )
+  return result
+
+
 class EpisodeRules:
   """Decides how each step ends, and keeps the per-world metrics.
 
@@ -167,7 +196,7 @@ class EpisodeRules:
   def _task_metrics(self, physics) -> dict:
     return {
         name: jnp.asarray(value, jnp.float32)
-        for name, value in self._task.get_metrics(physics).items()
+        for name, value in outcome(self._task, 'get_metrics', physics).items()
     }
 
   def start(self, physics, init_failures, observation) -> dict:
@@ -219,8 +248,12 @@ class EpisodeRules:
         (`checked_action`).
     """
     is_diverged = diverged(physics.data)
-    reward = jnp.asarray(self._task.get_reward(physics), jnp.float32)
-    discount = jnp.asarray(self._task.get_discount(physics), jnp.float32)
+    reward = jnp.asarray(
+        outcome(self._task, 'get_reward', physics), jnp.float32
+    )
+    discount = jnp.asarray(
+        outcome(self._task, 'get_discount', physics), jnp.float32
+    )
     # One cause per failure: the physics' divergence makes everything
     # computed from it non-finite, so the outputs' flags exclude it.
     finite_physics = jnp.logical_not(is_diverged)
@@ -237,7 +270,9 @@ class EpisodeRules:
     discount = jnp.where(failed, jnp.zeros_like(discount), discount)
     length = previous.episode.length + 1
     terminated = jnp.logical_or(
-        jnp.asarray(self._task.should_terminate_episode(physics), bool),
+        jnp.asarray(
+            outcome(self._task, 'should_terminate_episode', physics), bool
+        ),
         failed,
     )
     truncated = jnp.logical_and(

@@ -39,7 +39,9 @@ Deviations, each deliberate:
   control steps (Playground's Go1 joystick ships its force kicks disabled;
   its humanoid joystick tasks kick velocities like this);
 * falls also terminate when the trunk's box touches the ground (Playground's
-  trunk does not collide at all; ours does, see `entities/go1.py`);
+  trunk does not collide at all; ours does with `collisions='minimal'`, the
+  default, see `entities/go1.py`; with `collisions='feet'` the box's pose
+  against the ground's height below it tells);
 * per-episode randomization (Playground randomizes once per run with its
   own wrapper) with Playground's ranges: feet friction U(0.4, 1.0) (our feet
   have contact priority, so theirs, not the floor's, is the contact's),
@@ -130,6 +132,8 @@ class Joystick(task.Task):
     push_interval: control steps between pushes (0: none).
     push_magnitude: (low, high) velocity change of a push, m/s.
     terminate_on_fall: end the episode (discount 0) on a fall.
+    collisions: the `Go1`'s contacts: 'minimal' (feet and trunk against
+      the ground), 'feet' (feet only) or 'full'.
   """
 
   def __init__(
@@ -148,6 +152,7 @@ class Joystick(task.Task):
       push_interval=250,
       push_magnitude=(0.1, 1.0),
       terminate_on_fall=True,
+      collisions='minimal',
   ):
     v, owner = validation, 'Joystick'  # Checked before anything is built.
     v.check_choice('terrain', terrain, TERRAINS, owner=owner)
@@ -181,9 +186,10 @@ class Joystick(task.Task):
     )
     v.check_bool('randomize', randomize, owner=owner)
     v.check_bool('terminate_on_fall', terminate_on_fall, owner=owner)
+    v.check_choice('collisions', collisions, go1_lib.COLLISIONS, owner=owner)
     self._terrain = terrain
     self._arena = self._build_arena(terrain)
-    self._go1 = go1_lib.Go1(kp=kp, kd=kd)
+    self._go1 = go1_lib.Go1(kp=kp, kd=kd, collisions=collisions)
     frame = self._arena.add_free_entity(self._go1)
     frame.pos = [0.0, 0.0, self._go1.home_height]
     self._go1.apply_simulation_options(self._arena.mjcf_model)
@@ -422,9 +428,23 @@ class Joystick(task.Task):
 
   # -- outcome ---------------------------------------------------------------
 
+  def ground_height(self, physics, xy):
+    """The ground's height below world `xy` (2,)."""
+    if self._terrain == 'flat':
+      return jnp.zeros((), jnp.float32)
+    return self._arena.height_at(physics, xy)
+
   def fallen(self, physics):
-    upside_down = self._go1.upvector(physics)[2] < 0.0
-    return jnp.logical_or(upside_down, self._go1.trunk_contact(physics))
+    """Upside down, or the trunk's box on the ground (a contact where it
+    collides, its pose against the ground below it where it does not)."""
+    go1 = self._go1
+    upside_down = go1.upvector(physics)[2] < 0.0
+    if go1.trunk_geom.contype or go1.trunk_geom.conaffinity:
+      down = go1.trunk_contact(physics)
+    else:
+      xy = physics.bind(go1.trunk).xpos[:2]
+      down = go1.trunk_below(physics, self.ground_height(physics, xy))
+    return jnp.logical_or(upside_down, down)
 
   def should_terminate_episode(self, physics):
     if not self._terminate_on_fall:

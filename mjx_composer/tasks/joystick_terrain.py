@@ -2,10 +2,12 @@
 
 Isaac Lab's and mjlab's rough-terrain velocity task on `Joystick`'s robot,
 rewards and randomization (`tasks/joystick.py`), with each locomotion part
-a reusable piece of `mjx_composer.locomotion`:
+a reusable piece of `mjx_composer.locomotion`, joined by the terrain part
+that `TerrainWalk` shares (`terrain_part.TerrainPart`):
 
-* the arena is a `TerrainGenerator` (height-field and box sub-terrains in a
-  grid of difficulty levels x kinds);
+* the arena is a `TerrainGenerator` (every sub-terrain kind, stairs, stones
+  and beams included, in one height field; a grid of difficulty levels x
+  kinds);
 * a `TerrainCurriculum` keeps each world's level: a robot that walked more
   than half a tile from its spawn point goes up a level at its next
   episode, one that covered less than half its commanded distance goes
@@ -21,23 +23,24 @@ a reusable piece of `mjx_composer.locomotion`:
   `actuation_delay` physics sub-steps;
 * the command is `Joystick`'s `VelocityCommand`.
 
-Deviation: MJX evaluates every candidate contact pair at every sub-step, so
-the number of boxes (stepping stones and random grids above all) costs
-simulation time; the defaults keep 5 levels of 4 m tiles.
+The Go1 collides with the terrain by its feet only (`collisions='feet'`,
+Playground's feet-only model): on a height field the trunk's box would
+cost dozens of grid cells at every physics step where a foot costs four.
+A fall is the trunk upside down or its box reaching below the terrain
+under it (`Joystick.fallen`). The contacts are capped at two per foot
+(`terrain_part`). The terrain's grid is 0.05 m, the finest at which a foot
+meets 2 x 2 cells (`locomotion.terrain.generator`).
 """
 
 import jax
 import jax.numpy as jnp
 
 from mjx_composer.locomotion import actuation_delay as delay_lib
-from mjx_composer.locomotion import curriculum as curriculum_lib
-from mjx_composer.locomotion import sub_terrains
-from mjx_composer.locomotion import terrain as terrain_lib
+from mjx_composer.locomotion.terrain import sub_terrains
 from mjx_composer.tasks import joystick
-from mjx_composer.tasks import locomotion
-from mjx_composer.utils import validation
+from mjx_composer.tasks import terrain_part
 
-HEIGHT_SCAN_NOISE = 0.1  # Metres, per ray (Isaac Lab's height_scan noise).
+HORIZONTAL_SCALE = 0.05  # Metres: a foot meets 2 x 2 cells (docstring).
 
 
 class TerrainJoystick(joystick.Joystick):
@@ -54,6 +57,8 @@ class TerrainJoystick(joystick.Joystick):
     terrain_seed: the seed of the random sub-terrains.
     height_scan: whether the policy and the critic observe the height scan
       (False: neither does, and no rays are cast).
+    collisions: the `Go1`'s contacts ('feet': the feet only; see
+      `entities.go1`).
     **kwargs: `Joystick`'s arguments (not `terrain`).
   """
 
@@ -68,56 +73,45 @@ class TerrainJoystick(joystick.Joystick):
       scan_resolution=0.1,
       terrain_seed=0,
       height_scan=True,
+      collisions='feet',
       **kwargs,
   ):
-    locomotion.check_terrain_arguments(
-        'TerrainJoystick',
-        kinds=kinds,
-        levels=levels,
-        initial_levels=initial_levels,
-        actuation_delay=actuation_delay,
-        scan_size=scan_size,
-        scan_resolution=scan_resolution,
-        terrain_seed=terrain_seed,
-        height_scan=height_scan,
+    terrain_part.check_arguments(
+        'TerrainJoystick', actuation_delay=actuation_delay
     )
     if 'terrain' in kwargs:
       raise TypeError(
           'TerrainJoystick generates its terrain: pass kinds, levels and '
           f"tile_size instead of terrain={kwargs['terrain']!r}."
       )
-    self._terrain_args = dict(
+    self._part = terrain_part.TerrainPart(
+        'TerrainJoystick',
         kinds=kinds,
         levels=levels,
         tile_size=tile_size,
-        border=validation.check_positive(
-            'tile_size', tile_size, owner='TerrainJoystick'
-        )
-        / 4,
-        seed=terrain_seed,
+        horizontal_scale=HORIZONTAL_SCALE,
+        initial_levels=initial_levels,
+        scan_size=scan_size,
+        scan_resolution=scan_resolution,
+        terrain_seed=terrain_seed,
+        height_scan=height_scan,
+        group=0,
     )
-    super().__init__(terrain='flat', **kwargs)
+    super().__init__(terrain='flat', collisions=collisions, **kwargs)
     self._terrain = 'generated'
-    self._curriculum = curriculum_lib.TerrainCurriculum(
-        self._arena, initial_levels=initial_levels
-    )
+    if collisions == 'feet':
+      self._part.cap_contacts(self.go1.foot_geoms)
     self._delay = delay_lib.ActuationDelay(self.go1.actuators, actuation_delay)
-    self._scan = self._scan_twin = None
-    if not height_scan:
-      return
-    self._scan, self._scan_twin = locomotion.policy_height_scan(
+    self._part.observe(
         self.go1.trunk,
-        self._arena,
-        scan_size,
-        scan_resolution,
         self.physics_steps_per_control_step,
-        noise=self._noise_level * HEIGHT_SCAN_NOISE,
+        noise=self._noise_level * terrain_part.HEIGHT_SCAN_NOISE,
         delay=self._observation_delay,
     )
 
   def _build_arena(self, terrain):
     del terrain
-    return terrain_lib.TerrainGenerator(**self._terrain_args)
+    return self._part.terrain
 
   def _configure_observables(self, noise_level, delay, history):
     self._noise_level = float(noise_level)
@@ -127,18 +121,21 @@ class TerrainJoystick(joystick.Joystick):
   def _ground(self, physics, key, xy):
     """Spawns on a tile of this world's level (the curriculum's)."""
     del xy
-    physics, spawn = self._curriculum.reset(physics, key)
+    physics, spawn = self._part.spawn(physics, key)
     return physics, spawn[:2], spawn[2] + 0.01
+
+  def ground_height(self, physics, xy):
+    return self._part.height_at(physics, xy)
 
   # -- composition -----------------------------------------------------------
 
   @property
   def terrain(self):
-    return self._arena
+    return self._part.terrain
 
   @property
   def curriculum(self):
-    return self._curriculum
+    return self._part.curriculum
 
   @property
   def actuation_delay(self):
@@ -147,19 +144,14 @@ class TerrainJoystick(joystick.Joystick):
   @property
   def height_scan(self):
     """The policy's `HeightScan` (None with `height_scan=False`)."""
-    return self._scan
+    return self._part.scan
 
   @property
   def task_observables(self):
-    return locomotion.with_height_scan(
-        super().task_observables, self._scan, self._scan_twin
-    )
+    return self._part.observables(super().task_observables)
 
   def observation_groups(self):
-    groups = super().observation_groups()
-    if self._scan is None:
-      return groups
-    return locomotion.groups_with_height_scan(groups)
+    return self._part.groups(super().observation_groups())
 
   # -- episode ---------------------------------------------------------------
 
@@ -181,7 +173,7 @@ class TerrainJoystick(joystick.Joystick):
   def after_step(self, physics, key):
     physics = super().after_step(physics, key)
     command = self.command.velocity(physics)
-    return self._curriculum.record(
+    return self._part.record(
         physics,
         physics.bind(self.go1.trunk).xpos,
         jnp.linalg.norm(command[:2]),
@@ -191,5 +183,5 @@ class TerrainJoystick(joystick.Joystick):
   def get_metrics(self, physics):
     return {
         **super().get_metrics(physics),
-        **self._curriculum.metrics(physics),
+        **self._part.metrics(physics),
     }

@@ -6,9 +6,6 @@
 * `policy_observable` / `clean_twin`: the policy sees an observable with
   noise, latency and history; the critic sees a clean, current twin.
 * `Pushes`: random horizontal velocity kicks every k control steps.
-* `check_terrain_arguments`, `policy_height_scan`: the arguments and the
-  height scan of the tasks on generated terrain (`joystick_terrain`,
-  `walk_terrain`).
 * `yaw_quaternion`: a rotation about the world's z axis.
 """
 
@@ -18,8 +15,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer.locomotion import height_scan as height_scan_lib
-from mjx_composer.observation import groups as groups_lib
 from mjx_composer.utils import validation
 
 # -- rewards -------------------------------------------------------------------
@@ -270,106 +265,6 @@ class Pushes:
       return physics, kick
     qvel = physics.bind(freejoint).qvel
     return physics.bind(freejoint).set(qvel=qvel.at[:3].add(kick)), kick
-
-
-# -- generated terrain ---------------------------------------------------------
-
-
-def check_terrain_arguments(owner, **kwargs):
-  """Checks a terrain task's arguments before anything is built.
-
-  Each of `kinds` (a non-empty sequence of sub-terrain names; unknown names
-  are refused by the `TerrainGenerator`), `levels` (an int >= 1),
-  `initial_levels` and `actuation_delay` ((low, high) ints >= 0),
-  `scan_size` (a (length, width) pair > 0), `scan_resolution` (> 0),
-  `terrain_seed` (an int >= 0) and `height_scan` (a bool) that is given;
-  `owner` names the task in the messages.
-  """
-  v = validation
-  if 'kinds' in kwargs:
-    kinds = kwargs['kinds']
-    if (
-        isinstance(kinds, str)
-        or not isinstance(kinds, (tuple, list))
-        or not kinds
-    ):
-      raise TypeError(
-          f'{owner}: `kinds` must be a non-empty sequence of sub-terrain '
-          f'names, got {kinds!r}. Pass e.g. kinds=sub_terrains.KINDS.'
-      )
-  if 'levels' in kwargs:
-    v.check_integer('levels', kwargs['levels'], owner=owner, minimum=1)
-  for name in ('initial_levels', 'actuation_delay'):
-    if name in kwargs:
-      pair = kwargs[name]
-      v.check_range_pair(name, pair, owner=owner, nonnegative=True)
-      for i, bound in enumerate(pair):
-        v.check_integer(f'{name}[{i}]', bound, owner=owner, minimum=0)
-  if 'scan_size' in kwargs:
-    size = kwargs['scan_size']
-    if isinstance(size, str) or np.ndim(size) != 1 or len(size) != 2:
-      raise TypeError(
-          f'{owner}: `scan_size` must be a (length, width) pair, got '
-          f'{size!r}. Pass two positive numbers of metres, e.g. (1.6, 1.0).'
-      )
-    v.check_positive('scan_size', size, owner=owner)
-  if 'scan_resolution' in kwargs:
-    v.check_positive('scan_resolution', kwargs['scan_resolution'], owner=owner)
-  if 'terrain_seed' in kwargs:
-    v.check_integer(
-        'terrain_seed', kwargs['terrain_seed'], owner=owner, minimum=0
-    )
-  if 'height_scan' in kwargs:
-    v.check_bool('height_scan', kwargs['height_scan'], owner=owner)
-
-
-def policy_height_scan(
-    frame, terrain, size, resolution, n_sub_steps, noise=0.0, delay=0
-):
-  """A yaw-aligned `HeightScan` of `terrain` for the policy, and its twin.
-
-  The scan (a `size` grid every `resolution` metres around `frame`, hitting
-  the terrain's geoms only) is a `policy_observable`: U(-noise, noise)
-  metres per ray, sampled once per control step, visible `delay` sub-steps
-  later. The twin (`clean_twin`) is the critic's clean, current copy.
-
-  Returns:
-    `(scan, twin)`.
-  """
-  scan = height_scan_lib.HeightScan(
-      frame, size=size, resolution=resolution, geomgroup=terrain.geomgroup
-  )
-  policy_observable(
-      scan,
-      n_sub_steps,
-      corruptor=uniform_noise(noise) if noise else None,
-      delay=delay,
-  )
-  return scan, clean_twin(scan)
-
-
-def with_height_scan(observables, scan, twin):
-  """`observables` with the policy's height `scan` as 'height_scan' and its
-  `twin` as 'privileged_height_scan' (as they were with `scan` None)."""
-  if scan is None:
-    return observables
-  return {**observables, 'height_scan': scan, 'privileged_height_scan': twin}
-
-
-def groups_with_height_scan(groups):
-  """`groups` with 'height_scan' in the policy's and its clean twin,
-  'privileged_height_scan', in the critic's (`with_height_scan`)."""
-  policy, critic = groups['policy'], groups['critic']
-  return {
-      'policy': groups_lib.ObservationGroup(
-          keys=list(policy.keys) + ['height_scan'], flatten=True
-      ),
-      'critic': groups_lib.ObservationGroup(
-          keys=list(critic.keys) + ['privileged_height_scan'],
-          corrupted=False,
-          flatten=True,
-      ),
-  }
 
 
 # -- small helpers -------------------------------------------------------------

@@ -144,6 +144,7 @@ class Walk(task.Task):
       `fall_height`.
     fall_height: metres.
     initial_pose_noise: half-width of the joint angles' initial spread, rad.
+    collisions: the `Humanoid`'s contacts: 'all' (the XML's) or 'feet'.
   """
 
   def __init__(
@@ -160,7 +161,11 @@ class Walk(task.Task):
       terminate_on_fall=True,
       fall_height=0.8,
       initial_pose_noise=0.1,
+      collisions='all',
   ):
+    validation.check_choice(
+        'collisions', collisions, humanoid_lib.COLLISIONS, owner='Walk'
+    )
     _check_arguments(
         move_speed=move_speed,
         control_timestep=control_timestep,
@@ -177,7 +182,7 @@ class Walk(task.Task):
     )
     self._move_speed = float(move_speed)
     self._arena = self._build_arena()
-    self._humanoid = humanoid_lib.Humanoid()
+    self._humanoid = humanoid_lib.Humanoid(collisions=collisions)
     frame = self._arena.add_free_entity(self._humanoid)
     frame.pos = [0.0, 0.0, self._humanoid.initial_height]
     self._humanoid.apply_simulation_options(self._arena.mjcf_model)

@@ -28,32 +28,24 @@ on the kit's terrain, each locomotion part a reusable piece of
   within `OUT_OF_BOUNDS_MARGIN` of the terrain's edge: beyond it there is
   no ground.
 
-Deviations from `Walk`:
+The humanoid collides with the terrain by its feet only
+(`collisions='feet'`: the four foot capsules; the head's height decides
+falls) and its contacts are capped at two per capsule, as the XML's cap of
+8 has them (`terrain_part`). The terrain's grid is 0.1 m: a foot capsule
+(0.134 m bounding radius) meets 4 x 4 cells there, 7 x 7 at the Go1's
+0.05 m; a stair's 0.3 m tread keeps its top and its riser becomes a
+0.1 m slope (`sub_terrains`).
 
-* the humanoid's XML caps MJX's candidate pairs per pair of geom types
-  (`max_geom_pairs`, 8), and MJX picks them by the distance between the
-  geoms' centres less their bounding spheres' radii: on stairs, nested
-  boxes whose largest is the lowest step, the 8 picked are pairs with the
-  large outer boxes and the platform the feet stand on is never collided
-  (the feet sank through it, 11 cm in 0.25 s). The task lifts that cap:
-  every humanoid geom is collided with every box, at every sub-step. The
-  XML's `max_contact_points` (8: the deepest contacts are kept) stays;
-* the randomized ground friction is the height field's (the first ground
-  geom, as `Walk` randomizes its floor's); the stairs' boxes keep MuJoCo's
-  default friction.
+Deviation from `Walk`: the randomized ground friction is the height
+field's (the terrain's one geom, as `Walk` randomizes its floor's).
 """
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer.locomotion import curriculum as curriculum_lib
 from mjx_composer.locomotion import height_scan as height_scan_lib
-from mjx_composer.locomotion import terrain as terrain_lib
-from mjx_composer.tasks import joystick_terrain
-from mjx_composer.tasks import locomotion
+from mjx_composer.tasks import terrain_part
 from mjx_composer.tasks import walk
-from mjx_composer.utils import validation
 
 # The default sub-terrain kinds: continuous ground and stairs, without the
 # stepping stones, beams, grids and obstacles (`kinds=sub_terrains.KINDS`
@@ -68,6 +60,7 @@ KINDS = (
     'inverted_pyramid_stairs',
 )
 TERRAIN_GROUP = 2  # The humanoid's geoms are in group 0.
+HORIZONTAL_SCALE = 0.1  # Metres: a foot capsule meets 4 x 4 cells.
 OUT_OF_BOUNDS_MARGIN = 1.0  # Metres from the terrain's edge.
 _OWNER = 'TerrainWalk'
 
@@ -85,6 +78,7 @@ class TerrainWalk(walk.Walk):
     terrain_seed: the seed of the random sub-terrains.
     height_scan: whether the policy and the critic observe the height scan
       (False: neither does; the head's height is still measured by a ray).
+    collisions: the `Humanoid`'s contacts ('feet': the foot capsules only).
     **kwargs: `Walk`'s arguments.
   """
 
@@ -98,35 +92,25 @@ class TerrainWalk(walk.Walk):
       scan_resolution=0.1,
       terrain_seed=0,
       height_scan=True,
+      collisions='feet',
       **kwargs,
   ):
-    locomotion.check_terrain_arguments(
+    self._part = terrain_part.TerrainPart(
         _OWNER,
         kinds=kinds,
         levels=levels,
+        tile_size=tile_size,
+        horizontal_scale=HORIZONTAL_SCALE,
         initial_levels=initial_levels,
         scan_size=scan_size,
         scan_resolution=scan_resolution,
         terrain_seed=terrain_seed,
         height_scan=height_scan,
-    )
-    tile_size = validation.check_positive('tile_size', tile_size, owner=_OWNER)
-    self._terrain_args = dict(
-        kinds=kinds,
-        levels=levels,
-        tile_size=tile_size,
-        border=tile_size / 4,
         group=TERRAIN_GROUP,
-        seed=terrain_seed,
     )
-    super().__init__(**kwargs)
-    spec = self._arena.mjcf_model
-    for numeric in list(spec.numerics):
-      if numeric.name == 'max_geom_pairs':  # See the module docstring.
-        spec.delete(numeric)
-    self._curriculum = curriculum_lib.TerrainCurriculum(
-        self._arena, initial_levels=initial_levels
-    )
+    super().__init__(collisions=collisions, **kwargs)
+    if collisions == 'feet':
+      self._part.cap_contacts(self.humanoid.foot_geoms)
     # The ground below the head: one ray, straight down from above it.
     self._head_ray = height_scan_lib.HeightScan(
         self.humanoid.head,
@@ -134,20 +118,15 @@ class TerrainWalk(walk.Walk):
         alignment='world',
         geomgroup=self._arena.geomgroup,
     )
-    self._scan = self._scan_twin = None
-    if height_scan:
-      self._scan, self._scan_twin = locomotion.policy_height_scan(
-          self.humanoid.torso,
-          self._arena,
-          scan_size,
-          scan_resolution,
-          self.physics_steps_per_control_step,
-          noise=self._noise_level * joystick_terrain.HEIGHT_SCAN_NOISE,
-          delay=self._observation_delay,
-      )
+    self._part.observe(
+        self.humanoid.torso,
+        self.physics_steps_per_control_step,
+        noise=self._noise_level * terrain_part.HEIGHT_SCAN_NOISE,
+        delay=self._observation_delay,
+    )
 
   def _build_arena(self):
-    return terrain_lib.TerrainGenerator(**self._terrain_args)
+    return self._part.terrain
 
   def _configure_observables(self, noise_level, delay, history):
     self._noise_level = float(noise_level)
@@ -156,7 +135,7 @@ class TerrainWalk(walk.Walk):
 
   def _start(self, physics, key):
     """Starts on a tile of this world's level (the curriculum's)."""
-    physics, spawn = self._curriculum.reset(physics, key)
+    physics, spawn = self._part.spawn(physics, key)
     lift = jnp.array([0.0, 0.0, self.humanoid.initial_height], jnp.float32)
     return physics, spawn + lift
 
@@ -164,34 +143,29 @@ class TerrainWalk(walk.Walk):
 
   @property
   def terrain(self):
-    return self._arena
+    return self._part.terrain
 
   @property
   def curriculum(self):
-    return self._curriculum
+    return self._part.curriculum
 
   @property
   def height_scan(self):
     """The policy's `HeightScan` (None with `height_scan=False`)."""
-    return self._scan
+    return self._part.scan
 
   @property
   def task_observables(self):
-    return locomotion.with_height_scan(
-        super().task_observables, self._scan, self._scan_twin
-    )
+    return self._part.observables(super().task_observables)
 
   def observation_groups(self):
-    groups = super().observation_groups()
-    if self._scan is None:
-      return groups
-    return locomotion.groups_with_height_scan(groups)
+    return self._part.groups(super().observation_groups())
 
   # -- episode ---------------------------------------------------------------
 
   def after_step(self, physics, key):
     del key
-    return self._curriculum.record(
+    return self._part.record(
         physics,
         physics.bind(self.humanoid.torso).xpos,
         self._move_speed,
@@ -223,5 +197,5 @@ class TerrainWalk(walk.Walk):
   def get_metrics(self, physics):
     return {
         **super().get_metrics(physics),
-        **self._curriculum.metrics(physics),
+        **self._part.metrics(physics),
     }

@@ -4,12 +4,20 @@ Isaac Lab's and mjlab's terrain generator as a composer `Arena`: tile
 `(level, kind)` is the sub-terrain `kinds[kind]` (`sub_terrains.KINDS`) at
 the difficulty of `level` (`difficulty_range[0]` at level 0 rising linearly
 to `difficulty_range[1]` at the last level). Levels run along x, kinds
-along y. The height-field kinds share one MuJoCo height field covering the
-whole grid (flat under the box tiles and the border); the box kinds' boxes
-are static geoms of the world body. MJX collides height fields and boxes
-with spheres, capsules, boxes and meshes (the feet and limbs of the bundled
-robots); every terrain geom is in geom group `group`, which a `HeightScan`
-selects.
+along y. Every kind, stairs, stones and beams included, is written into one
+MuJoCo height field covering the whole grid and a flat border around it
+(`sub_terrains` says how a block becomes heights): the terrain is one geom,
+in geom group `group`, which a `HeightScan` selects. MJX collides a height
+field with spheres, capsules, boxes and meshes through the grid cells
+around each of them, so a robot's feet cost the same on any kind.
+
+`horizontal_scale`, the grid's spacing, sets how sharp an edge is: a riser
+becomes a slope one cell wide. MJX collides a geom with a sub-grid of
+`ceil(2 * r / horizontal_scale) + 1` cells a side around it (`r` its
+bounding radius), two prisms a cell: the default 0.05 m is the finest
+spacing at which a Go1 foot (a 0.023 m sphere) meets 2 x 2 cells, the
+fewest there are; a humanoid's foot capsules (0.134 m bounding radius)
+meet 7 x 7 there and 4 x 4 at 0.1 m (`TerrainWalk`'s choice).
 
 The layout is generated once, on the host, from `seed`; every world has the
 same terrain and a per-world terrain level (`curriculum.TerrainCurriculum`)
@@ -21,7 +29,8 @@ import mujoco
 import numpy as np
 
 from mjx_composer import arena
-from mjx_composer.locomotion import sub_terrains
+from mjx_composer.locomotion.terrain import sub_terrains
+from mjx_composer.locomotion.terrain import surface
 from mjx_composer.utils import validation
 
 _OWNER = 'TerrainGenerator'
@@ -35,7 +44,8 @@ class TerrainGenerator(arena.Arena):
     levels: the number of difficulty levels (rows).
     tile_size: the side of a (square) tile, metres; a multiple of
       `horizontal_scale`.
-    horizontal_scale: the height field's grid spacing, metres.
+    horizontal_scale: the height field's grid spacing, metres (module
+      docstring).
     border: the width of the flat border around the grid, metres; a
       multiple of `horizontal_scale`.
     difficulty_range: (at level 0, at the last level), in [0, 1].
@@ -50,7 +60,7 @@ class TerrainGenerator(arena.Arena):
       kinds=sub_terrains.KINDS,
       levels=5,
       tile_size=4.0,
-      horizontal_scale=0.1,
+      horizontal_scale=0.05,
       border=1.0,
       difficulty_range=(0.0, 1.0),
       config=None,
@@ -140,94 +150,36 @@ class TerrainGenerator(arena.Arena):
         ]
     )
     ncol, nrow = (np.round(2 * half_extent / scale).astype(int) + 1).tolist()
-    xs = np.linspace(-half_extent[0], half_extent[0], ncol)
-    ys = np.linspace(-half_extent[1], half_extent[1], nrow)
     heights = np.zeros((nrow, ncol))
     tile_cells = int(round(tile / scale))
     local = np.linspace(-tile / 2, tile / 2, tile_cells + 1)
-    boxes, spawns = [], np.zeros((self._levels, len(self._kinds), 3))
+    spawns = np.zeros((self._levels, len(self._kinds), 3))
     for level in range(self._levels):
       for index, kind in enumerate(self._kinds):
         centre = self.tile_centre(level, index)
-        difficulty = self.difficulty(level)
-        if kind in sub_terrains.HFIELD_KINDS:
-          tile_heights = sub_terrains.height_field(
-              kind, difficulty, local, local, rng, self._config
-          )
-          col = int(round((centre[0] - tile / 2 + half_extent[0]) / scale))
-          row = int(round((centre[1] - tile / 2 + half_extent[1]) / scale))
-          heights[row : row + tile_cells + 1, col : col + tile_cells + 1] = (
-              tile_heights
-          )
-          spawn = tile_heights[tile_cells // 2, tile_cells // 2]
-        else:
-          tile_boxes, spawn = sub_terrains.boxes(
-              kind, difficulty, tile / 2, rng, self._config
-          )
-          tile_boxes[:, :2] += centre
-          boxes.append(tile_boxes)
+        tile_heights, spawn = sub_terrains.tile(
+            kind, self.difficulty(level), local, local, rng, self._config
+        )
+        col = int(round((centre[0] - tile / 2 + half_extent[0]) / scale))
+        row = int(round((centre[1] - tile / 2 + half_extent[1]) / scale))
+        heights[row : row + tile_cells + 1, col : col + tile_cells + 1] = (
+            tile_heights
+        )
         spawns[level, index] = [*centre, spawn]
     self._heights = heights
-    self._hfield_half = half_extent
     self._spawn_points = spawns
-    self._boxes = np.concatenate(boxes) if boxes else np.zeros((0, 6))
-    self._add_geoms(heights, half_extent)
-
-  def _add_geoms(self, heights, half_extent):
-    spec = self.mjcf_model
-    spec.add_texture(
-        name='grid',
-        type=mujoco.mjtTexture.mjTEXTURE_2D,
-        builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER,
-        width=256,
-        height=256,
-        rgb1=[0.25, 0.3, 0.35],
-        rgb2=[0.15, 0.2, 0.25],
-    )
-    spec.add_material(
-        name='grid',
-        textures=['', 'grid'] + [''] * 8,
-        texrepeat=[1 / self._scale / 5] * 2,
-        texuniform=True,
-    )
-    spec.add_material(name='box', rgba=[0.45, 0.5, 0.55, 1.0])
-    spec.worldbody.add_light(
-        name='top',
-        pos=[0, 0, 4],
-        dir=[0, 0, -1],
-        type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL,
-    )
     low, high = heights.min(), heights.max()
-    # MuJoCo normalizes the elevations to [0, 1] and scales them by
-    # size[2]: heights spanning [low, high] need size[2] = high - low and
-    # the geom `low` lower.
     span = max(high - low, 1e-3)
-    nrow, ncol = heights.shape
-    self._hfield = spec.add_hfield(
-        name='terrain',
-        size=[half_extent[0], half_extent[1], span, 1.0],
-        nrow=nrow,
-        ncol=ncol,
-        userdata=np.ravel((heights - low) / span).tolist(),
-    )
-    self._ground = spec.worldbody.add_geom(
-        name='ground',
-        type=mujoco.mjtGeom.mjGEOM_HFIELD,
-        hfieldname='terrain',
-        pos=[0, 0, low],
-        material='grid',
+    self._field = surface.HeightField(
+        self.mjcf_model,
+        half_extent=half_extent,
+        shape=heights.shape,
+        span=span,
+        base=1.0,
+        elevation=(heights - low) / span,
+        z=low,
         group=self._group,
-    )
-    self._box_geoms = tuple(
-        spec.worldbody.add_geom(
-            name=f'box_{i}',
-            type=mujoco.mjtGeom.mjGEOM_BOX,
-            pos=box[:3],
-            size=box[3:],
-            material='box',
-            group=self._group,
-        )
-        for i, box in enumerate(self._boxes)
+        texrepeat=[2, 2],  # A 0.5 m checker.
     )
 
   # -- what tasks read -------------------------------------------------------
@@ -248,7 +200,7 @@ class TerrainGenerator(arena.Arena):
   def half_extent(self):
     """(x, y) half-sizes of the whole terrain, border included, metres
     (it is centred on the world's origin)."""
-    return self._hfield_half.copy()
+    return self._field.half_extent
 
   @property
   def group(self):
@@ -273,13 +225,23 @@ class TerrainGenerator(arena.Arena):
     return self._heights.copy()
 
   @property
-  def boxes(self):
-    """(n, 6) the boxes' centres and half-sizes (host)."""
-    return self._boxes.copy()
+  def horizontal_scale(self):
+    """The height field's grid spacing, metres."""
+    return self._scale
 
   @property
   def ground_geoms(self):
-    return (self._ground,) + self._box_geoms
+    return (self._field.geom,)
+
+  @property
+  def ground(self):
+    """The `surface.HeightField` (where the ground is, on the device)."""
+    return self._field
+
+  def height_at(self, physics, xy):
+    """The terrain's height below world `xy` (2,), as MuJoCo's collision
+    sees it (device)."""
+    return self._field.height_at(physics, xy)
 
   def regenerate(self, random_state=None):
     """Composer's build-time regeneration: the layout is fixed by `seed`."""
