@@ -6,11 +6,16 @@ non-finite flags through one, on both backends.
 """
 
 import math
+import re
 
+import jax
 import jax.numpy as jnp
 import pytest
 
+import mjx_composer as composer
+from mjx_composer import physics as physics_lib
 from mjx_composer.runtime import episode
+from tests import conftest
 
 
 @pytest.mark.parametrize(
@@ -83,3 +88,98 @@ def test_nonfinite_initial_state_reads_what_the_physics_starts_from():
     setattr(Data, name, clean.at[(0,) * clean.ndim].set(jnp.nan))
     assert bool(episode.nonfinite_initial_state(Data)), name
     setattr(Data, name, clean)
+
+
+# -- the outcome methods read; a write is refused while tracing ------------
+
+
+class _CountingTask(conftest.SwingTask):
+  """Counts control steps in the task state, in the hook `where` names
+  (`'after_step'`, composer's place for it here, or an outcome method that
+  writes, as dm_control tasks count in `get_reward`)."""
+
+  def __init__(self, where):
+    super().__init__()
+    self.where = where
+
+  def initial_task_state(self):
+    return {'target': jnp.zeros(()), 'steps': jnp.zeros((), jnp.int32)}
+
+  def _counted(self, physics):
+    return physics.update_task_state(steps=physics.task_state['steps'] + 1)
+
+  def after_step(self, physics, key):
+    del key
+    return self._counted(physics) if self.where == 'after_step' else physics
+
+  def get_reward(self, physics):
+    if self.where == 'get_reward':
+      self._counted(physics)
+    if self.where == 'get_reward returns it':
+      return physics.task_state['steps'], physics
+    # A forward pass only computes what the read needs: allowed.
+    return jnp.float32(physics.forward().task_state['steps'])
+
+  def get_discount(self, physics):
+    if self.where == 'get_discount':
+      physics.set_persistent('seen', jnp.ones(()))
+    return 1.0
+
+  def should_terminate_episode(self, physics):
+    if self.where == 'should_terminate_episode':
+      physics.bind(self.pendulum.joint).set(qpos=jnp.zeros(1))
+    return False
+
+  def get_metrics(self, physics):
+    if self.where == 'get_metrics':
+      physics.set_control(jnp.zeros(1))
+    return {'steps': physics.task_state['steps']}
+
+
+def _reset_and_step(env):
+  def run(key):
+    state = env.reset(key)
+    return env.step(state, jnp.zeros(env.action_spec().shape))
+
+  return jax.eval_shape(run, jax.random.key(0))
+
+
+@pytest.mark.parametrize(
+    'where, write',
+    [
+        ('get_reward', 'update_task_state()'),
+        ('get_discount', 'set_persistent()'),
+        ('should_terminate_episode', 'a write of qpos'),
+        ('get_metrics', 'a write of ctrl'),
+    ],
+)
+def test_an_outcome_method_that_writes_is_refused_naming_it(where, write):
+  env = composer.Environment(_CountingTask(where), time_limit=0.05)
+  with pytest.raises(
+      physics_lib.ReadOnlyPhysicsError,
+      match=rf'_CountingTask\.{where} .*called {re.escape(write)} .*'
+      r'after_step',
+  ):
+    _reset_and_step(env)
+
+
+def test_an_outcome_method_that_returns_a_physics_is_refused():
+  env = composer.Environment(
+      _CountingTask('get_reward returns it'), time_limit=0.05
+  )
+  with pytest.raises(
+      physics_lib.ReadOnlyPhysicsError,
+      match=r'_CountingTask\.get_reward returned a Physics.*after_step',
+  ):
+    _reset_and_step(env)
+
+
+def test_a_count_kept_in_after_step_is_what_the_reward_reads():
+  env = composer.Environment(_CountingTask('after_step'), time_limit=0.05)
+  step = jax.jit(env.step)
+  state = jax.jit(env.reset)(jax.random.key(0))
+  assert float(state.metrics['steps']) == 0
+  for n in (1, 2, 3):
+    state = step(state, jnp.zeros(env.action_spec().shape))
+    assert float(state.reward) == n
+    assert float(state.metrics['steps']) == n
