@@ -24,7 +24,7 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-TASKS = ('reach', 'push', 'walk', 'joystick', 'joystick_terrain')
+TASKS = ('reach', 'push', 'walk', 'walk_terrain', 'joystick', 'joystick_terrain')
 
 
 # -- environments ------------------------------------------------------------
@@ -45,6 +45,10 @@ def make_task(name='reach', **task_kwargs):
     from mjx_composer.tasks import walk
 
     return walk.Walk(**task_kwargs)
+  if name == 'walk_terrain':
+    from mjx_composer.tasks import walk_terrain
+
+    return walk_terrain.TerrainWalk(**task_kwargs)
   if name == 'joystick':
     from mjx_composer.tasks import joystick
 

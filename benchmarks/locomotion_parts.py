@@ -1,53 +1,47 @@
-"""What the locomotion kit's parts cost: the Go1 on generated terrain.
+"""What the locomotion kit costs: the Go1 and the humanoid on generated terrain.
 
 In one process, on one device, for each number of worlds, these programs
-step the Go1 for `--steps` control steps of 5 physics steps each, one
-random action per world held for the whole call:
+step their robot for `--steps` control steps, one random action per world
+held for the whole call:
 
 * raw:        `jax.lax.scan` over control steps of `n_sub_steps` x
-              `jax.vmap(mjx.step)` (`common.raw_rollout`) on parts_on's
-              compiled model (the generated terrain's height field and
-              boxes, the Go1), the actions as controls, from `qpos0` with
-              the Go1's free joint moved onto the first tile's spawn
+              `jax.vmap(mjx.step)` (`common.raw_rollout`) on
+              joystick_terrain's compiled model (the generated terrain's
+              height field, the Go1), the actions as controls, from `qpos0`
+              with the Go1's free joint moved onto the first tile's spawn
               platform (level 0, the first kind), plus noise;
-* parts_on:   `joystick_terrain.TerrainJoystick()` as registered
-              (`joystick_terrain`): generated terrain (every sub-terrain
-              kind, 5 levels of 4 m tiles) with its curriculum, the height
-              scan in the policy's observation (and its clean twin in the
-              critic's), feet contacts and air times, velocity commands,
-              actuation delay of U{0, 2} sub-steps;
-* parts_on_no_scan: the same with `height_scan=False` (neither group
-              observes a scan; no rays are cast);
-* parts_off:  the same task with every part switched off as far as its
-              constructor allows: `kinds=('flat',)` and `levels=1` (one
-              flat 4 m tile, a height field of zeros, no boxes),
-              `initial_levels=(0, 0)` (the curriculum still records and
-              resets, but has one level to move within), `actuation_delay=
-              (0, 0)` (the delay's hooks still run, with no delay) and
-              `height_scan=False`; commands, feet contacts and air times
-              stay (`Joystick`'s rewards read them);
-* joystick:   the flat-ground `joystick.Joystick(terrain='flat')` for
-              reference (a plane, no terrain parts).
+* joystick:   the flat-ground `joystick.Joystick()` (a plane);
+* joystick_terrain: `joystick_terrain.TerrainJoystick()` as registered:
+              generated terrain (every sub-terrain kind, 5 levels of 4 m
+              tiles, one height field) with its curriculum, the Go1's feet
+              its only terrain contacts, the height scan in the policy's
+              observation (and its clean twin in the critic's), velocity
+              commands, actuation delay of U{0, 2} sub-steps;
+* joystick_terrain_no_scan: the same with `height_scan=False` (neither
+              group observes a scan; no rays are cast);
+* joystick_terrain_off: the same task with every part switched off as far
+              as its constructor allows: `kinds=('flat',)` and `levels=1`
+              (one flat 4 m tile), `initial_levels=(0, 0)`,
+              `actuation_delay=(0, 0)` and `height_scan=False`;
+* walk:       the flat-ground humanoid `walk.Walk()`;
+* walk_terrain: `walk_terrain.TerrainWalk()` as registered (its terrain,
+              curriculum and height scan; the humanoid's feet its only
+              terrain contacts).
 
 The composed programs are `vmap(env.step)` in a `jax.lax.scan`
-(`common.env_rollout`) with same-step auto-reset, `Joystick`'s defaults
+(`common.env_rollout`) with same-step auto-reset and the tasks' defaults
 otherwise (noise, observation delay and history, per-episode
-randomization, pushes, falls ending episodes after at most 1000 steps):
-worlds whose Go1 falls reset inside the call, raw's never do.
+randomization, pushes, falls ending episodes): worlds that fall reset
+inside the call, raw's never do. Episodes last the registered tasks'
+20 s (joystick) and 25 s (walk).
 
 For each: control and physics steps per second (median of `--repeats`
 calls), the first calls (trace, lowering and XLA compile of the batched
 reset, and of the rollout; the rollout's first call with its first run;
 `playground_compare.measure`) and the bytes of one world's state; ratios
-to raw and to joystick; and the height scan's cost per world: parts_on's
-time per world and control step less parts_on_no_scan's, and the
-difference of their state bytes per world.
-
-Memory: MJX gives every candidate contact pair a slot in `mjx.Data`, and the
-Go1 set no cap (`max_geom_pairs`), so the default terrain's 820 boxes make
-parts_on's and raw's state about 3.4 MB per world (6,580 contacts, 26,344
-constraint rows; 32 KB with parts_off's single flat tile), measured on a
-CPU: at 8,192 worlds that is 28 GB before the rollout's temporaries.
+to raw and to the program's flat-ground twin (`FLAT`); and the height
+scan's cost per world: joystick_terrain's time per world and control step
+less joystick_terrain_no_scan's, and the difference of their state bytes.
 
 The process compiles a trivial function before the first program, so that
 the backend's start-up is in no program's first call. With `--isolated`
@@ -56,10 +50,10 @@ script (`common.run_isolated`), so that no program's first call profits
 from another's compiles; the ratios then divide figures from different
 processes.
 
-    python benchmarks/locomotion_parts.py --worlds 1024 4096
+    python benchmarks/locomotion_parts.py --worlds 4096 16384
     python benchmarks/locomotion_parts.py --worlds 4 --steps 2   # smoke
     python benchmarks/locomotion_parts.py --isolated --worlds 8192 \\
-        --programs raw parts_on parts_off
+        --programs raw joystick joystick_terrain
 """
 
 import jax
@@ -71,8 +65,9 @@ from mjx_composer.platform import cpu_linalg
 import common  # benchmarks/common.py
 import playground_compare  # benchmarks/playground_compare.py: measure
 
-EPISODE_SECONDS = 20.0  # joystick.EPISODE_SECONDS: 1000 control steps.
-# TerrainJoystick's arguments of each composed program.
+# Episode lengths, seconds: joystick.EPISODE_SECONDS and the registry's walk.
+EPISODE_SECONDS = {'joystick': 20.0, 'walk': 25.0}
+# TerrainJoystick's arguments of joystick_terrain_off.
 PARTS_OFF = dict(
     kinds=('flat',),
     levels=1,
@@ -81,27 +76,38 @@ PARTS_OFF = dict(
     height_scan=False,
 )
 TASKS = {
-    'parts_on': ('joystick_terrain', {}),
-    'parts_on_no_scan': ('joystick_terrain', dict(height_scan=False)),
-    'parts_off': ('joystick_terrain', PARTS_OFF),
-    'joystick': ('joystick', dict(terrain='flat')),
+    'joystick': ('joystick', {}),
+    'joystick_terrain': ('joystick_terrain', {}),
+    'joystick_terrain_no_scan': ('joystick_terrain', dict(height_scan=False)),
+    'joystick_terrain_off': ('joystick_terrain', PARTS_OFF),
+    'walk': ('walk', {}),
+    'walk_terrain': ('walk_terrain', {}),
+}
+# Each program's flat-ground twin (the ratio '/flat').
+FLAT = {
+    'raw': 'joystick',
+    'joystick_terrain': 'joystick',
+    'joystick_terrain_no_scan': 'joystick',
+    'joystick_terrain_off': 'joystick',
+    'walk_terrain': 'walk',
 }
 PROGRAMS = ('raw', *TASKS)
 
 
 def make_envs(names, share_reset_forward=None):
-  """The environments of the composed programs in `names` (and parts_on's,
-  whose compiled model raw steps, when raw is among them)."""
+  """The environments of the composed programs in `names` (and
+  joystick_terrain's, whose compiled model raw steps, when raw is among
+  them)."""
   wanted = set(names) - {'raw'}
   if 'raw' in names:
-    wanted.add('parts_on')
+    wanted.add('joystick_terrain')
   envs = {}
   for name in TASKS:
     if name in wanted:
       task, kwargs = TASKS[name]
       envs[name] = common.make_env(
           task,
-          time_limit=EPISODE_SECONDS,
+          time_limit=EPISODE_SECONDS[task.split('_')[0]],
           share_reset_forward=share_reset_forward,
           **kwargs,
       )
@@ -126,13 +132,17 @@ def raw_start(env):
 
 def derive(row, steps):
   """Adds ratios and the height scan's cost to a row of measured programs."""
-  for name in TASKS:
-    for other in ('raw', 'joystick'):
+  for name in PROGRAMS:
+    for other, key in (('raw', 'raw'), (FLAT.get(name), 'flat')):
       if name != other and name in row and other in row:
-        row[f'{name}/{other}'] = (
+        row[f'{name}/{key}'] = (
             row[name]['control_steps_per_s'] / row[other]['control_steps_per_s']
         )
-  on, off = row.get('parts_on'), row.get('parts_on_no_scan')
+        row[f'{name}/{key}_state'] = (
+            row[name]['state_bytes_per_world']
+            / row[other]['state_bytes_per_world']
+        )
+  on, off = row.get('joystick_terrain'), row.get('joystick_terrain_no_scan')
   if on and off:
     world_steps = row['worlds'] * steps
     row['height_scan'] = {
@@ -153,10 +163,10 @@ def derive(row, steps):
 def print_table(results):
   print(
       '\n| worlds | program | control steps/s | physics steps/s | / raw '
-      '| / joystick | reset compile (s) | rollout compile (s) '
-      '| rollout first call (s) | state (KiB/world) |'
+      '| / flat | reset compile (s) | rollout compile (s) '
+      '| rollout first call (s) | state (KiB/world) | state / flat |'
   )
-  print('|---|---|---|---|---|---|---|---|---|---|')
+  print('|---|---|---|---|---|---|---|---|---|---|---|')
   ratio = lambda r, key: f'{r[key]:.3f}' if key in r else '-'
   for row in results:
     for name in PROGRAMS:
@@ -166,9 +176,10 @@ def print_table(results):
       print(
           f'| {row["worlds"]:,} | {name} | {m["control_steps_per_s"]:,.0f} '
           f'| {m["physics_steps_per_s"]:,.0f} | {ratio(row, f"{name}/raw")} '
-          f'| {ratio(row, f"{name}/joystick")} | {m["reset_compile_s"]:.1f} '
+          f'| {ratio(row, f"{name}/flat")} | {m["reset_compile_s"]:.1f} '
           f'| {m["rollout_compile_s"]:.1f} | {m["first_call_s"]:.1f} '
-          f'| {m["state_bytes_per_world"] / 1024:.1f} |'
+          f'| {m["state_bytes_per_world"] / 1024:.1f} '
+          f'| {ratio(row, f"{name}/flat_state")} |'
       )
   for row in results:
     scan = row.get('height_scan')
@@ -179,27 +190,25 @@ def print_table(results):
           f'control step, throughput x{scan["throughput_ratio"]:.3f}, '
           f'{scan["state_bytes_per_world"]:+,.0f} state bytes per world, '
           f'rollout compile {scan["rollout_compile_s"]:+.1f} s '
-          '(parts_on against parts_on_no_scan).'
+          '(joystick_terrain against joystick_terrain_no_scan).'
       )
 
 
 def _settings(args, envs=None):
   settings = dict(
-      task='joystick_terrain',
       steps_per_call=args.steps,
       repeats=args.repeats,
       parts_off=repr(PARTS_OFF),
       note=(
           'Every program holds one random action per world. The composed '
-          'programs reset worlds whose Go1 falls (same-step auto-reset); '
+          'programs reset worlds whose robot falls (same-step auto-reset); '
           'raw never resets within a call.'
       ),
   )
   if envs:
-    env = next(iter(envs.values()))
     settings.update(
-        sub_steps=env.n_sub_steps,
-        share_reset_forward=env.share_reset_forward,
+        sub_steps={name: env.n_sub_steps for name, env in envs.items()},
+        share_reset_forward=next(iter(envs.values())).share_reset_forward,
     )
   return settings
 
@@ -235,7 +244,7 @@ def main_isolated(args, names):
 
 def main():
   parser = common.make_parser(
-      __doc__, worlds=[1024, 4096], repeats=3, out='locomotion_parts.json'
+      __doc__, worlds=[4096, 16384], repeats=3, out='locomotion_parts.json'
   )
   parser.add_argument(
       '--steps', type=int, default=100, help='control steps per timed call'
@@ -274,7 +283,7 @@ def main():
     results.append(row)
     for name in names:
       if name == 'raw':
-        env = envs['parts_on']
+        env = envs['joystick_terrain']
         model = env.mjx_model
         reset = common.raw_reset(model, jit=False, qpos=raw_start(env))
         rollout = common.raw_rollout(

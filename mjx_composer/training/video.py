@@ -24,6 +24,8 @@ CAMERAS = {
     'walk': 'humanoid/side',
     'joystick': 'go1/tracking',
     'joystick_rough': 'go1/tracking',
+    'joystick_terrain': 'go1/tracking',
+    'walk_terrain': 'humanoid/side',
 }
 FREE_CAMERA = dict(
     distance=2.2, elevation=-25.0, azimuth=135.0, lookat=[0.0, 0.0, 0.25]
