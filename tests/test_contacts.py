@@ -453,3 +453,54 @@ def test_pymjcf_elements_resolve_as_their_compiled_geoms():
   assert expected.size == 1
   for elements in (task.ball, task.ball.geom, task.ball.body, 'pyball/body'):
     np.testing.assert_array_equal(contacts.geom_ids(index, elements), expected)
+
+
+def test_dm_controls_contact_loop_is_answered_by_between():
+  """composer's `for c in physics.data.contact[:physics.data.ncon]` on
+  dm_control's physics, and `contacts.between` on ours, at the same
+  states; the loop on ours is refused, naming `contacts.between`."""
+  from dm_control import mujoco as dm_mujoco  # pylint: disable=g-import-not-at-top
+
+  task = _PyMJCFTask()
+  env = _build(task)
+  m = env.mj_model
+  dm_physics = dm_mujoco.Physics.from_model(dm_mujoco.wrapper.MjModel(m))
+  ball = contacts.geom_ids(env.initial_physics().index, task.ball)
+  ground = contacts.geom_ids(
+      env.initial_physics().index, task.root_entity.ground_geoms
+  )
+
+  def dm_control_count(physics):  # composer's idiom, unchanged
+    count = 0
+    for c in physics.data.contact[: physics.data.ncon]:
+      if (c.geom1 in ball and c.geom2 in ground) or (
+          c.geom2 in ball and c.geom1 in ground
+      ):
+        count += 1
+    return count
+
+  @jax.jit
+  def ours(qpos):
+    physics = env.initial_physics()
+    physics = physics.replace(data=physics.data.replace(qpos=qpos)).forward()
+    touch = contacts.between(physics, task.ball, task.root_entity.ground_geoms)
+    return touch.touching, touch.count
+
+  counts = []
+  for height in (0.09, 0.3):
+    with dm_physics.reset_context():
+      dm_physics.data.qpos[:3] = [0.0, 0.0, height]
+    counts.append(dm_control_count(dm_physics))
+    touching, count = ours(jnp.asarray(dm_physics.data.qpos, jnp.float32))
+    assert int(count) == counts[-1] and bool(touching) == (counts[-1] > 0)
+  assert counts[0] > 0 and counts[1] == 0
+  physics = env.initial_physics().forward()
+  for loop in (
+      dm_control_count,
+      lambda p: [c for c in p.data.contact],
+      lambda p: p.data.contact[0],
+  ):
+    with pytest.raises(
+        TypeError, match=r'mjx_composer\.observation\.contacts\.between'
+    ):
+      loop(physics)
