@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
+from mjx_composer import bindings
 from mjx_composer import physics as physics_lib
 from mjx_composer.model import element_index
 from mjx_composer.observation.observable import mjcf as mjcf_observable
@@ -280,6 +281,50 @@ def test_empty_binding_is_empty(scene):
   assert feature(physics).shape == (0,)
 
 
+def test_element_id_is_answered_with_its_new_name(scene):
+  """dm_control's `element_id` is `element_ids`: the same compiled ids,
+  and the old name says which to use."""
+  physics = scene.physics()
+  for kind, names in _ELEMENTS.items():
+    dm_ids = scene.dm_physics.bind(
+        [scene.dm_element(kind, n) for n in names]
+    ).element_id
+    assert physics.bind(scene.handle(kind, names)).element_ids == tuple(
+        int(i) for i in dm_ids
+    )
+    one = scene.dm_physics.bind(scene.dm_element(kind, names[0])).element_id
+    assert physics.bind(scene.handle(kind, names[0])).element_ids == (one,)
+  for binding in (physics.bind(scene.handle('site', 'foot')), physics.bind([])):
+    with pytest.raises(AttributeError, match=r'`binding\.element_ids`'):
+      binding.element_id  # pylint: disable=pointless-statement
+
+
+def test_mujoco_pointers_are_answered_with_what_to_use(scene):
+  """dm_control's `physics.model.ptr` (MuJoCo's C functions on the
+  physics) names what to use instead; MJX's other answers are unchanged."""
+  physics = scene.physics()
+  expected = mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_BODY, 'leg')
+  # What the message points to answers the C function's question.
+  assert (
+      mujoco.mj_name2id(physics.mj_model, mujoco.mjtObj.mjOBJ_BODY, 'leg')
+      == expected
+  )
+  for source, kind in ((physics.model, 'Model'), (physics.data, 'Data')):
+    with pytest.raises(
+        AttributeError, match=rf'mjx\.{kind}`.*physics\.mj_model'
+    ):
+      source.ptr  # pylint: disable=pointless-statement
+    assert not hasattr(source, 'ptr')
+    with pytest.raises(
+        AttributeError, match=f"'{kind}' object has no attribute 'nope'"
+    ):
+      source.nope  # pylint: disable=pointless-statement
+  # MJX's forwarding of other names to its implementation data still answers.
+  with pytest.warns(DeprecationWarning):
+    ncon = physics.data.ncon
+  assert ncon == internals.data_impl(physics.data).ncon
+
+
 def test_write_then_derived_read_is_refused(scene):
   """Refused while tracing, where dm_control would run mj_forward first."""
   hip = scene.handle('joint', 'hip')
@@ -326,6 +371,76 @@ def test_a_model_write_makes_derived_reads_stale_but_appearance_does_not(
   trace(lambda p: friction(p).bind(geom).xpos)
   with pytest.raises(physics_lib.StaleReadError, match='geom_friction'):
     trace(lambda p: friction(p).named.data.sensordata['acc'])
+
+
+# Model writes, each a model field of one element of the scene (leg
+# elements: their frames differ from their body's, so MuJoCo reads them).
+_KINEMATIC_WRITES = {
+    'body_pos': 'leg',
+    'body_quat': 'leg',
+    'body_ipos': 'leg',
+    'body_iquat': 'leg',
+    'body_mass': 'leg',
+    'body_subtreemass': 'torso',
+    'body_inertia': 'leg',
+    'jnt_pos': 'hip',
+    'jnt_axis': 'hip',
+    'geom_pos': 'leg_geom',
+    'geom_quat': 'leg_geom',
+    'site_pos': 'foot',
+    'site_quat': 'foot',
+}
+
+
+def test_a_kinematic_model_write_makes_stale_what_mujoco_changes(scene):
+  """A model write makes stale the positions that MuJoCo's kinematics
+  (`mj_kinematics`, `mj_comPos`) change after it, and leaves the rest
+  fresh: a site's frame moves its site, not its body."""
+  base = mujoco.MjData(scene.model)
+  base.qpos[:] = scene.data.qpos
+  mujoco.mj_kinematics(scene.model, base)
+  mujoco.mj_comPos(scene.model, base)
+  kind = {'body': 'body', 'jnt': 'joint', 'geom': 'geom', 'site': 'site'}
+  for name, element in _KINEMATIC_WRITES.items():
+    model = scene.spec.compile()
+    index = getattr(model, kind[name.split('_')[0]])(element).id
+    prefix = name.split('_')[0]
+    if hasattr(model, f'{prefix}_sameframe'):
+      # MuJoCo skips a frame equal to its parent's; computed, it is the same.
+      getattr(model, f'{prefix}_sameframe')[index] = 0
+    field = getattr(model, name)
+    value = field[index] + np.linspace(
+        0.05, 0.15, np.size(field[index])
+    ).reshape(np.shape(field[index]))
+    if name.endswith('quat'):
+      value /= np.linalg.norm(value)
+    field[index] = value
+    data = mujoco.MjData(model)
+    data.qpos[:] = scene.data.qpos
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    changed = {
+        field
+        for field in bindings.KINEMATICS_FIELDS
+        if not np.allclose(getattr(data, field), getattr(base, field))
+    }
+    assert changed == bindings.kinematics_written(name) or (
+        changed
+        <= bindings.kinematics_written(name)
+        == bindings.KINEMATICS_FIELDS
+    ), name
+  # The read the rule lets through, and the one it refuses, while tracing.
+  foot = scene.handle('site', 'foot')
+  torso = scene.handle('body', 'torso')
+  data = jax.eval_shape(lambda: mjx.put_data(scene.model, scene.data))
+
+  def trace(read):
+    jax.eval_shape(lambda data: read(scene.physics(data)), data)
+
+  moved = lambda p: p.bind(foot).set(pos=jnp.ones(3))
+  trace(lambda p: moved(p).bind(torso).xpos)
+  with pytest.raises(physics_lib.StaleReadError, match='site_pos'):
+    trace(lambda p: moved(p).bind(foot).xpos)
 
 
 def test_stale_reads_in_reset_hooks_are_dm_controls(scene):
@@ -402,6 +517,21 @@ def test_random_state_is_refused_with_key_hint():
   ):
     with pytest.raises(TypeError, match='pass key='):
       call()
+
+  class DrawsAtBuild(conftest.SwingTask):
+
+    def initialize_episode_mjcf(self, random_state):
+      self.pendulum.tip.pos = composer.variation.evaluate(
+          distributions.Uniform(-0.1, 0.1), random_state=random_state
+      )
+
+  # The build-time hook receives no key: the message says what to do there.
+  with pytest.raises(
+      TypeError,
+      match=r'build-time hooks \(initialize_episode_mjcf.*receive no key.*'
+      r'MJCFVariator.*or draw the value in initialize_episode',
+  ):
+    composer.Environment(DrawsAtBuild())
 
 
 def test_hook_with_random_state_parameter_is_refused():

@@ -144,9 +144,15 @@ def reject_random_state(random_state, where: str) -> None:
     return
   raise TypeError(
       f"{where} got random_state={random_state!r}: pass key=... instead, a "
-      "JAX PRNG key (key=jax.random.key(seed); a hook passes on the key it "
-      "receives). composer's numpy RandomState has no counterpart in a "
-      "jitted, batched step: every draw is a pure function of its key."
+      "JAX PRNG key (key=jax.random.key(seed)); a device hook "
+      "(initialize_episode, the step hooks) passes on the key it receives. "
+      "composer's numpy RandomState has no counterpart in a jitted, batched "
+      "step: every draw is a pure function of its key. The build-time hooks "
+      "(initialize_episode_mjcf, after_compile) receive no key: they run "
+      "once, so a value drawn there would be the same in every world and "
+      "episode. Bind the MJCF attribute to a variation.MJCFVariator (its "
+      "apply_variations(random_state) there varies it every episode), or "
+      "draw the value in initialize_episode."
   )
 
 
