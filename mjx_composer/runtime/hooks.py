@@ -34,7 +34,10 @@ Porting checks, at trace time: a device hook whose parameter is named
 to the `Physics` it received and then returned that very object
 (`Physics.wrote_to_result`): every write returns a new `Physics`, and
 dropping it (`walker.shift_pose(physics, ...)` without keeping the result)
-would lose the write silently.
+would lose the write silently. At build, an `initialize_episode_mjcf` hook
+that draws from the `random_state` it receives (composer's way to place a
+target per episode) is warned about (`BuildTimeDrawWarning`): it runs once,
+so the draw is one value for every world and episode.
 """
 
 from __future__ import annotations
@@ -42,15 +45,28 @@ from __future__ import annotations
 import dataclasses
 import inspect
 from typing import Any, Callable
+import warnings
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from mjx_composer import entity as entity_lib
 from mjx_composer import physics as physics_lib
 from mjx_composer import task as task_lib
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.variation import mjcf_variator
+
+
+class BuildTimeDrawWarning(UserWarning):
+  """An `initialize_episode_mjcf` hook drew from its `random_state`.
+
+  composer runs the hook before every episode, so such a draw (an MJCF
+  attribute set from it, a value kept on the task) is new every episode;
+  here the hook runs once, when the `Environment` is built, and the draw is
+  the same in every world and every episode.
+  """
+
 
 HOOK_NAMES = (
     'initialize_episode_mjcf',
@@ -227,8 +243,26 @@ class EnvironmentHooks:
         for slot, hook in enumerate(self._extra['initialize_episode_mjcf'])
     ]
     for identity, describe, hook in hooks:
+      before = random_state.get_state()
       with mjcf_variator.collecting_episode_calls() as calls:
         hook(random_state)
+      if _drew(before, random_state.get_state()):
+        warnings.warn(
+            BuildTimeDrawWarning(
+                f'{describe}.initialize_episode_mjcf drew from random_state. '
+                'composer runs it before every episode; here it runs once, '
+                'when the Environment is built, so what it drew (an MJCF '
+                "attribute such as a target's position, a value kept on "
+                'self) is the same in every world and every episode. Draw '
+                'per episode instead: bind the attribute to a '
+                'variation.MJCFVariator (its apply_variations(random_state) '
+                'in this hook applies it at every reset, per world), set '
+                'the value in initialize_episode from its key, or, for an '
+                "arena's regenerate(random_state), call "
+                'Arena.regenerate_per_episode(count).'
+            ),
+            stacklevel=2,
+        )
       for i, variator in enumerate(calls):
         self._episode_variators.append(
             Participant(
@@ -397,3 +431,12 @@ def check_step_writes(before, after, fields, hook_names):
           'entries in initialize_episode, entity state in '
           'Entity.initial_state); step hooks may only update it.'
       )
+
+
+def _drew(before, after) -> bool:
+  """Whether a numpy `RandomState` drew between its states `before` and
+  `after` (`get_state()`: the generator's name, key, position and cached
+  Gaussian)."""
+  return any(
+      not np.array_equal(a, b) for a, b in zip(before, after, strict=True)
+  )

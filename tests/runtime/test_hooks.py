@@ -5,6 +5,8 @@ step), so they are cheap; `test_environment.py` checks the same order
 through `reset` and `step`.
 """
 
+import warnings
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -172,3 +174,69 @@ def test_extra_hooks_are_validated():
     hooks.add_extra_hook('before_episode', lambda p, k: p)
   with pytest.raises(ValueError, match='not a callable'):
     hooks.add_extra_hook('after_step', 3)
+
+
+class _PlacesTargetAtBuild(_Task):
+  """dm_control's way to place a target: an MJCF edit drawn from the
+  RandomState in `initialize_episode_mjcf`."""
+
+  def initialize_episode_mjcf(self, random_state):
+    self.first.geom.pos = [random_state.uniform(-1, 1), 0.0, 0.0]
+
+
+class _DrawingBox(Box):
+
+  def initialize_episode_mjcf(self, random_state):
+    self.geom.size = [random_state.uniform(0.05, 0.1)] * 3
+
+
+class _VariesTheComposerWay(_Task):
+  """An MJCF variator applied composer's way, and an edit drawn from
+  nothing: nothing is drawn at build."""
+
+  def __init__(self):
+    super().__init__()
+    self.variator = composer.variation.MJCFVariator()
+    self.variator.bind_attributes(
+        self.first.geom,
+        friction=composer.variation.distributions.Uniform(
+            [0.5, 0.005, 0.0001], [1.5, 0.005, 0.0001]
+        ),
+    )
+
+  def initialize_episode_mjcf(self, random_state):
+    self.variator.apply_variations(random_state)
+    self.second.geom.size = [0.2, 0.2, 0.2]
+
+
+def test_a_draw_in_initialize_episode_mjcf_is_warned_with_the_fix():
+  random_state = np.random.RandomState(0)
+  with pytest.warns(
+      hooks_lib.BuildTimeDrawWarning,
+      match=r'_PlacesTargetAtBuild\.initialize_episode_mjcf drew from '
+      r'random_state.*same in every world and every episode.*MJCFVariator',
+  ):
+    hooks_lib.EnvironmentHooks(_PlacesTargetAtBuild()).initialize_episode_mjcf(
+        random_state
+    )
+  task = _Task()
+  task.arena.attach(_DrawingBox(name='third'))
+  with pytest.warns(
+      hooks_lib.BuildTimeDrawWarning,
+      match=r"_DrawingBox\('third'\)\.initialize_episode_mjcf drew",
+  ) as record:
+    hooks_lib.EnvironmentHooks(task).initialize_episode_mjcf(random_state)
+  assert len(record) == 1  # The other owners drew nothing.
+  task = _VariesTheComposerWay()
+  hooks = hooks_lib.EnvironmentHooks(task)
+  with warnings.catch_warnings():
+    warnings.simplefilter('error', hooks_lib.BuildTimeDrawWarning)
+    hooks.initialize_episode_mjcf(random_state)
+  # The variator is recorded, and draws per episode from the reset's key.
+  physics = _initial(task)
+  writers = {}
+  varied = hooks.episode_variations(physics, jax.random.key(1), writers)
+  assert list(writers) == ['geom_friction']
+  assert not np.allclose(
+      varied.model.geom_friction, physics.model.geom_friction
+  )
