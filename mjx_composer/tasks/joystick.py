@@ -51,7 +51,8 @@ Deviations, each deliberate:
 * initial pose as Playground's reset (position +U(-0.5, 0.5) m, random
   heading, base velocities U(-0.5, 0.5)) plus joint angles within 0.1 rad
   of the home pose; on rough terrain the robot starts above the highest
-  terrain point near it.
+  terrain point near it, and the feet's swing height and clearance are
+  measured above the ground below each foot.
 """
 
 import jax
@@ -417,7 +418,7 @@ class Joystick(task.Task):
     )
     air_time = air_time + self.control_timestep
     swing_peak = jnp.maximum(
-        state['swing_peak'] * ~previous, self._go1.foot_heights(physics)
+        state['swing_peak'] * ~previous, self.foot_clearances(physics)
     )
     return physics.update_task_state(
         contact=contact,
@@ -433,6 +434,16 @@ class Joystick(task.Task):
     if self._terrain == 'flat':
       return jnp.zeros((), jnp.float32)
     return self._arena.height_at(physics, xy)
+
+  def foot_clearances(self, physics):
+    """The feet's heights above the ground below each (4,), `FEET` order:
+    what the swing-height and clearance rewards measure (on flat ground,
+    the feet's z)."""
+    sites = physics.bind(list(self._go1.foot_sites)).xpos
+    if self._terrain == 'flat':
+      return sites[:, 2]
+    ground = jax.vmap(lambda xy: self.ground_height(physics, xy))(sites[:, :2])
+    return sites[:, 2] - ground
 
   def fallen(self, physics):
     """Upside down, or the trunk's box on the ground (a contact where it
@@ -469,7 +480,7 @@ class Joystick(task.Task):
     feet_xy = go1.foot_velocities(physics)[:, :2]
     contact = state['contact'].astype(jnp.float32)
     first_contact = state['first_contact'].astype(jnp.float32)
-    foot_z = go1.foot_heights(physics)
+    foot_z = self.foot_clearances(physics)
     return {
         'tracking_lin_vel': jnp.exp(
             -jnp.sum((command[:2] - local_linvel[:2]) ** 2) / TRACKING_SIGMA
