@@ -2,8 +2,11 @@
 
 The generated geometry is checked against its specification (the compiled
 height field's heights, slopes, step heights and depths, stone and beam
-sizes) and its spawn points against MuJoCo C's `mj_ray`; the curriculum's
-level moves on a scripted episode (a ball that travels far, one that stays).
+sizes) and its spawn points against MuJoCo C's `mj_ray`; a foot dropped on
+the stairs, stones and beams written into the height field comes to rest
+in MuJoCo C where it rests on the same blocks built as box geoms; the
+curriculum's level moves on a scripted episode (a ball that travels far,
+one that stays).
 """
 
 import jax
@@ -16,8 +19,8 @@ import pytest
 import mjx_composer as composer
 from mjx_composer.entities import props
 from mjx_composer.locomotion import curriculum
-from mjx_composer.locomotion import sub_terrains
 from mjx_composer.locomotion import terrain as terrain_lib
+from mjx_composer.locomotion.terrain import sub_terrains
 
 _TILE = 2.0
 _LEVELS = 3
@@ -47,7 +50,7 @@ def test_the_compiled_height_field_has_the_generated_heights(generated):
   size = model.hfield_size[0]
   compiled = model.hfield_data.reshape(terrain.heights.shape) * size[2]
   np.testing.assert_allclose(compiled + geom.pos[2], terrain.heights, atol=1e-5)
-  assert model.ngeom == 1 + len(terrain.boxes)
+  assert model.ngeom == 1  # Every kind is in the one height field.
   assert set(model.geom_group) == {terrain.group}
 
 
@@ -65,7 +68,7 @@ def test_height_field_kinds_follow_their_parameters(generated):
     d = terrain.difficulty(level)
     assert d == pytest.approx(level / (_LEVELS - 1))
     tile = lambda kind: _tile_heights(terrain, level, kind)
-    for kind in sub_terrains.HFIELD_KINDS:  # Tiles meet at height 0.
+    for kind in sub_terrains.KINDS:  # Tiles meet at height 0.
       assert np.all(tile(kind)[~interior] == 0.0), kind
     np.testing.assert_array_equal(tile('flat'), 0.0)
     noise = tile('random_uniform')[off_platform]
@@ -91,50 +94,146 @@ def test_height_field_kinds_follow_their_parameters(generated):
     assert set(obstacles) <= {-round(height, 9), 0.0, round(height, 9)}
 
 
-def _tile_boxes(terrain, level, kind):
-  boxes = terrain.boxes
-  centre = terrain.tile_centre(level, terrain.kinds.index(kind))
-  inside = np.all(np.abs(boxes[:, :2] - centre) < _TILE / 2, axis=1)
-  boxes = boxes[inside].copy()
-  boxes[:, :2] -= centre
-  return boxes
-
-
-def test_box_kinds_follow_their_parameters(generated):
+def test_block_kinds_follow_their_parameters(generated):
   terrain, _ = generated
   config = sub_terrains.SubTerrainConfig()
+  cell = terrain.horizontal_scale
+  centre_row = lambda kind: _tile_heights(terrain, level, kind)[10]
   for level in range(_LEVELS):
     d = terrain.difficulty(level)
     step = config.at('step_height', d)
-    stairs = _tile_boxes(terrain, level, 'pyramid_stairs')
-    tops = np.sort(stairs[:, 2] + stairs[:, 5])
-    np.testing.assert_allclose(np.diff(tops), step, atol=1e-9)
-    widths = np.sort(stairs[:, 3])[::-1]
-    assert widths[0] == pytest.approx(_TILE / 2)
+    # Along x through the centre: one step_width (3 cells) tread, `step`
+    # high, then the platform; a tread's edge point is the higher one's.
+    stairs = centre_row('pyramid_stairs')[1:11]
     np.testing.assert_allclose(
-        widths[0] - widths[1], config.step_width, atol=1e-9
+        stairs, step * np.repeat([1, 2], [2, 8]), atol=1e-9
     )
-    pit = _tile_boxes(terrain, level, 'inverted_pyramid_stairs')
-    np.testing.assert_allclose(
-        np.unique(np.round(pit[:, 2] + pit[:, 5], 9)), step, atol=1e-9
+    pit = centre_row('inverted_pyramid_stairs')[1:11]
+    np.testing.assert_allclose(pit, step * np.repeat([1, 0], [3, 7]), atol=1e-9)
+    stones = _tile_heights(terrain, level, 'stepping_stones')
+    assert set(np.round(np.unique(stones), 9)) <= {0.0, 0.2}
+    beams = centre_row('narrow_beams')
+    np.testing.assert_allclose(beams[1:-1], 0.2)  # Along a beam.
+    across = _tile_heights(terrain, level, 'narrow_beams')[:, 2]
+    width = np.sum(across > 0) - 1  # Cells between the outermost tops.
+    assert width == max(1, round(config.at('beam_width', d) / cell))
+    grid = _tile_heights(terrain, level, 'random_grid')
+    assert 0 < grid.max() <= config.at('grid_height', d) + 1e-9
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_blocks_become_heights_with_their_tops_whole(seed):
+  """Every grid point on or in a snapped block's footprint has its top."""
+  config = sub_terrains.SubTerrainConfig()
+  cell, half = 0.05, 2.0
+  xs = np.linspace(-half, half, int(2 * half / cell) + 1)
+  for kind in sub_terrains.BLOCK_KINDS:
+    rng = np.random.default_rng(seed)
+    blocks, spawn = sub_terrains.blocks(kind, 0.7, half, rng, config, cell)
+    heights, tile_spawn = sub_terrains.tile(
+        kind, 0.7, xs, xs, np.random.default_rng(seed), config
     )
-    stones = _tile_boxes(terrain, level, 'stepping_stones')
-    stones = stones[stones[:, 3] < 0.5]  # Not the platform.
-    size = config.at('stone_size', d)
-    np.testing.assert_allclose(stones[:, 3:5], size / 2, atol=1e-9)
-    xs = np.unique(np.round(stones[:, 0], 9))
-    np.testing.assert_allclose(
-        np.diff(xs), size + config.at('stone_gap', d), atol=1e-9
-    )
-    np.testing.assert_allclose(stones[:, 2] + stones[:, 5], 0.2, atol=1e-9)
-    beams = _tile_boxes(terrain, level, 'narrow_beams')[1:]
-    np.testing.assert_allclose(
-        np.min(beams[:, 3:5], axis=1), config.at('beam_width', d) / 2
-    )
-    grid = _tile_boxes(terrain, level, 'random_grid')
-    tops = grid[:, 2] + grid[:, 5]
-    assert tops.max() <= config.at('grid_height', d) + 1e-9
-    np.testing.assert_allclose(grid[:, 3:5], config.grid_cell / 2)
+    assert tile_spawn == spawn
+    for x, y, z, hx, hy, hz in blocks:
+      # Footprints on grid lines, whole numbers of cells wide.
+      for edge in (x - hx, x + hx, y - hy, y + hy):
+        assert abs((edge + half) / cell - round((edge + half) / cell)) < 1e-6
+      inside = (np.abs(xs[None, :] - x) <= hx + 1e-6) & (
+          np.abs(xs[:, None] - y) <= hy + 1e-6
+      )
+      inside[[0, -1], :] = inside[:, [0, -1]] = False  # The tile's rim.
+      assert np.all(heights[inside] >= z + hz - 1e-9), kind
+
+
+_FOOT = 0.023  # The Go1's foot sphere.
+
+
+def _drop_model(ground_xml):
+  return mujoco.MjModel.from_xml_string(f"""
+      <mujoco>
+        <option timestep="0.002"/>
+        <asset>{ground_xml[0]}</asset>
+        <worldbody>
+          {ground_xml[1]}
+          <body name="foot" pos="0 0 1">
+            <freejoint/>
+            <geom type="sphere" size="{_FOOT}" mass="0.5" condim="3"/>
+          </body>
+        </worldbody>
+      </mujoco>""")
+
+
+def _rest_heights(model, points, seconds=0.6):
+  """The foot's centre height after `seconds`, dropped at each point."""
+  data = mujoco.MjData(model)
+  rests = []
+  for point in points:
+    mujoco.mj_resetData(model, data)
+    data.qpos[:3] = point
+    mujoco.mj_forward(model, data)
+    while data.time < seconds:
+      mujoco.mj_step(model, data)
+    rests.append(data.qpos[2])
+  return np.array(rests)
+
+
+@pytest.mark.parametrize(
+    'kind', ['pyramid_stairs', 'stepping_stones', 'narrow_beams']
+)
+def test_a_foot_rests_on_the_height_field_as_on_the_boxes(kind):
+  """MuJoCo C: a Go1 foot dropped on a tile written into a height field
+  comes to rest as on the same blocks built as boxes, on treads and at
+  their very edges, and never sinks 2 cm into the height field."""
+  config = sub_terrains.SubTerrainConfig()
+  cell, half = 0.05, 1.5
+  xs = np.linspace(-half, half, int(2 * half / cell) + 1)
+  heights, _ = sub_terrains.tile(
+      kind, 1.0, xs, xs, np.random.default_rng(0), config
+  )
+  blocks, _ = sub_terrains.blocks(
+      kind, 1.0, half, np.random.default_rng(0), config, cell
+  )
+  top = heights.max()
+  elevation = ' '.join(f'{h / top:.9f}' for h in np.ravel(heights))
+  hfield = _drop_model((
+      f'<hfield name="t" nrow="{len(xs)}" ncol="{len(xs)}" '
+      f'size="{half} {half} {top} 0.5" elevation="{elevation}"/>',
+      '<geom type="hfield" hfield="t"/>',
+  ))
+  boxes = _drop_model((
+      '',
+      '<geom type="plane" size="5 5 0.1"/>'
+      + ''.join(
+          f'<geom type="box" pos="{x} {y} {z}" size="{hx} {hy} {hz}"/>'
+          for x, y, z, hx, hy, hz in blocks
+      ),
+  ))
+  # Along y = 0.3 (across the treads and beams, through stones), every
+  # grid point whose box-version surface is flat for a foot around it, and
+  # a foot over each top's edge (its centre a third of its radius inside).
+  y, interior = 0.3, 1.5 - 2 * cell
+  surface = lambda x: np.max(
+      [z + hz for bx, by, z, hx, hy, hz in blocks
+       if abs(x - bx) <= hx + 1e-9 and abs(y - by) <= hy + 1e-9] + [0.0]
+  )
+  flat = [
+      x for x in xs if abs(x) < interior
+      and len({surface(x + dx) for dx in np.linspace(-2 * cell, 2 * cell, 9)})
+      == 1
+  ]
+  edges = [
+      bx + sign * (hx - _FOOT / 3)
+      for bx, by, z, hx, hy, hz in blocks
+      for sign in (1, -1)
+      if abs(y - by) <= hy - _FOOT and abs(bx + sign * hx) < interior
+  ]
+  assert len(flat) > 10 and edges
+  points = [[x, y, surface(x) + _FOOT + 0.02] for x in flat + edges]
+  on_field = _rest_heights(hfield, points)
+  on_boxes = _rest_heights(boxes, points)
+  np.testing.assert_allclose(on_field, on_boxes, atol=2e-3)
+  below = np.array([p[2] - 0.02 for p in points])  # Centre on the surface.
+  assert np.all(on_field > below - 0.02)
 
 
 def test_spawn_points_lie_on_the_surface(generated):
@@ -164,7 +263,7 @@ def test_spawn_points_lie_on_the_surface(generated):
     [
         ({'kinds': ('lava',)}, 'kinds'),
         ({'levels': 0}, 'levels'),
-        ({'tile_size': 1.05}, 'tile_size'),
+        ({'tile_size': 1.03}, 'tile_size'),
         ({'difficulty_range': (0.5, 0.2)}, 'difficulty_range'),
         ({'difficulty_range': (0.0, 2.0)}, 'difficulty_range'),
         ({'border': -1.0}, 'border'),

@@ -6,8 +6,10 @@
   actuation, in physics sub-steps.
 * `height_scan.HeightScan`: an observable casting a grid of vertical rays
   from an entity's frame against the terrain.
-* `terrain.TerrainGenerator`: an arena of sub-terrains (height field and box
-  kinds) in a grid of difficulty levels x kinds, with spawn points per tile;
+* `terrain.TerrainGenerator`: an arena of sub-terrains (slopes, waves,
+  stairs, stepping stones, beams, ...) in a grid of difficulty levels x
+  kinds, all in one height field, with spawn points per tile;
+  `terrain.RoughTerrain`: a height field whose profile each world samples;
   `curriculum.TerrainCurriculum`: each world's level, moved up or down by
   what its last episode achieved.
 

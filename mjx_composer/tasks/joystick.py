@@ -64,6 +64,7 @@ from mjx_composer import task
 from mjx_composer.entities import arenas
 from mjx_composer.entities import go1 as go1_lib
 from mjx_composer.locomotion import commands as commands_lib
+from mjx_composer.locomotion import terrain as terrain_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
 from mjx_composer.tasks import locomotion
@@ -221,7 +222,7 @@ class Joystick(task.Task):
     if terrain == 'flat':
       return arenas.Floor(size=(10.0, 10.0))
     # The task samples the terrain itself, before placing the robot.
-    return arenas.RoughTerrain(auto_regenerate=False)
+    return terrain_lib.RoughTerrain(auto_regenerate=False)
 
   def _ground(self, physics, key, xy):
     """Samples this world's ground: `(physics, origin (2,), height)`.

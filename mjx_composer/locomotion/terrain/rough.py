@@ -70,6 +70,10 @@ class RoughTerrain(arena.Arena):
       auto_regenerate=True,
       name='rough_terrain',
   ):
+    if not isinstance(name, str) or not name:
+      raise TypeError(
+          f'{_OWNER}: name must be a non-empty string, got {name!r}.'
+      )
     super()._build(name=name)
     size = validation.check_positive('size', size, owner=_OWNER)
     if np.shape(size) != (2,):

@@ -239,7 +239,7 @@ def tile(kind, difficulty, xs, ys, rng, config):
   if kind in SMOOTH_KINDS:
     heights = smooth_heights(kind, difficulty, xs, ys, rng, config)
     return heights, float(heights[len(ys) // 2, len(xs) // 2])
-  cell = float(xs[1] - xs[0])
+  cell = round(float(xs[-1] - xs[0]) / (len(xs) - 1), 9)
   tile_blocks, spawn = blocks(kind, difficulty, xs[-1], rng, config, cell)
   heights = rasterize(tile_blocks, xs, ys)
   heights[[0, -1], :] = 0.0
@@ -274,8 +274,9 @@ def _snap(low, high, half, cell):
   The lower edge goes to the nearest line; the width becomes the nearest
   whole number of cells, at least one.
   """
-  start = np.floor((low + half) / cell + 0.5)
-  cells = max(1.0, np.floor((high - low) / cell + 0.5))
+  # Rounded first: a half-cell tie goes up whatever the float noise.
+  start = np.floor(np.round((low + half) / cell, 6) + 0.5)
+  cells = max(1.0, np.floor(np.round((high - low) / cell, 6) + 0.5))
   low = start * cell - half
   return low, low + cells * cell
 

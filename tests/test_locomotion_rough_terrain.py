@@ -10,6 +10,7 @@ from mjx_composer import environment
 from mjx_composer import task
 from mjx_composer.entities import arenas
 from mjx_composer.entities import props
+from mjx_composer.locomotion import terrain
 
 _BALL_XY = (0.3, -0.7)
 _RADIUS = 0.05
@@ -20,7 +21,7 @@ class _BallOnTerrain(task.NullTask):
   """Samples the world's terrain, then sets a ball into it at `_BALL_XY`."""
 
   def __init__(self):
-    self.arena = arenas.RoughTerrain(
+    self.arena = terrain.RoughTerrain(
         size=(2.0, 3.0), resolution=(24, 16), auto_regenerate=False
     )
     self.ball = props.Sphere(radius=_RADIUS, name='ball')
@@ -42,7 +43,7 @@ def worlds():
 
 
 def test_mujoco_normalizes_elevations_as_the_profile_does():
-  arena = arenas.RoughTerrain(size=(2.0, 3.0), resolution=(24, 16))
+  arena = terrain.RoughTerrain(size=(2.0, 3.0), resolution=(24, 16))
   random_state = np.random.RandomState(4)
   bumps = random_state.uniform(size=arena.coarse_shape)
   noise = random_state.uniform(size=arena.resolution)
@@ -118,7 +119,7 @@ def test_the_arenas_own_hook_samples_per_world_unless_told_not_to(worlds):
   unchanged = env.task.arena.initialize_episode(physics, key)
   assert unchanged.model.hfield_data is physics.model.hfield_data
   # By default, the arena's own hook writes a profile drawn from the key.
-  arena = arenas.RoughTerrain(size=(2.0, 3.0), resolution=(24, 16))
+  arena = terrain.RoughTerrain(size=(2.0, 3.0), resolution=(24, 16))
   physics = _built(arena).initial_physics()
   regenerated = arena.initialize_episode(physics, key)
   np.testing.assert_allclose(
@@ -130,14 +131,14 @@ def test_the_arenas_own_hook_samples_per_world_unless_told_not_to(worlds):
       regenerated.model.hfield_data, physics.model.hfield_data
   )
   # Shared terrain: every world keeps the compiled profile.
-  shared = arenas.RoughTerrain(per_world=False)
+  shared = terrain.RoughTerrain(per_world=False)
   physics = _built(shared).initial_physics()
   assert shared.initialize_episode(physics, key) is physics
   assert shared.regenerate_world(physics, key) is physics
 
 
 def test_mjx_refuses_shapes_it_cannot_collide_with_height_fields():
-  arena = arenas.RoughTerrain(size=(1.0, 1.0), resolution=(8, 8))
+  arena = terrain.RoughTerrain(size=(1.0, 1.0), resolution=(8, 8))
   arena.add_free_entity(props.Cylinder(radius=0.05, half_length=0.05))
   with pytest.raises(NotImplementedError, match='HFIELD'):
     environment.Environment(task.NullTask(arena))
@@ -182,3 +183,9 @@ def test_each_world_is_rendered_with_its_own_terrain(worlds):
     finally:
       renderer.close()
   assert not np.array_equal(images[0], images[1])
+
+
+def test_the_old_import_path_warns_and_gives_the_same_class():
+  with pytest.warns(DeprecationWarning, match='locomotion.terrain'):
+    moved = arenas.RoughTerrain
+  assert moved is terrain.RoughTerrain
