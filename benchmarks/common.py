@@ -24,7 +24,14 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-TASKS = ('reach', 'push', 'walk', 'walk_terrain', 'joystick', 'joystick_terrain')
+TASKS = (
+    'reach',
+    'push',
+    'walk',
+    'walk_terrain',
+    'joystick',
+    'joystick_terrain',
+)
 
 
 # -- environments ------------------------------------------------------------

@@ -195,29 +195,39 @@ def test_a_foot_rests_on_the_height_field_as_on_the_boxes(kind):
   )
   top = heights.max()
   elevation = ' '.join(f'{h / top:.9f}' for h in np.ravel(heights))
-  hfield = _drop_model((
-      f'<hfield name="t" nrow="{len(xs)}" ncol="{len(xs)}" '
-      f'size="{half} {half} {top} 0.5" elevation="{elevation}"/>',
-      '<geom type="hfield" hfield="t"/>',
-  ))
-  boxes = _drop_model((
-      '',
-      '<geom type="plane" size="5 5 0.1"/>'
-      + ''.join(
-          f'<geom type="box" pos="{x} {y} {z}" size="{hx} {hy} {hz}"/>'
-          for x, y, z, hx, hy, hz in blocks
-      ),
-  ))
+  hfield = _drop_model(
+      (
+          f'<hfield name="t" nrow="{len(xs)}" ncol="{len(xs)}" '
+          f'size="{half} {half} {top} 0.5" elevation="{elevation}"/>',
+          '<geom type="hfield" hfield="t"/>',
+      )
+  )
+  boxes = _drop_model(
+      (
+          '',
+          '<geom type="plane" size="5 5 0.1"/>'
+          + ''.join(
+              f'<geom type="box" pos="{x} {y} {z}" size="{hx} {hy} {hz}"/>'
+              for x, y, z, hx, hy, hz in blocks
+          ),
+      )
+  )
   # Along y = 0.3 (across the treads and beams, through stones), every
   # grid point whose box-version surface is flat for a foot around it, and
   # a foot over each top's edge (its centre a third of its radius inside).
   y, interior = 0.3, 1.5 - 2 * cell
   surface = lambda x: np.max(
-      [z + hz for bx, by, z, hx, hy, hz in blocks
-       if abs(x - bx) <= hx + 1e-9 and abs(y - by) <= hy + 1e-9] + [0.0]
+      [
+          z + hz
+          for bx, by, z, hx, hy, hz in blocks
+          if abs(x - bx) <= hx + 1e-9 and abs(y - by) <= hy + 1e-9
+      ]
+      + [0.0]
   )
   flat = [
-      x for x in xs if abs(x) < interior
+      x
+      for x in xs
+      if abs(x) < interior
       and len({surface(x + dx) for dx in np.linspace(-2 * cell, 2 * cell, 9)})
       == 1
   ]

@@ -230,4 +230,3 @@ def check_arguments(owner, **kwargs):
     )
   if 'height_scan' in kwargs:
     v.check_bool('height_scan', kwargs['height_scan'], owner=owner)
-

@@ -235,5 +235,3 @@ def _linear_upsampling(coarse, fine):
   weights[np.arange(fine), lower] = 1 - frac
   weights[np.arange(fine), lower + 1] += frac
   return weights
-
-

@@ -207,9 +207,7 @@ def smooth_heights(kind, difficulty, xs, ys, rng, config):
       )
       heights[inside] = rng.choice([-height, height])
   else:
-    raise ValueError(
-        f'Unknown smooth kind {kind!r}: one of {SMOOTH_KINDS}.'
-    )
+    raise ValueError(f'Unknown smooth kind {kind!r}: one of {SMOOTH_KINDS}.')
   platform = _platform_mask(xs, ys, config.platform)
   centre = heights[len(ys) // 2, len(xs) // 2]
   if kind in ('random_uniform', 'discrete_obstacles', 'waves'):
@@ -347,7 +345,9 @@ def blocks(kind, difficulty, half, rng, config, cell=None):
       # Rings around the platform, the innermost lowest.
       for k in range(1, n + 1):
         inner = half - (n - k + 1) * config.step_width
-        out.extend(_ring(inner, inner + config.step_width, k * step, half, cell))
+        out.extend(
+            _ring(inner, inner + config.step_width, k * step, half, cell)
+        )
       spawn = 0.0
   elif kind == 'stepping_stones':
     size = config.at('stone_size', difficulty)
