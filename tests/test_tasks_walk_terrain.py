@@ -77,7 +77,8 @@ def test_worlds_spawn_on_a_tile_of_their_level(run):
 
 
 def test_the_humanoid_lands_on_the_terrain(run):
-  """It drops onto the height field (world 0) and the stairs' boxes (1)."""
+  """It drops onto the flat tile (world 0) and the stairs (world 1), both
+  in the height field, and its feet stay on them."""
   env, states, *_ = run
   np.testing.assert_array_equal(
       states[0].persistent[f'{_CURRICULUM}/kind'], [0, 1]  # flat, stairs
@@ -111,8 +112,7 @@ def test_the_humanoid_lands_on_the_terrain(run):
   assert np.all(clearance[0] - fall < -0.05), clearance
   # They land and stay on it: the soft contacts (the XML's solref 0.015 s)
   # let a foot sink into the surface at the impact of that drop (1.4 cm
-  # here, 2.2 cm with other draws); with the humanoid XML's cap on
-  # candidate pairs, world 1's feet sank 11 cm into the stairs' platform.
+  # here, 2.2 cm with other draws).
   assert np.all(clearance > -0.025), clearance
   assert np.all(clearance[-1] < 0.02), clearance
 
