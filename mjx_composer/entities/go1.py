@@ -198,6 +198,7 @@ class Go1(robot.Robot):
         g for g in trunk.geoms if g.type == mujoco.mjtGeom.mjGEOM_BOX
     )
     self._trunk_geom.name = 'trunk_collision'
+    self._collisions = collisions
     self._set_up_collisions(collisions)
     if kp is not None:
       for actuator in self._actuators:
@@ -296,6 +297,11 @@ class Go1(robot.Robot):
   @property
   def trunk(self):
     return self._trunk
+
+  @property
+  def collisions(self):
+    """Which geoms collide: 'feet', 'minimal' or 'full' (`Go1`'s argument)."""
+    return self._collisions
 
   @property
   def trunk_geom(self):

@@ -213,6 +213,8 @@ class Joystick(task.Task):
     self._variator = mjcf_variator.MJCFVariator()
     if randomize:
       self._bind_randomization()
+    self._noise_level = float(noise_level)
+    self._observation_delay = int(observation_delay)
     self._configure_observables(noise_level, observation_delay, history)
 
   # -- set-up ----------------------------------------------------------------
@@ -299,6 +301,16 @@ class Joystick(task.Task):
   @property
   def variator(self):
     return self._variator
+
+  @property
+  def noise_level(self):
+    """The factor of the policy's observation noise."""
+    return self._noise_level
+
+  @property
+  def observation_delay(self):
+    """Physics sub-steps before a policy sample is visible."""
+    return self._observation_delay
 
   @property
   def pushes(self):
@@ -451,11 +463,11 @@ class Joystick(task.Task):
     collides, its pose against the ground below it where it does not)."""
     go1 = self._go1
     upside_down = go1.upvector(physics)[2] < 0.0
-    if go1.trunk_geom.contype or go1.trunk_geom.conaffinity:
-      down = go1.trunk_contact(physics)
-    else:
+    if go1.collisions == 'feet':
       xy = physics.bind(go1.trunk).xpos[:2]
       down = go1.trunk_below(physics, self.ground_height(physics, xy))
+    else:
+      down = go1.trunk_contact(physics)
     return jnp.logical_or(upside_down, down)
 
   def should_terminate_episode(self, physics):

@@ -105,18 +105,13 @@ class TerrainJoystick(joystick.Joystick):
     self._part.observe(
         self.go1.trunk,
         self.physics_steps_per_control_step,
-        noise=self._noise_level * terrain_part.HEIGHT_SCAN_NOISE,
-        delay=self._observation_delay,
+        noise=self.noise_level * terrain_part.HEIGHT_SCAN_NOISE,
+        delay=self.observation_delay,
     )
 
   def _build_arena(self, terrain):
     del terrain
     return self._part.terrain
-
-  def _configure_observables(self, noise_level, delay, history):
-    self._noise_level = float(noise_level)
-    self._observation_delay = int(delay)
-    super()._configure_observables(noise_level, delay, history)
 
   def _ground(self, physics, key, xy):
     """Spawns on a tile of this world's level (the curriculum's)."""

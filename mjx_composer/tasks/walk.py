@@ -195,6 +195,8 @@ class Walk(task.Task):
     self._variator = mjcf_variator.MJCFVariator()
     if randomize:
       self._bind_randomization()
+    self._noise_level = float(noise_level)
+    self._observation_delay = int(observation_delay)
     self._configure_observables(noise_level, observation_delay, history)
 
   # -- set-up ----------------------------------------------------------------
@@ -255,6 +257,16 @@ class Walk(task.Task):
   @property
   def variator(self):
     return self._variator
+
+  @property
+  def noise_level(self):
+    """The factor of the policy's observation noise."""
+    return self._noise_level
+
+  @property
+  def observation_delay(self):
+    """Physics sub-steps before a policy sample is visible."""
+    return self._observation_delay
 
   @property
   def pushes(self):

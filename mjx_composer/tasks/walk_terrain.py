@@ -121,17 +121,12 @@ class TerrainWalk(walk.Walk):
     self._part.observe(
         self.humanoid.torso,
         self.physics_steps_per_control_step,
-        noise=self._noise_level * terrain_part.HEIGHT_SCAN_NOISE,
-        delay=self._observation_delay,
+        noise=self.noise_level * terrain_part.HEIGHT_SCAN_NOISE,
+        delay=self.observation_delay,
     )
 
   def _build_arena(self):
     return self._part.terrain
-
-  def _configure_observables(self, noise_level, delay, history):
-    self._noise_level = float(noise_level)
-    self._observation_delay = int(delay)
-    super()._configure_observables(noise_level, delay, history)
 
   def _start(self, physics, key):
     """Starts on a tile of this world's level (the curriculum's)."""

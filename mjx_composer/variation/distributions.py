@@ -139,6 +139,37 @@ _INTEGER = _Domain(
 )
 
 
+def _shape_list(shapes):
+  return ", ".join(f"`{name}` {shape}" for name, shape in shapes.items())
+
+
+def _check_shapes(owner, params):
+  """Raises if constant parameters' shapes do not broadcast together.
+
+  numpy's samplers refuse them too ("shape mismatch"); checked here, at
+  construction, rather than inside JAX's broadcasting when a world draws.
+  Variation parameters are left out: their values' shapes are known only
+  when they are drawn.
+  """
+  shapes = {}
+  for name, value in params.items():
+    if value is None or callable(value) or base.contains_variation(value):
+      continue
+    array = base.numeric_array(value)
+    if array is None:
+      continue
+    try:
+      np.broadcast_shapes(*shapes.values(), array.shape)
+    except ValueError:
+      raise ValueError(
+          f"{owner}: `{name}` has shape {array.shape}, which does not "
+          f"broadcast with {_shape_list(shapes)}. Pass parameters of one "
+          "shape, or shapes that broadcast together (e.g. a scalar and an "
+          "array), as numpy's samplers require."
+      ) from None
+    shapes[name] = array.shape
+
+
 class Distribution(composite.CompositeVariation):
   """Base class of parametrised distributions.
 
@@ -161,6 +192,7 @@ class Distribution(composite.CompositeVariation):
     for name, value in params.items():
       if name in self._DOMAINS and value is not None:
         self._DOMAINS[name].check(owner, name, value)
+    _check_shapes(owner, params)
     self._single_sample = bool(single_sample)
     self._params = dict(params)
     self._operands = tuple(params.values())
@@ -182,13 +214,34 @@ class Distribution(composite.CompositeVariation):
 
   def _shapes(self, params, initial_value):
     """(draw shape, output shape) for evaluated parameters (see module doc)."""
-    param_shape = jnp.broadcast_shapes(
-        *[jnp.shape(p) for p in params if p is not None]
-    )
+    shapes = {
+        name: jnp.shape(p)
+        for name, p in zip(self._params, params)
+        if p is not None
+    }
+    try:
+      param_shape = jnp.broadcast_shapes(*shapes.values())
+    except ValueError:
+      # Constants were checked at construction: a variation parameter drew
+      # values of a shape that does not broadcast with the others.
+      raise ValueError(
+          f"{type(self).__name__}: its parameters' values have shapes "
+          f"{_shape_list(shapes)}, which do not broadcast together. Pass "
+          "parameters (or variations) whose values have one shape, or "
+          "shapes that broadcast, e.g. a scalar and an array."
+      ) from None
     if initial_value is None:
       full_shape = param_shape
     else:
-      full_shape = jnp.broadcast_shapes(param_shape, np.shape(initial_value))
+      try:
+        full_shape = jnp.broadcast_shapes(param_shape, np.shape(initial_value))
+      except ValueError:
+        raise ValueError(
+            f"{type(self).__name__}: its parameters' shape {param_shape} "
+            "does not broadcast with the value it varies, of shape "
+            f"{np.shape(initial_value)}. Pass parameters of the value's "
+            "shape, or scalars."
+        ) from None
     return (param_shape if self._single_sample else full_shape), full_shape
 
   def _apply(self, values, key, initial_value, current_value):

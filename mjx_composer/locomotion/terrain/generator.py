@@ -28,7 +28,6 @@ centre of its flat platform.
 import mujoco
 import numpy as np
 
-from mjx_composer import arena
 from mjx_composer.locomotion.terrain import sub_terrains
 from mjx_composer.locomotion.terrain import surface
 from mjx_composer.utils import validation
@@ -36,7 +35,7 @@ from mjx_composer.utils import validation
 _OWNER = 'TerrainGenerator'
 
 
-class TerrainGenerator(arena.Arena):
+class TerrainGenerator(surface.HeightFieldArena):
   """A grid of sub-terrains of increasing difficulty (module docstring).
 
   Args:
@@ -228,20 +227,6 @@ class TerrainGenerator(arena.Arena):
   def horizontal_scale(self):
     """The height field's grid spacing, metres."""
     return self._scale
-
-  @property
-  def ground_geoms(self):
-    return (self._field.geom,)
-
-  @property
-  def ground(self):
-    """The `surface.HeightField` (where the ground is, on the device)."""
-    return self._field
-
-  def height_at(self, physics, xy):
-    """The terrain's height below world `xy` (2,), as MuJoCo's collision
-    sees it (device)."""
-    return self._field.height_at(physics, xy)
 
   def regenerate(self, random_state=None):
     """Composer's build-time regeneration: the layout is fixed by `seed`."""

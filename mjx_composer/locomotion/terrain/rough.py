@@ -10,14 +10,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer import arena
 from mjx_composer.locomotion.terrain import surface
 from mjx_composer.utils import validation
 
 _OWNER = 'RoughTerrain'
 
 
-class RoughTerrain(arena.Arena):
+class RoughTerrain(surface.HeightFieldArena):
   """A height-field ground whose profile every world samples per episode.
 
   The profile is smooth bumps about `bump_spacing` apart plus a fraction
@@ -125,15 +124,6 @@ class RoughTerrain(arena.Arena):
     )
 
   @property
-  def ground_geoms(self):
-    return (self._field.geom,)
-
-  @property
-  def ground(self):
-    """The `surface.HeightField` (where the ground is, on the device)."""
-    return self._field
-
-  @property
   def size(self):
     return self._size
 
@@ -216,10 +206,6 @@ class RoughTerrain(arena.Arena):
   def heights(self, physics):
     """This world's surface heights (rows, cols) in metres, rows along y."""
     return self._field.heights(physics)
-
-  def height_at(self, physics, xy):
-    """The surface height below `xy` (2,), as MuJoCo's collision sees it."""
-    return self._field.height_at(physics, xy)
 
   def max_height_near(self, physics, xy, radius):
     """The highest grid point within `radius` of `xy`, or `height_at`."""

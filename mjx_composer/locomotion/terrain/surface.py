@@ -6,8 +6,9 @@ what the ground is at a point: the surface heights of a world (its own
 `hfield_data`, so a per-world profile is read as it is), the height below a
 point as MuJoCo's collision and `mj_ray` see it, and the highest point near
 one. `RoughTerrain` (a profile per world) and `TerrainGenerator` (a grid of
-sub-terrains) are both one `HeightField`; the locomotion tasks ask them,
-through it, where the ground is below a robot.
+sub-terrains) are both a `HeightFieldArena`, an arena whose ground is one
+`HeightField`; the locomotion tasks ask them where the ground is below a
+robot.
 
 MuJoCo stores elevations normalized to [0, 1] and scales them by the height
 field's `size[2]`; a surface spanning [low, high] is a field of size
@@ -18,6 +19,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from mjx_composer import arena
 from mjx_composer.entities import arenas
 from mjx_composer.model import element_index
 
@@ -174,3 +176,24 @@ class HeightField:
     )
     highest = jnp.max(jnp.where(near, self.heights(physics), -jnp.inf))
     return jnp.maximum(highest, self.height_at(physics, xy))
+
+
+class HeightFieldArena(arena.Arena):
+  """An arena whose ground is one `HeightField` (`self._field`, set by the
+  subclass's `_build`)."""
+
+  _field: HeightField
+
+  @property
+  def ground_geoms(self):
+    return (self._field.geom,)
+
+  @property
+  def ground(self):
+    """The `HeightField` (where the ground is, on the device)."""
+    return self._field
+
+  def height_at(self, physics, xy):
+    """The ground's height below world `xy` (2,), as MuJoCo's collision
+    sees it (device; outside the grid, the nearest edge's)."""
+    return self._field.height_at(physics, xy)
