@@ -36,6 +36,17 @@ _BAD_DISTRIBUTIONS = [
     (lambda d: d.LogNormal(mean=_NAN), 'mean', None),
     (lambda d: d.Uniform(0, _INF), 'high', lambda: _GEN.uniform(0, _INF)),
     (lambda d: d.Uniform(_NAN, 1), 'low', lambda: _GEN.uniform(_NAN, 1)),
+    # Parameters whose shapes do not broadcast together.
+    (
+        lambda d: d.Uniform([0, 1], [1, 2, 3]),
+        'high',
+        lambda: _GEN.uniform([0, 1], [1, 2, 3]),
+    ),
+    (
+        lambda d: d.Normal([0, 1, 2], [[1, 2]]),
+        'scale',
+        lambda: _GEN.normal([0, 1, 2], [[1, 2]]),
+    ),
     # Variation parameters whose static bounds leave the domain.
     (lambda d: d.Exponential(scale=d.Uniform(-1, 1)), 'scale', None),
     (lambda d: d.Bernoulli(prob=d.Uniform(0.5, 2)), 'prob', None),
@@ -79,3 +90,34 @@ def test_distribution_boundary_parameters_numpy_accepts_are_kept():
   assert 1.0 < float(distributions.Uniform(2.0, 1.0)(key=key)) <= 2.0
   # Unbounded variation parameters cannot be checked at construction.
   distributions.Normal(0.0, distributions.Normal())
+
+
+def test_distribution_parameters_that_broadcast_are_kept():
+  from mjx_composer.variation import distributions  # pylint: disable=g-import-not-at-top
+
+  key = jax.random.key(0)
+  sample = distributions.Uniform([0.0, 1.0], [[1.0], [2.0]])(key=key)
+  assert sample.shape == np.broadcast_shapes((2,), (2, 1)) == (2, 2)
+  assert distributions.Normal([0.0, 1.0, 2.0], 0.5)(key=key).shape == (3,)
+
+
+def test_distribution_shapes_known_only_when_drawn_are_named():
+  """A varied parameter, or the value varied, of another shape."""
+  from mjx_composer.variation import distributions  # pylint: disable=g-import-not-at-top
+
+  key = jax.random.key(0)
+  varied_low = distributions.Uniform(
+      distributions.Uniform([0, 0], [1, 1]), [2, 3, 4]
+  )
+  with pytest.raises(
+      ValueError, match=r'Uniform: .*`low` \(2,\), `high` \(3,\).*Pass'
+  ):
+    varied_low(key=key)
+  with pytest.raises(ValueError):  # numpy refuses it too.
+    _GEN.uniform([0, 1], [1, 2], size=(3,))
+  with pytest.raises(
+      ValueError,
+      match=r'shape \(2,\) does not broadcast with the value it varies, of '
+      r'shape \(3,\)\. Pass',
+  ):
+    distributions.Uniform([0, 1], [1, 2])(initial_value=np.zeros(3), key=key)
