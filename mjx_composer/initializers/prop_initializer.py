@@ -65,6 +65,7 @@ from mjx_composer.variation import base as variation_base
 from mjx_composer.variation import rotations
 
 _SETTLE_QVEL_TOL = 1e-3
+_POSE_SIZES = {'position': 3, 'quaternion': 4}
 _SETTLE_QACC_TOL = 1e-2
 
 
@@ -92,7 +93,9 @@ class PropPlacer(initializer.Initializer):
 
   Raises:
     ValueError: if `max_settle_physics_attempts` or `max_attempts_per_prop`
-      is smaller than 1, or `props` is empty.
+      is smaller than 1, `props` is empty, or a fixed `position` or
+      `quaternion` does not broadcast to (3,) or (4,) (a variation drawing
+      one of another shape is refused when the reset is traced).
   """
 
   def __init__(
@@ -124,6 +127,8 @@ class PropPlacer(initializer.Initializer):
     self._props = tuple(props)
     if not self._props:
       raise ValueError('PropPlacer needs at least one prop.')
+    _check_pose_shape('position', position, None)
+    _check_pose_shape('quaternion', quaternion, None)
     self._position = position
     self._quaternion = quaternion
     self._ignore_collisions = bool(ignore_collisions)
@@ -309,16 +314,24 @@ class PropPlacer(initializer.Initializer):
     """One candidate pose (composer's two `variation.evaluate` calls)."""
     position_key, quaternion_key = jax.random.split(key)
     position_state, quaternion_state = states
-    position, position_state = variation_base.sample(
-        self._position, position_state, position_key, initial[0], current[0]
+    position, position_state = _draw(
+        'position',
+        self._position,
+        position_state,
+        position_key,
+        initial[0],
+        current[0],
     )
-    quaternion, quaternion_state = variation_base.sample(
+    quaternion, quaternion_state = _draw(
+        'quaternion',
         self._quaternion,
         quaternion_state,
         quaternion_key,
         initial[1],
         current[1],
     )
+    _check_pose_shape('position', position, self._position)
+    _check_pose_shape('quaternion', quaternion, self._quaternion)
     pose = (
         jnp.broadcast_to(jnp.asarray(position, initial[0].dtype), (3,)),
         jnp.broadcast_to(jnp.asarray(quaternion, initial[1].dtype), (4,)),
@@ -568,4 +581,48 @@ def _finite(pose) -> jax.Array:
   """Whether a candidate `(position, quaternion)` is finite."""
   return jnp.logical_and(
       jnp.all(jnp.isfinite(pose[0])), jnp.all(jnp.isfinite(pose[1]))
+  )
+
+
+def _draw(name, structure, state, key, initial, current):
+  """`variation_base.sample`, its shape errors naming the argument."""
+  try:
+    return variation_base.sample(structure, state, key, initial, current)
+  except ValueError as error:
+    raise ValueError(
+        f'PropPlacer: `{name}` {structure!r} could not be drawn for a '
+        f'{name} of shape {np.shape(initial)}: {error}'
+    ) from error
+
+
+def _check_pose_shape(name, value, drawn_by):
+  """Raises unless `value` broadcasts to a position (3,) or quaternion (4,).
+
+  Args:
+    name: 'position' or 'quaternion'.
+    value: a fixed value (at construction; variations and callables are left
+      to the draw) or a drawn one (while the reset is traced).
+    drawn_by: the variation that drew `value`, or None for a fixed value.
+  """
+  if drawn_by is None and (
+      callable(value) or variation_base.contains_variation(value)
+  ):
+    return
+  size = _POSE_SIZES[name]
+  shape = np.shape(value)
+  try:
+    ok = np.broadcast_shapes(shape, (size,)) == (size,)
+  except ValueError:
+    ok = False
+  if ok:
+    return
+  if drawn_by is None:
+    got = f'{value!r}, of shape {shape}'
+  else:
+    got = f'{drawn_by!r}, which drew a value of shape {shape}'
+  example = '(0, 0, 0.1)' if size == 3 else '(1, 0, 0, 0)'
+  raise ValueError(
+      f'PropPlacer: `{name}` must be {size} numbers (or a variation drawing '
+      f'{size}), got {got}. Pass {size} numbers, e.g. {name}={example}, or a '
+      f'variation of {size}.'
   )
