@@ -41,3 +41,11 @@ class ObservationGroup:
   keys: Optional[Sequence[str]] = None
   corrupted: bool = True
   flatten: bool = False
+
+  def __post_init__(self):
+    if isinstance(self.keys, (str, bytes)):
+      raise TypeError(
+          f'ObservationGroup: `keys` must be a sequence of observable keys, '
+          f'got the string {self.keys!r}, which would read as the keys '
+          f'{list(self.keys)!r}. Pass keys=[{self.keys!r}] for one key.'
+      )
