@@ -67,6 +67,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_composer import environment as environment_lib
+from mjx_composer import task as task_lib
+
 ObsKey = Union[None, str, Sequence[str]]
 
 
@@ -159,6 +162,7 @@ class BraxEnv(brax_base.Env):
       episode_length: int | None = None,
       rescale_actions: bool = False,
   ):
+    _check_environment(environment)
     install_jax_compat()
     auto_reset = environment.auto_reset
     if auto_reset != 'same_step':
@@ -198,7 +202,9 @@ class BraxEnv(brax_base.Env):
         )
       episode_length = environment.step_limit
     if (
-        isinstance(episode_length, bool)
+        isinstance(episode_length, (bool, np.bool_))
+        or not isinstance(episode_length, (int, float, np.integer, np.floating))
+        or not math.isfinite(episode_length)
         or int(episode_length) != episode_length
         or episode_length < 1
     ):
@@ -273,6 +279,7 @@ class BraxEnv(brax_base.Env):
           '(wrap_env_fn=wrap_for_training) or wrap_env=False to ppo.train.'
       )
     action = jnp.asarray(action)
+    self._check_action_shape(state, action)
     if action.ndim > 1:
       return jax.vmap(self.step)(state, action)
     if self._rescale is not None:
@@ -283,6 +290,37 @@ class BraxEnv(brax_base.Env):
     return self._wrap(stepped, first=False, previous=state)
 
   # -- helpers -------------------------------------------------------------
+
+  def _check_action_shape(self, state, action):
+    """Refuses actions whose batch is not the state's, naming the fix.
+
+    A state's reward has its batch shape: `()` for one world.
+    """
+    batch = tuple(jnp.shape(state.reward))
+    expected = batch + (self._action_size,)
+    if tuple(action.shape) == expected:
+      return
+    if not batch:
+      held = "one world's (reset with one key)"
+    else:
+      held = f'a batch of shape {batch} (reset with that batch of keys)'
+    hint = ''
+    if not batch and action.ndim == 2:
+      n = action.shape[0]
+      hint = (
+          f' To step {n} worlds, reset with {n} keys '
+          f'(jax.random.split(key, {n})) and step that batched state.'
+      )
+    elif batch and tuple(action.shape) == (self._action_size,):
+      hint = (
+          ' To give every world the same action, pass '
+          f'jnp.broadcast_to(action, {expected}).'
+      )
+    raise ValueError(
+        f'BraxEnv.step: `action` has shape {tuple(action.shape)}, but `state` '
+        f"is {held}: pass actions of shape {expected}, the state's batch "
+        f'shape then action_size {self._action_size}.{hint}'
+    )
 
   def _abstract_state(self):
     # Shapes only (no compile); observation_size asks for them.
@@ -505,6 +543,29 @@ def _flat(x):
   if not jnp.issubdtype(x.dtype, jnp.floating):
     x = x.astype(jnp.float32)
   return jnp.reshape(x, (-1,))
+
+
+def _check_environment(environment):
+  """Refuses anything but a pure `Environment`, naming what to pass."""
+  if isinstance(environment, environment_lib.Environment):
+    return
+  inner = getattr(environment, 'environment', None)
+  if isinstance(inner, environment_lib.Environment):
+    fix = (
+        f'a {type(environment).__name__}, which wraps one: pass its '
+        f'`.environment`, BraxEnv({type(environment).__name__}.environment)'
+    )
+  elif isinstance(environment, task_lib.Task):
+    fix = (
+        'a Task: build its environment first, BraxEnv(composer.Environment('
+        "task, options=composer.ExecutionOptions(auto_reset='same_step')))"
+    )
+  else:
+    fix = f'{type(environment).__name__} {environment!r:.80}'
+  raise TypeError(
+      'BraxEnv: `environment` must be an mjx_composer.Environment built with '
+      f"auto_reset='same_step', got {fix}."
+  )
 
 
 def _key_batch_ndim(rng) -> int:

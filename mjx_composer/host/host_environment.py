@@ -34,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer import environment as environment_lib
+from mjx_composer import task as task_lib
 from mjx_composer.platform import sharding
 
 # numpy's and composer's seeds are non-negative; JAX takes int64 seeds.
@@ -123,6 +124,48 @@ class BatchedTimeStep(NamedTuple):
     return self.step_type == dm_env.StepType.LAST
 
 
+def _check_environment(environment, owner):
+  """Refuses anything but a pure `Environment`, naming what to pass."""
+  if isinstance(environment, environment_lib.Environment):
+    return
+  inner = getattr(environment, 'environment', None)
+  if isinstance(inner, environment_lib.Environment):
+    got = (
+        f'a {type(environment).__name__}, which wraps one: pass its '
+        f'`.environment`'
+    )
+  elif isinstance(environment, task_lib.Task):
+    got = (
+        f'a Task: build its environment first, {owner}(composer.Environment('
+        'task))'
+    )
+  else:
+    got = f'{type(environment).__name__} {environment!r:.80}'
+  raise TypeError(
+      f'{owner}: `environment` must be an mjx_composer.Environment, got '
+      f'{got}.'
+  )
+
+
+def _as_numbers(value, where, name, shape):
+  """`value` as a float32 array, or raises naming `name` and the fix.
+
+  numpy converts strings of digits to floats, and fails on other strings and
+  dicts with a conversion error naming neither the argument nor the fix.
+  """
+  try:
+    array = np.asarray(value)
+  except ValueError:  # ragged nested sequences
+    array = None
+  if array is None or array.dtype.kind not in 'biuf':
+    raise TypeError(
+        f'{where}: `{name}` must be numbers, an array of shape {shape}, got '
+        f'{type(value).__name__} {value!r:.80}. Pass a numpy array of '
+        f'floats, e.g. np.zeros({shape}, np.float32).'
+    )
+  return array.astype(np.float32)
+
+
 def _auto_reset_mode(environment) -> str:
   mode = getattr(environment, 'auto_reset', None)
   if mode is None:
@@ -147,6 +190,7 @@ class _HostLoop:
   """What the single-world and the batched host environments share."""
 
   def __init__(self, environment, seed, num_worlds, mesh=None):
+    _check_environment(environment, type(self).__name__)
     self._env = environment
     self._num_worlds = num_worlds
     self._key = jax.random.key(check_seed(seed))
@@ -288,8 +332,8 @@ class HostEnvironment(_HostLoop, dm_env.Environment):
     return timestep
 
   def _check_action(self, action):
-    action = np.asarray(action, dtype=np.float32)
     shape = tuple(self.action_spec().shape)
+    action = _as_numbers(action, 'HostEnvironment.step', 'action', shape)
     if action.shape != shape:
       hint = ''
       if action.ndim == len(shape) + 1 and action.shape[1:] == shape:
@@ -402,9 +446,11 @@ class BatchedHostEnvironment(_HostLoop):
     return self._timestep()
 
   def _check_actions(self, actions):
-    actions = np.asarray(actions, dtype=np.float32)
     shape = tuple(self.action_spec().shape)
     batch_shape = (self._num_worlds,) + shape
+    actions = _as_numbers(
+        actions, 'BatchedHostEnvironment.step', 'actions', batch_shape
+    )
     if actions.shape != batch_shape:
       if actions.shape == shape:
         got = f"{actions.shape}, the shape of one world's action"

@@ -70,7 +70,9 @@ def test_import_prints_nothing():
 # -- the Brax adapter -----------------------------------------------------------
 
 
-@pytest.mark.parametrize('length', [0, -5, 2.5, True])
+@pytest.mark.parametrize(
+    'length', [0, -5, 2.5, True, float('inf'), float('nan'), '5']
+)
 def test_brax_env_rejects_a_bad_episode_length(length):
   from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
 
@@ -163,6 +165,100 @@ def test_brax_env_default_obs_key_works_with_brax_networks():
   assert obs.shape == (3,)
   logits = networks.policy_network.apply(None, params, obs[None])
   assert logits.shape == (1, 2 * brax_env.action_size)
+
+
+def test_brax_env_refuses_actions_of_another_batch_than_the_state():
+  """A single-world state with a batch of actions failed inside jax.vmap."""
+  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+  brax_env = brax_adapter.BraxEnv(_brax_envs()[0])
+  key = jax.random.key(0)
+  one = jax.eval_shape(brax_env.reset, key)
+  three = jax.eval_shape(brax_env.reset, jax.random.split(key, 3))
+  size = brax_env.action_size
+  for state, actions, match in [
+      (
+          one,
+          jnp.zeros((4, size)),
+          rf"`action` has shape \(4, {size}\), but `state` is one world's.*"
+          rf'pass actions of shape \({size},\).*jax.random.split\(key, 4\)',
+      ),
+      (
+          three,
+          jnp.zeros((size,)),
+          rf'shape \({size},\), but `state` is a batch of shape \(3,\).*'
+          rf'jnp.broadcast_to\(action, \(3, {size}\)\)',
+      ),
+      (three, jnp.zeros((4, size)), rf'pass actions of shape \(3, {size}\)'),
+      (one, jnp.zeros((size + 1,)), rf'pass actions of shape \({size},\)'),
+  ]:
+    with pytest.raises(ValueError, match=r'BraxEnv.step: .*' + match):
+      jax.eval_shape(brax_env.step, state, actions)
+  assert jax.eval_shape(
+      brax_env.step, three, jnp.zeros((3, size))
+  ).reward.shape == (3,)
+  assert jax.eval_shape(brax_env.step, one, jnp.zeros(size)).reward.shape == ()
+
+
+def test_wrappers_refuse_what_is_not_a_pure_environment():
+  """HostEnvironment(task) and BraxEnv(HostEnvironment(...)) raised an
+  AttributeError from deep inside."""
+  from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
+
+  env = _brax_envs()[0]
+  host = composer.HostEnvironment(env)
+  brax_env = brax_adapter.BraxEnv(env)
+  for make, match in [
+      (
+          lambda: brax_adapter.BraxEnv(host),
+          r'BraxEnv: `environment` must be an mjx_composer.Environment.*got a '
+          r'HostEnvironment, which wraps one: pass its `.environment`',
+      ),
+      (
+          lambda: brax_adapter.BraxEnv(env.task),
+          r'got a Task: build its environment first, '
+          r'BraxEnv\(composer.Environment\(task',
+      ),
+      (
+          lambda: composer.HostEnvironment(env.task),
+          r'HostEnvironment: `environment` must be.*got a Task: build its '
+          r'environment first, HostEnvironment\(composer.Environment\(task',
+      ),
+      (
+          lambda: composer.HostEnvironment(env.task, num_worlds=2),
+          r'BatchedHostEnvironment: `environment` must be.*got a Task',
+      ),
+      (
+          lambda: composer.HostEnvironment(brax_env),
+          r'got a BraxEnv, which wraps one: pass its `.environment`',
+      ),
+      (lambda: composer.HostEnvironment('walk'), r"got str 'walk'"),
+  ]:
+    with pytest.raises(TypeError, match=match):
+      make()
+  assert brax_adapter.BraxEnv(host.environment).action_size == 1
+  assert composer.HostEnvironment(brax_env.environment).reset().first()
+
+
+@pytest.mark.parametrize(
+    'action', ['a', '0.5', {'motor': 0.5}, ['0.5'], [[0.5], [0.5, 0.5]], None]
+)
+@pytest.mark.parametrize('num_worlds', [None, 2])
+def test_host_environment_step_refuses_what_is_not_numbers(action, num_worlds):
+  """Strings and dicts failed in NumPy's float conversion; strings of
+  digits were taken as numbers."""
+  env = composer.HostEnvironment(
+      common.pendulum_environment(), num_worlds=num_worlds
+  )
+  env.reset()
+  shape = r'\(1,\)' if num_worlds is None else r'\(2, 1\)'
+  name = 'action' if num_worlds is None else 'actions'
+  with pytest.raises(
+      TypeError,
+      match=rf'step: `{name}` must be numbers, an array of shape {shape}, '
+      rf'got .*np.zeros\({shape}, np.float32\)',
+  ):
+    env.step(action)
 
 
 # -- HostEnvironment: seeds and failed initializations -----------------------
