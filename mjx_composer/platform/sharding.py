@@ -121,7 +121,10 @@ def world_mesh(devices: Sequence[jax.Device] | None = None) -> Mesh:
   """
   devices = list(jax.devices() if devices is None else devices)
   if not devices:
-    raise ValueError('world_mesh needs at least one device.')
+    raise ValueError(
+        'world_mesh: `devices` is empty; pass at least one device, e.g. '
+        'jax.devices()[:1], or devices=None for every device.'
+    )
   if len(set(devices)) != len(devices):
     raise ValueError(f'world_mesh: a device is listed twice in {devices}.')
   devices.sort(key=lambda d: (d.process_index, d.id))
@@ -561,6 +564,12 @@ def _mesh(mesh):
     raise ValueError(
         f"Expected a 1-D mesh over '{WORLD_AXIS}' (sharding.world_mesh()), "
         f'got axes {mesh.axis_names}.'
+    )
+  if mesh.size == 0:
+    raise ValueError(
+        'The mesh has no devices, so no device would run a world: pass a '
+        'mesh of at least one device, e.g. sharding.world_mesh() (every '
+        'device) or sharding.world_mesh(jax.devices()[:1]).'
     )
   return mesh
 

@@ -68,6 +68,44 @@ def test_a_program_refuses_arrays_of_another_mesh(tmp_path):
     ), (name, out[name])
 
 
+def test_a_mesh_of_no_devices_is_refused_naming_the_fix():
+  """check_num_worlds divided by the device count: a ZeroDivisionError."""
+  import jax  # pylint: disable=g-import-not-at-top
+
+  import mjx_composer as composer  # pylint: disable=g-import-not-at-top
+  from mjx_composer.platform import sharding  # pylint: disable=g-import-not-at-top
+  from tests.bad_inputs import common  # pylint: disable=g-import-not-at-top
+
+  empty = jax.sharding.Mesh(np.array([], dtype=object), (sharding.WORLD_AXIS,))
+  assert empty.size == 0  # JAX builds it without complaint.
+  for use in [
+      lambda: sharding.check_num_worlds(4, empty),
+      lambda: sharding.world_sharding(empty),
+      lambda: sharding.per_device(lambda x: x, empty),
+      lambda: sharding.put_worlds(np.zeros((4, 1)), empty),
+      lambda: composer.HostEnvironment(
+          common.pendulum_environment(), num_worlds=4, mesh=empty
+      ),
+  ]:
+    with pytest.raises(
+        ValueError,
+        match=r'The mesh has no devices.*sharding.world_mesh\(\)',
+    ):
+      use()
+  for use in [
+      lambda: sharding.world_mesh([]),
+      lambda: composer.HostEnvironment(
+          common.pendulum_environment(), num_worlds=4, mesh=[]
+      ),
+  ]:
+    with pytest.raises(
+        ValueError, match=r'world_mesh: `devices` is empty.*jax.devices\(\)'
+    ):
+      use()
+  one = sharding.world_mesh(jax.devices()[:1])
+  assert sharding.check_num_worlds(4, one) == 4
+
+
 # -- the persistent compilation cache ----------------------------------------
 
 _CACHE_SCRIPT = r"""
