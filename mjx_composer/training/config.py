@@ -26,6 +26,8 @@ import json
 import os
 from typing import Any, Literal, Mapping, Optional
 
+from mjx_composer.tasks import registry
+
 
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
@@ -167,8 +169,17 @@ def register_defaults(task: str, **overrides) -> None:
     **overrides: `TrainConfig` fields and their values for this task.
 
   Raises:
-    ValueError: for a name that is not a `TrainConfig` field.
+    ValueError: for a task that is not registered (register it first, with
+      `mjx_composer.tasks.registry.register`), or a name that is not a
+      `TrainConfig` field.
   """
+  if not isinstance(task, str) or task not in registry.names():
+    raise ValueError(
+        f'register_defaults: `task` {task!r} is not a registered task, so '
+        'no run would use these defaults. Register the task first '
+        f'(mjx_composer.tasks.registry.register({task!r}, make_task)), then '
+        f'its defaults; registered tasks: {", ".join(registry.names())}.'
+    )
   _check_keys(overrides, f'register_defaults({task!r}, ...)')
   TASK_DEFAULTS[task] = dict(overrides)
 
