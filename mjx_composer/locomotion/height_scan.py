@@ -258,13 +258,13 @@ class HeightScan(observable.Observable):
     start = int(model.hfield_adr[hfield])
     size = model.hfield_size[hfield]
     data = physics.model.hfield_data[start : start + nrow * ncol]
-    heights = size[2] * data.reshape(nrow, ncol)
     xmat = physics.data.geom_xmat[geom]
     local = xmat.T @ (origin - physics.data.geom_xpos[geom])
-    surface, inside = terrain_surface.surface_height(
-        heights, size[:2], local[:2]
+    # Interpolated elevation, then scaled: the grid itself is not scaled.
+    elevation, inside = terrain_surface.surface_height(
+        data.reshape(nrow, ncol), size[:2], local[:2]
     )
-    distance = local[2] - surface
+    distance = local[2] - size[2] * elevation
     return jnp.where(inside & (distance >= 0), distance, jnp.inf)
 
 

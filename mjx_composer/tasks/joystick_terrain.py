@@ -119,9 +119,6 @@ class TerrainJoystick(joystick.Joystick):
     physics, spawn = self._part.spawn(physics, key)
     return physics, spawn[:2], spawn[2] + 0.01
 
-  def ground_height(self, physics, xy):
-    return self._part.height_at(physics, xy)
-
   # -- composition -----------------------------------------------------------
 
   @property

@@ -175,10 +175,6 @@ class TerrainPart:
     """Records the episode's progress for the curriculum (`after_step`)."""
     return self.curriculum.record(physics, position, command_speed, dt)
 
-  def height_at(self, physics, xy):
-    """The terrain's height below world `xy` (2,)."""
-    return self.terrain.height_at(physics, xy)
-
   def metrics(self, physics):
     """`{'terrain_level': level}` for `get_metrics`."""
     return self.curriculum.metrics(physics)

@@ -154,18 +154,25 @@ class HeightField:
     hfield = model.geom_dataid[geom]
     return int(model.hfield_adr[hfield]), self._shape[0] * self._shape[1]
 
-  def heights(self, physics):
-    """This world's surface heights (rows, cols) in metres, rows along y."""
+  def _elevations(self, physics):
+    """`(elevations (rows, cols), z)`: this world's normalized elevations
+    and the height of elevation 0; heights are `z + span * elevation`.
+    Reads interpolate elevations and scale the result, not the grid."""
     start, count = self.data_range(physics)
     data = physics.model.hfield_data[start : start + count]
-    base_z = physics.bind(self.geom).pos[2]
-    return base_z + self._span * data.reshape(self._shape)
+    return data.reshape(self._shape), physics.bind(self.geom).pos[2]
+
+  def heights(self, physics):
+    """This world's surface heights (rows, cols) in metres, rows along y."""
+    elevations, z = self._elevations(physics)
+    return z + self._span * elevations
 
   def height_at(self, physics, xy):
     """The surface height below world `xy` (2,), as MuJoCo's collision
     sees it (outside the grid: the nearest edge's)."""
+    elevations, z = self._elevations(physics)
     xy = jnp.asarray(xy, jnp.float32)
-    return surface_height(self.heights(physics), self._half, xy)[0]
+    return z + self._span * surface_height(elevations, self._half, xy)[0]
 
   def max_height_near(self, physics, xy, radius):
     """The highest grid point within `radius` of `xy`, or `height_at`."""
@@ -174,7 +181,8 @@ class HeightField:
     near = (xs[None, :] - xy[0]) ** 2 + (ys[:, None] - xy[1]) ** 2 <= (
         radius**2
     )
-    highest = jnp.max(jnp.where(near, self.heights(physics), -jnp.inf))
+    elevations, z = self._elevations(physics)
+    highest = z + self._span * jnp.max(jnp.where(near, elevations, -jnp.inf))
     return jnp.maximum(highest, self.height_at(physics, xy))
 
 
