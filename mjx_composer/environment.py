@@ -62,6 +62,7 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer import physics as physics_lib
+from mjx_composer import task as task_lib
 from mjx_composer.model import element_index
 from mjx_composer.model import model_checks
 from mjx_composer.observation import updater as updater_lib
@@ -621,3 +622,30 @@ _ARGUMENTS = tuple(
     for name, parameter in inspect.signature(Environment).parameters.items()
     if parameter.kind != inspect.Parameter.VAR_KEYWORD
 )
+
+
+def check_environment(
+    value, owner, build='composer.Environment(task)', needs=''
+):
+  """Refuses anything but an `Environment` handed to a wrapper (`owner`).
+
+  The message names what to pass: a wrapper's `.environment`, or, for a
+  `Task`, `owner(<build>)`; `needs` says how the environment must be built
+  (e.g. " built with auto_reset='same_step'").
+  """
+  if isinstance(value, Environment):
+    return
+  name = type(value).__name__
+  if isinstance(getattr(value, 'environment', None), Environment):
+    got = (
+        f'a {name}, which wraps one: pass its `.environment`, '
+        f'{owner}({name}.environment)'
+    )
+  elif isinstance(value, task_lib.Task):
+    got = f'a Task: build its environment first, {owner}({build})'
+  else:
+    got = f'{name} {value!r:.80}'
+  raise TypeError(
+      f'{owner}: `environment` must be an mjx_composer.Environment{needs}, '
+      f'got {got}.'
+  )

@@ -68,7 +68,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer import environment as environment_lib
-from mjx_composer import task as task_lib
 
 ObsKey = Union[None, str, Sequence[str]]
 
@@ -162,7 +161,15 @@ class BraxEnv(brax_base.Env):
       episode_length: int | None = None,
       rescale_actions: bool = False,
   ):
-    _check_environment(environment)
+    environment_lib.check_environment(
+        environment,
+        'BraxEnv',
+        build=(
+            'composer.Environment(task, options=composer.ExecutionOptions('
+            "auto_reset='same_step'))"
+        ),
+        needs=" built with auto_reset='same_step'",
+    )
     install_jax_compat()
     auto_reset = environment.auto_reset
     if auto_reset != 'same_step':
@@ -543,29 +550,6 @@ def _flat(x):
   if not jnp.issubdtype(x.dtype, jnp.floating):
     x = x.astype(jnp.float32)
   return jnp.reshape(x, (-1,))
-
-
-def _check_environment(environment):
-  """Refuses anything but a pure `Environment`, naming what to pass."""
-  if isinstance(environment, environment_lib.Environment):
-    return
-  inner = getattr(environment, 'environment', None)
-  if isinstance(inner, environment_lib.Environment):
-    fix = (
-        f'a {type(environment).__name__}, which wraps one: pass its '
-        f'`.environment`, BraxEnv({type(environment).__name__}.environment)'
-    )
-  elif isinstance(environment, task_lib.Task):
-    fix = (
-        'a Task: build its environment first, BraxEnv(composer.Environment('
-        "task, options=composer.ExecutionOptions(auto_reset='same_step')))"
-    )
-  else:
-    fix = f'{type(environment).__name__} {environment!r:.80}'
-  raise TypeError(
-      'BraxEnv: `environment` must be an mjx_composer.Environment built with '
-      f"auto_reset='same_step', got {fix}."
-  )
 
 
 def _key_batch_ndim(rng) -> int:

@@ -34,7 +34,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer import environment as environment_lib
-from mjx_composer import task as task_lib
 from mjx_composer.platform import sharding
 
 # numpy's and composer's seeds are non-negative; JAX takes int64 seeds.
@@ -124,29 +123,6 @@ class BatchedTimeStep(NamedTuple):
     return self.step_type == dm_env.StepType.LAST
 
 
-def _check_environment(environment, owner):
-  """Refuses anything but a pure `Environment`, naming what to pass."""
-  if isinstance(environment, environment_lib.Environment):
-    return
-  inner = getattr(environment, 'environment', None)
-  if isinstance(inner, environment_lib.Environment):
-    got = (
-        f'a {type(environment).__name__}, which wraps one: pass its '
-        f'`.environment`'
-    )
-  elif isinstance(environment, task_lib.Task):
-    got = (
-        f'a Task: build its environment first, {owner}(composer.Environment('
-        'task))'
-    )
-  else:
-    got = f'{type(environment).__name__} {environment!r:.80}'
-  raise TypeError(
-      f'{owner}: `environment` must be an mjx_composer.Environment, got '
-      f'{got}.'
-  )
-
-
 def _as_numbers(value, where, name, shape):
   """`value` as a float32 array, or raises naming `name` and the fix.
 
@@ -190,7 +166,7 @@ class _HostLoop:
   """What the single-world and the batched host environments share."""
 
   def __init__(self, environment, seed, num_worlds, mesh=None):
-    _check_environment(environment, type(self).__name__)
+    environment_lib.check_environment(environment, type(self).__name__)
     self._env = environment
     self._num_worlds = num_worlds
     self._key = jax.random.key(check_seed(seed))
