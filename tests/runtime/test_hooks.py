@@ -6,6 +6,7 @@ through `reset` and `step`.
 """
 
 import warnings
+import zlib
 
 import jax
 import jax.numpy as jnp
@@ -125,16 +126,31 @@ def test_overriding_another_hook_does_not_change_an_owners_draw():
 
 
 def test_keys_derive_from_stable_identities():
-  # The same identity gives the same number in every process.
-  assert stable_id_lib.stable_id('entity:second/') == stable_id_lib.stable_id(
-      'entity:second/'
-  )
-  assert stable_id_lib.stable_id('task') != stable_id_lib.stable_id('entity:')
-  assert 0 <= stable_id_lib.stable_id('task') < 2**31
-  # CRC-32 of the UTF-8 text, its top bit cleared: a hook's key is the same
-  # in every process and release.
+  # The CRC-32 of the UTF-8 text, its top bit cleared (the same in every
+  # process and release), computed here by zlib.
+  for identity in ('task', 'entity:second/', 'extra:after_step:0', 'arm/ü'):
+    crc = zlib.crc32(identity.encode('utf-8'))
+    assert stable_id_lib.stable_digest(identity) == crc
+    assert stable_id_lib.stable_id(identity) == crc & 0x7FFFFFFF
   assert stable_id_lib.stable_id('task') == 1384045349
-  assert stable_id_lib.stable_digest('task') == 1384045349
+  # A hook's key is the reset's key with its owner's id folded in: the
+  # task's under 'task', an entity's under 'entity:<full identifier>'.
+  task = _DrawingTask()
+  _, physics = _run(task)
+  key = jax.random.key(0)
+  expected = {
+      'task': jax.random.uniform(
+          jax.random.fold_in(key, zlib.crc32(b'task') & 0x7FFFFFFF)
+      ),
+      'second': jax.random.uniform(
+          jax.random.fold_in(key, zlib.crc32(b'entity:second/') & 0x7FFFFFFF)
+      ),
+  }
+  assert float(physics.task_state['task_draw']) == float(expected['task'])
+  assert float(physics.entity_state(task.second)['draw']) == float(
+      expected['second']
+  )
+  assert expected['task'] != expected['second']
 
 
 def test_model_field_writers_name_the_hook():
