@@ -76,19 +76,154 @@ def remove_unreadable_cache_entries(on_removed: Callable[[str], Any]) -> bool:
       return original(cache_key, compile_options, backend, *args)
     except Exception:
       cache = module._get_cache(backend)
-      folder = getattr(cache, 'path', None)
-      if folder is not None and cache_key:
-        entry = folder / f'{cache_key}{_jax_lru_cache._CACHE_SUFFIX}'
-        atime = folder / f'{cache_key}{_jax_lru_cache._ATIME_SUFFIX}'
-        if entry.exists():
-          entry.unlink()
-          if atime.exists():
-            atime.unlink()
-          on_removed(str(entry))
+      folder = getattr(cache, 'path', None) or getattr(cache, '_path', None)
+      removed = _remove_entry(folder, cache_key)
+      if removed is not None:
+        on_removed(removed)
       raise
 
   get_executable_and_time.removes_unreadable_entries = True
   module.get_executable_and_time = get_executable_and_time
+  return True
+
+
+# `jax._src.compilation_cache.get_file_cache`, which JAX calls once per
+# process to make the persistent cache object (a `jax._src.lru_cache.LRUCache`,
+# maybe inside a `VerificationCache`). An entry's file name is its key, and
+# nothing inside the file says which program it holds: JAX loads whatever a
+# file of that name holds, and an entry renamed, copied or swapped with
+# another one loads another program, which fails far from the cause (an
+# assertion in `safe_zip` when the outputs are counted) or, where the two
+# programs take and return the same shapes, silently runs the wrong one.
+
+# What a bound entry starts with, followed by its key and a NUL byte.
+CACHE_KEY_HEADER = b'mjx_composer persistent cache entry, key: '
+
+
+def _entry_key(raw: bytes) -> str | None:
+  """The key a bound entry was written under, or None for an unbound one."""
+  if not raw.startswith(CACHE_KEY_HEADER):
+    return None
+  end = raw.find(b'\0', len(CACHE_KEY_HEADER))
+  if end < 0:
+    return None
+  try:
+    return raw[len(CACHE_KEY_HEADER) : end].decode('utf-8')
+  except UnicodeDecodeError:
+    return None
+
+
+def _remove_entry(folder, cache_key: str) -> str | None:
+  """Deletes `cache_key`'s entry files in `folder`; returns the entry's path."""
+  if folder is None or not cache_key or _jax_lru_cache is None:
+    return None
+  entry = folder / f'{cache_key}{_jax_lru_cache._CACHE_SUFFIX}'
+  atime = folder / f'{cache_key}{_jax_lru_cache._ATIME_SUFFIX}'
+  removed = None
+  if entry.exists():
+    entry.unlink()
+    removed = str(entry)
+  if atime.exists():
+    atime.unlink()
+  return removed
+
+
+if _jax_compilation_cache is not None and hasattr(
+    _jax_compilation_cache, 'CacheInterface'
+):
+
+  class _KeyBoundCache(_jax_compilation_cache.CacheInterface):
+    """A file cache whose entries each carry the key they were written under.
+
+    `put` writes `CACHE_KEY_HEADER + key + NUL` before JAX's bytes; `get`
+    returns JAX's bytes only when the entry names the key it is read under.
+    Any other entry (one renamed, copied or swapped from another key, or
+    written without the header by a JAX that did not bind its entries) is
+    removed, reported to `on_removed(path, key_it_holds_or_None)` and read
+    as a miss: JAX compiles the program and writes a bound entry.
+    """
+
+    def __init__(self, base, on_removed):
+      self._base_cache = base
+      self._on_removed = on_removed
+
+    @property
+    def _path(self):  # pytype: disable=signature-mismatch
+      return self._base_cache._path
+
+    @_path.setter
+    def _path(self, value):
+      self._base_cache._path = value
+
+    @property
+    def path(self):
+      return getattr(self._base_cache, 'path', self._base_cache._path)
+
+    def get(self, key: str):
+      raw = self._base_cache.get(key)
+      if raw is None:
+        return None
+      holds = _entry_key(raw)
+      if holds == key:
+        return raw[len(CACHE_KEY_HEADER) + len(key.encode('utf-8')) + 1 :]
+      removed = _remove_entry(self.path, key)
+      if removed is not None:
+        self._on_removed(removed, holds)
+      return None
+
+    def put(self, key: str, value: bytes):
+      self._base_cache.put(
+          key, CACHE_KEY_HEADER + key.encode('utf-8') + b'\0' + value
+      )
+
+    def clear(self):
+      clear = getattr(self._base_cache, 'clear', None)
+      if clear is not None:
+        clear()
+
+else:  # pragma: no cover - a JAX that moved them
+  _KeyBoundCache = None
+
+
+def bind_cache_entries_to_keys(
+    on_removed: Callable[[str, str | None], Any],
+) -> bool:
+  """Makes every persistent-cache entry name the key it was written under.
+
+  Wraps `jax._src.compilation_cache.get_file_cache` (once per process), so
+  the cache JAX makes when it first compiles with a cache folder writes the
+  key into each entry and refuses an entry that names another key (or
+  none): such an entry is removed, `on_removed(path, key_it_holds)` is
+  called (`key_it_holds` is None for an entry without a key) and JAX
+  compiles the program afresh, as for an entry it never had. Call it before
+  the first compilation with the cache folder set. Returns False where this
+  JAX lacks those internals (entries are then read as JAX reads them).
+  """
+  module = _jax_compilation_cache
+  if (
+      module is None
+      or _KeyBoundCache is None
+      or not hasattr(module, 'get_file_cache')
+  ):
+    return False
+  original = module.get_file_cache
+  if getattr(original, 'binds_entries_to_keys', False):
+    return True
+
+  def get_file_cache(path):
+    made = original(path)
+    if made is None:
+      return None
+    cache, folder = made
+    inner = getattr(cache, '_base_cache', None)
+    if inner is not None:  # a VerificationCache compares JAX's own bytes
+      cache._base_cache = _KeyBoundCache(inner, on_removed)
+    else:
+      cache = _KeyBoundCache(cache, on_removed)
+    return cache, folder
+
+  get_file_cache.binds_entries_to_keys = True
+  module.get_file_cache = get_file_cache
   return True
 
 
