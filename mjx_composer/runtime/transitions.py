@@ -501,7 +501,12 @@ class Transitions:
     resamples it. A per-world select: other worlds are untouched.
     """
     fields = tuple(carry.model_fields)
-    nominal = self.restore(start).carry(fields)
+    physics = self.restore(start)
+    # What an attempt's hooks start from: `start`'s kinematics.
+    physics = physics.replace(
+        data=self._initial_kinematics.apply(physics.model, self.initial.data)
+    )
+    nominal = physics.carry(fields)
     nominal = nominal.replace(
         persistent={**carry.persistent, **nominal.persistent},
         initialization_failed=carry.initialization_failed,
