@@ -179,14 +179,14 @@ def test_a_corrupted_cache_entry_is_removed_and_written_afresh(tmp_path):
   assert first['path'] == str(folder) and first['hits'] == 0
   entries = sorted(folder.glob('*-cache'))
   assert entries
-  for entry in entries:  # Writes cut short.
+  for entry in entries:  # Writes cut short, within the key's header.
     entry.write_bytes(entry.read_bytes()[:100])
   repaired = _cache_run(tmp_path, folder)
   assert repaired['hits'] == 0
   removed = [
       w
       for w in repaired['warnings']
-      if 'Removed the unreadable compilation' in w
+      if 'Removed the compilation cache entry' in w and 'cut short' in w
   ]
   assert len(removed) == len(entries), repaired['warnings']
   assert all(any(e.name in w for w in removed) for e in entries)
