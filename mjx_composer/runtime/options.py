@@ -8,8 +8,8 @@ float rounding where a field says so): when an ended episode restarts, which
 MJX implementation runs the physics, how a restart shares the step's forward
 pass, what a reset's forward pass computes, how often the sensors are
 computed; one, `dirty_forward`, chooses which state the acceleration stage
-read after a control step belongs to (the trajectories are the same). The
-task and `Environment`'s composer arguments say what the
+read after a control step belongs to (the trajectories are the same, to float
+rounding). The task and `Environment`'s composer arguments say what the
 episodes are. The options are checked when they are made, except for what
 depends on the device (whether MuJoCo Warp runs there), which `Environment`
 checks when it is built. Numbers for the choices are in docs/performance.md.
@@ -132,7 +132,8 @@ class ExecutionOptions:
       that of the state its last sub-step started from (MJX's
       `mj_step`, composer's after `set_control`), one forward pass per
       control step fewer for such tasks. Trajectories are the same either
-      way; what is read of the acceleration stage after a step differs.
+      way (to float rounding); what is read of the acceleration stage
+      after a step differs.
 
   Raises:
     ValueError: for a value outside a field's choices, or options that

@@ -168,8 +168,9 @@ def written(
 
   With `after_step`, those `StepForward(stage, sensors)` writes: the
   stage as a control step runs it after its physics, with actuation and
-  (below `'full'`) without the reset's `fwd_actuation`. The answer depends on the shapes and structure of `model` and `data`
-  only, so it is traced once per structure (and kept for this process).
+  (below `'full'`) without the reset's `fwd_actuation`. The answer
+  depends on the shapes and structure of `model` and `data` only, so it
+  is traced once per structure (and kept for this process).
   """
   key = (
       stage,
@@ -422,9 +423,10 @@ class StepForward:
     """`data` with the stage recomputed at its (new) integration state.
 
     `'full'` is `mjx.forward` with actuation, as dm_control's
-    `mj_forward` at a dirty physics' read: `qacc_warmstart` and the
-    integration state are left as they are, so the trajectory is the same
-    as without it.
+    `mj_forward` at a dirty physics' read. It leaves `qvel`, `act`,
+    `time`, `ctrl` and `qacc_warmstart` as they are and writes `qpos` back
+    with its quaternions normalized, as the next step's forward pass does
+    first: the trajectory is the one without it, to float rounding.
     """
     if self.stage == 'none':
       return data

@@ -17,6 +17,7 @@ import mjx_composer as composer
 from mjx_composer import bindings
 from mjx_composer.observation import observable
 from mjx_composer.runtime import dirty_forward
+from mjx_composer.runtime import reset_forward
 
 _W, _R, _F = bindings.DIRTYING_WRITE, bindings.FORWARDING_READ, bindings.FORWARD
 
@@ -241,3 +242,17 @@ def test_no_acceleration_stage_reader_keeps_the_steps_values():
 def test_dirty_forward_must_be_composer_or_never():
   with pytest.raises(ValueError, match="dirty_forward must be 'composer'"):
     composer.ExecutionOptions(dirty_forward='always')
+
+
+def test_the_forward_pass_after_the_step_leaves_the_trajectory_alone():
+  """It writes derived quantities only: not the velocities, activations,
+  time, controls or the solver's warm start that the next step reads.
+  `qpos` it writes back with its quaternions normalized, as the next
+  step's own forward pass does first."""
+  env = composer.Environment(_ArmTask())
+  state = jax.eval_shape(env.reset, jax.random.key(0))
+  written = reset_forward.written(
+      'full', env.mjx_model, state.data, after_step=True
+  )
+  assert {'sensordata', 'qacc', 'actuator_force'} <= written
+  assert not written & {'qvel', 'act', 'time', 'qacc_warmstart', 'ctrl'}
