@@ -186,7 +186,9 @@ def written(
   return _WRITTEN[key]
 
 
-def _trace_written(stage, model, data, sensors, after_step) -> frozenset[str]:
+def _trace_written(
+    stage, model, data, sensors, after_step=False
+) -> frozenset[str]:
   out = {}
 
   def run(data):
