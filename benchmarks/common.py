@@ -83,7 +83,6 @@ def make_env(
     njmax=None,
     reset_forward=None,
     substep_sensors=None,
-    dirty_forward=None,
     **task_kwargs,
 ):
   """A bundled task's `Environment`, as the benchmarks build it.
@@ -97,8 +96,8 @@ def make_env(
     max_reset_attempts: passed to the `Environment` when given.
     share_reset_forward: passed to the `Environment` when given.
     auto_reset_batch: passed to the `Environment` when given.
-    reset_forward, substep_sensors, dirty_forward: `ExecutionOptions`
-      fields, passed when given.
+    reset_forward, substep_sensors: `ExecutionOptions` fields, passed
+      when given.
     impl, naconmax, njmax: the physics implementation ('jax', 'warp', or
       None for the `Environment`'s default) and MuJoCo Warp's buffer sizes,
       passed to the `Environment` when given. The benchmarks measure MJX's
@@ -128,8 +127,6 @@ def make_env(
     options['reset_forward'] = reset_forward
   if substep_sensors is not None:
     options['substep_sensors'] = substep_sensors
-  if dirty_forward is not None:
-    options['dirty_forward'] = dirty_forward
   return environment.Environment(
       task,
       time_limit=time_limit,

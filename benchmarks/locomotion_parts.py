@@ -23,13 +23,7 @@ held for the whole call:
               as its constructor allows: `kinds=('flat',)` and `levels=1`
               (one flat 4 m tile), `initial_levels=(0, 0)`,
               `actuation_delay=(0, 0)` and `height_scan=False`;
-* joystick_never_forward: `joystick` with
-              `ExecutionOptions(dirty_forward='never')`: without the
-              forward pass of the new state that ends each control step
-              (its pushes write `qvel` through a binding, its observations
-              read an accelerometer: composer's dirty physics);
 * walk:       the flat-ground humanoid `walk.Walk()`;
-* walk_never_forward: `walk` with `dirty_forward='never'`;
 * walk_terrain: `walk_terrain.TerrainWalk()` as registered (its terrain,
               curriculum and height scan; the humanoid's feet its only
               terrain contacts).
@@ -58,8 +52,6 @@ processes.
 
     python benchmarks/locomotion_parts.py --worlds 4096 16384
     python benchmarks/locomotion_parts.py --worlds 4 --steps 2   # smoke
-    python benchmarks/locomotion_parts.py --worlds 16 --programs joystick \
-        joystick_never_forward walk walk_never_forward
     python benchmarks/locomotion_parts.py --isolated --worlds 8192 \\
         --programs raw joystick joystick_terrain
 """
@@ -88,10 +80,8 @@ TASKS = {
     'joystick_terrain': ('joystick_terrain', {}),
     'joystick_terrain_no_scan': ('joystick_terrain', dict(height_scan=False)),
     'joystick_terrain_off': ('joystick_terrain', PARTS_OFF),
-    'joystick_never_forward': ('joystick', dict(dirty_forward='never')),
     'walk': ('walk', {}),
     'walk_terrain': ('walk_terrain', {}),
-    'walk_never_forward': ('walk', dict(dirty_forward='never')),
 }
 # Each program's flat-ground twin (the ratio '/flat').
 FLAT = {
@@ -102,12 +92,6 @@ FLAT = {
     'walk_terrain': 'walk',
 }
 PROGRAMS = ('raw', *TASKS)
-# The programs without the dirty-physics forward pass, and their twins with
-# it (the ratio '<twin>/never_forward': the forward pass's cost).
-NEVER_FORWARD = {
-    'joystick_never_forward': 'joystick',
-    'walk_never_forward': 'walk',
-}
 
 
 def make_envs(names, share_reset_forward=None):
@@ -158,11 +142,6 @@ def derive(row, steps):
             row[name]['state_bytes_per_world']
             / row[other]['state_bytes_per_world']
         )
-  for never, twin in NEVER_FORWARD.items():
-    if never in row and twin in row:
-      row[f'{twin}/never_forward'] = (
-          row[twin]['control_steps_per_s'] / row[never]['control_steps_per_s']
-      )
   on, off = row.get('joystick_terrain'), row.get('joystick_terrain_no_scan')
   if on and off:
     world_steps = row['worlds'] * steps
@@ -203,13 +182,6 @@ def print_table(results):
           f'| {ratio(row, f"{name}/flat_state")} |'
       )
   for row in results:
-    for twin in NEVER_FORWARD.values():
-      if f'{twin}/never_forward' in row:
-        print(
-            f'\n{twin}, {row["worlds"]:,} worlds: control steps/s with the '
-            "dirty-physics forward pass / with dirty_forward='never': "
-            f'{row[f"{twin}/never_forward"]:.3f}'
-        )
     scan = row.get('height_scan')
     if scan:
       print(
