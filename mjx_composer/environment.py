@@ -33,7 +33,9 @@ episode (e.g. `PropPlacer` finding no collision-free pose) marks it with
 `initialize_episode` hook with a fresh key, up to `max_reset_attempts`
 attempts in all, counts failed attempts in `metrics['init_failures']`, and
 sets `metrics['init_failed']` when the last attempt failed too (composer
-would raise `EpisodeInitializationError`; nothing raises inside jit).
+would raise `EpisodeInitializationError`; nothing raises inside jit). Such a
+world runs none of its attempts: it keeps what its reset started from, and
+its first step ends the episode (reward 0, discount 0).
 
 Keys: `reset(key)` derives every random draw of the episode, and of the
 episodes that auto-reset after it, from `key` alone: the same key gives the

@@ -7,6 +7,8 @@ library (`mj_forward`, `mj_rnePostConstraint`, `mj_subtreeVel`) on the same
 state.
 """
 
+import zlib
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -486,7 +488,15 @@ def test_stale_reads_in_reset_hooks_are_dm_controls(scene):
 
 def test_variation_as_a_corruptor():
   """composer's idiom: `corruptor=noises.Additive(distributions.Normal(...))`
-  builds, and the noise is the variation's draw with the corruptor's key."""
+  builds, and the noise is the variation's draw with the corruptor's key.
+
+  That key, by the documented schedule (`runtime/keys.py`, the updater's
+  "Randomness"): the reset splits its key in three and the first
+  observation takes the second; the sample at timestamp 0 folds in 0, then
+  the CRC-32 (31 bits) of '<observable key>#0' (0: the corruptor's
+  purpose). `Additive` passes its key to its one operand, and `Normal`
+  with constant parameters draws `scale * normal(key, shape)` from it.
+  """
   tip = composer.observation.observable.Generic(
       lambda physics: physics.named.data.site_xpos['pendulum/tip'],
       corruptor=noises.Additive(distributions.Normal(scale=0.01)),
@@ -503,8 +513,18 @@ def test_variation_as_a_corruptor():
   env = composer.Environment(task)
   state = env.reset(jax.random.key(0))
   clean = env.physics(state).bind(task.pendulum.tip).xpos
-  noise = np.asarray(state.observation['tip']).reshape(3) - np.asarray(clean)
-  assert 0 < np.max(np.abs(noise)) < 0.1
+  observation_key = jax.random.split(jax.random.key(0), 3)[1]
+  sample_key = jax.random.fold_in(
+      jax.random.fold_in(observation_key, 0),
+      zlib.crc32(b'tip#0') & 0x7FFFFFFF,
+  )
+  noise = 0.01 * jax.random.normal(sample_key, (3,), jnp.float32)
+  assert np.all(np.abs(np.asarray(noise)) > 1e-4)  # A draw, not a zero.
+  # The same float32 sum as the corruptor's.
+  np.testing.assert_array_equal(
+      np.asarray(state.observation['tip']).reshape(3),
+      np.asarray(clean + noise),
+  )
 
 
 def test_random_state_is_refused_with_key_hint():

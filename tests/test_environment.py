@@ -791,8 +791,13 @@ def test_initialization_that_always_fails_is_bounded_and_flagged():
   state = jax.jit(env.reset)(jax.random.key(0))
   assert float(state.metrics['init_failures']) == 3.0
   assert float(state.metrics['init_failed']) == 1.0
+  # The failed attempts' poses are never run: the world is as it started.
+  np.testing.assert_array_equal(state.data.qpos, env.mj_model.qpos0)
   state = jax.jit(env.step)(state, jnp.zeros(1))
   assert float(state.metrics['init_failed']) == 1.0  # reported all episode
+  # Its first step ends it, with nothing to learn from.
+  assert bool(state.last()) and bool(state.terminated)
+  assert float(state.reward) == 0.0 and float(state.discount) == 0.0
   with pytest.raises(ValueError, match='max_reset_attempts'):
     composer.Environment(_FlakyTask(0.5), max_reset_attempts=0)
 

@@ -12,6 +12,7 @@ from mjx_composer import environment
 from mjx_composer.tasks import joystick
 from mjx_composer.tasks import joystick_terrain
 from mjx_composer.tasks import registry
+from mjx_composer.tasks import terrain_part
 from tests import terrain_tasks
 
 _WORLDS = 2
@@ -29,7 +30,7 @@ def run():
       scan_size=(0.4, 0.2),
       push_interval=0,
   )
-  env, states, _ = terrain_tasks.rollout(
+  env, states, step = terrain_tasks.rollout(
       task, worlds=_WORLDS, steps=_STEPS, time_limit=1.0
   )
 
@@ -39,11 +40,11 @@ def run():
     return task.height_scan.scan(env.physics(state))[0]
 
   scans = [scan(state) for state in states[-2:]]
-  return env, jax.device_get(states), jax.device_get(scans)
+  return env, jax.device_get(states), jax.device_get(scans), step
 
 
 def test_worlds_spawn_on_a_tile_of_their_level(run):
-  env, states, _ = run
+  env, states, *_ = run
   # Joystick's spread of the initial position: U(-0.5, 0.5) m per axis.
   terrain_tasks.assert_spawned_on_its_level(
       env, states[0], env.task.go1.home_height + 0.01, spread=0.5
@@ -51,7 +52,7 @@ def test_worlds_spawn_on_a_tile_of_their_level(run):
 
 
 def test_policy_sees_the_height_scan_and_the_critic_its_clean_twin(run):
-  env, states, (previous, scan) = run
+  env, states, (previous, scan), _ = run
   rays = len(env.task.height_scan.points)
   assert rays == 5 * 3
   # The critic's last entries are the clean scan of the step's end.
@@ -67,7 +68,7 @@ def test_policy_sees_the_height_scan_and_the_critic_its_clean_twin(run):
 
 
 def test_delay_is_drawn_per_world_in_its_range(run):
-  _, states, _ = run
+  _, states, *_ = run
   delays = states[0].task_state['actuation_delay_steps']
   assert np.all((delays >= 1) & (delays <= 3))
   for state in states[1:]:
@@ -78,6 +79,26 @@ def test_delay_is_drawn_per_world_in_its_range(run):
     # motors.
     history = state.task_state['actuation_delay_history']
     np.testing.assert_allclose(history[:, 0], state.data.ctrl, atol=1e-6)
+
+
+def test_leaving_the_terrain_ends_the_episode_as_a_truncation(run):
+  """Near the edge, where the ground ends, an episode ends with discount 1
+  (not a fall); a fall's discount is 0."""
+  env, states, _, step = run
+  state = states[-1]
+  qpos = np.array(state.data.qpos)
+  edge = env.task.terrain.half_extent[0]
+  # World 0 on the flat border, half a metre from its far edge.
+  qpos[0, 0] = edge - terrain_part.OUT_OF_BOUNDS_MARGIN / 2
+  # World 1 upside down where it stands (half a turn about x).
+  qpos[1, 3:7] = [0.0, 1.0, 0.0, 0.0]
+  moved = state.replace(data=state.data.replace(qpos=qpos))
+  after = jax.device_get(step(moved, np.zeros((_WORLDS, 12), np.float32)))
+  np.testing.assert_array_equal(after.step_type, [2, 2])  # LAST, both.
+  np.testing.assert_array_equal(after.discount, [1.0, 0.0])
+  # A world standing anywhere on the grid is inside.
+  physics = env.physics(jax.tree.map(lambda x: x[0], states[-1]))
+  assert not env.task.out_of_bounds(physics)
 
 
 def test_registered():

@@ -189,3 +189,20 @@ def test_the_old_import_path_warns_and_gives_the_same_class():
   with pytest.warns(DeprecationWarning, match='locomotion.terrain'):
     moved = arenas.RoughTerrain
   assert moved is terrain.RoughTerrain
+
+
+def test_bumps_closer_than_the_grid_are_refused_naming_the_cell():
+  """A tiny spacing asked for a control grid of terabytes (a MemoryError)."""
+  # Cells: 4 / 15 m along x, 6 / 23 m along y; the coarser one is x's.
+  with pytest.raises(
+      ValueError, match=r'`bump_spacing` must be at least .* 0\.2667 m.*1e-09'
+  ):
+    terrain.RoughTerrain(
+        size=(2.0, 3.0), resolution=(24, 16), bump_spacing=1e-9
+    )
+  with pytest.raises(ValueError, match=r'bump_spacing >= 0\.2667'):
+    terrain.RoughTerrain(size=(2.0, 3.0), resolution=(24, 16), bump_spacing=0.2)
+  arena = terrain.RoughTerrain(
+      size=(2.0, 3.0), resolution=(24, 16), bump_spacing=4.0 / 15
+  )
+  assert arena.coarse_shape[1] <= 16 and arena.coarse_shape[0] <= 24

@@ -1,15 +1,23 @@
 """Tests for `mjx_composer.observation.updater` (ports composer's updater_test).
 
-Timing is checked against `_Reference`, a small pure-Python re-implementation
-of composer's updater (a schedule of sample times, and a buffer that keeps the
-B latest arrivals in a `deque`, with in-flight samples sorted by arrival),
-stepped alongside the jitted updater.
+Timing is checked against composer itself: dm_control's
+`composer.observation.updater.Updater`, driving dm_control observables on
+dm_control's `FakePhysics` (whose time is the number of sub-steps taken) as
+composer's environment drives them (`reset`, then per control step
+`prepare_for_next_control_step` and one `update` after each sub-step), with
+the same update intervals, delays and buffer sizes, and variable ones
+replayed draw by draw.
 """
 
-import bisect
 import collections
+import contextlib
 import itertools
+from unittest import mock
 
+from dm_control.composer.observation import fake_physics as dm_fake_physics
+from dm_control.composer.observation import obs_buffer as dm_obs_buffer
+from dm_control.composer.observation import observable as dm_observable
+from dm_control.composer.observation import updater as dm_updater
 from dm_env import specs
 import jax
 import jax.numpy as jnp
@@ -100,74 +108,92 @@ def _enabled(**observables):
   return out
 
 
-class _Reference:
-  """composer's updater semantics, one observable, in plain Python.
+def _composer_run(configs, n, num_steps, pad_initial=False, plan=True):
+  """Observations of composer's own updater, one per control step.
 
-  Samples are due at 0, then at `previous + interval()`; each is inserted
-  with `delay()`. The buffer keeps a `deque(maxlen=B)` of arrived samples,
-  pre-filled with zeros (or, under initial-value padding, with copies of the
-  first inserted value), and a list of in-flight samples sorted by arrival
-  (ties in insertion order).
+  Args:
+    configs: name -> `(fn, update_interval, delay, buffer_size)`, where `fn`
+      maps dm_control's `FakePhysics` to a value, and the interval and the
+      delay are ints or zero-argument callables (composer calls those once
+      per sample, in the order of the samples: the delay of sample 0 at
+      reset, then the interval and the delay of each following sample).
+    n: sub-steps per control step.
+    num_steps: control steps after the reset.
+    pad_initial: composer's `pad_with_initial_value`.
+    plan: keep composer's planner, which drops planned samples that no read
+      will see (`Buffer.drop_unobserved_upcoming_items`). Where it drops the
+      last planned sample, composer plans that sub-step again with fresh
+      draws of the interval and the delay: the same distribution for random
+      draws, but a replayed sequence of draws then lands on other samples.
+      False runs composer's schedule and buffers without that step, every
+      draw used once, by the samples in the order they are taken.
+
+  Returns:
+    name -> array stacked over control steps, the reset's observation first.
   """
-
-  def __init__(self, fn, buffer_size, interval, delay, pad_initial):
-    self._fn, self._interval, self._delay = fn, interval, delay
-    self._arrived = collections.deque(maxlen=buffer_size)
-    if not pad_initial:
-      zero = np.zeros_like(np.asarray(fn(0)))
-      self._arrived.extend([(-1, zero)] * buffer_size)
-    self._pending = []
-    self._count = itertools.count()
-    self._insert(0, self._delay())
-    self._next = self._interval()
-
-  def _move(self, t):
-    while self._pending and self._pending[0][0] <= t:
-      _, _, timestamp, value = self._pending.pop(0)
-      self._arrived.append((timestamp, value))
-
-  def _insert(self, timestamp, delay):
-    value = np.asarray(self._fn(timestamp))
-    if not self._arrived:
-      self._arrived.extend([(-1, value)] * self._arrived.maxlen)
-    self._move(timestamp)
-    if delay == 0:
-      self._arrived.append((timestamp, value))
-    else:
-      bisect.insort(
-          self._pending,
-          (timestamp + delay, next(self._count), timestamp, value),
-      )
-
-  def substep(self, t):
-    """Called after sub-step `t` (sub-steps since reset)."""
-    if t == self._next:
-      self._insert(t, self._delay())
-      self._next = t + self._interval()
-
-  def read(self, t):
-    self._move(t)
-    return (
-        np.array([ts for ts, _ in self._arrived]),
-        np.stack([v for _, v in self._arrived]),
+  physics = dm_fake_physics.FakePhysics()
+  observables = collections.OrderedDict()
+  for name, (fn, interval, delay, size) in configs.items():
+    observables[name] = dm_observable.Generic(
+        fn, update_interval=interval, delay=delay, buffer_size=size
     )
+    observables[name].enabled = True
+  updater = dm_updater.Updater(
+      observables, n, pad_with_initial_value=pad_initial
+  )
+  with contextlib.ExitStack() as stack:
+    if not plan:
+      stack.enter_context(
+          mock.patch.object(
+              dm_obs_buffer.Buffer,
+              'drop_unobserved_upcoming_items',
+              lambda *_: None,
+          )
+      )
+    updater.reset(physics, np.random.RandomState(0))
+    outputs = [updater.get_observation()]
+    for _ in range(num_steps):
+      updater.prepare_for_next_control_step()
+      for _ in range(n):
+        physics.step()
+        updater.update()
+      outputs.append(updater.get_observation())
+  return {
+      name: np.stack([np.array(o[name]) for o in outputs])
+      for name in observables
+  }
 
 
-def _constant(value):
-  return lambda: value
+def _composer_timestamps(configs, n, num_steps, plan=True):
+  """Each buffered sample's timestamp in composer's updater, -1 for padding.
+
+  The observables of `configs` (name -> `(interval, delay, buffer_size)`,
+  as `_composer_run`'s) read `time + 1` under zero padding, so a buffered
+  value minus one is its sample's timestamp, and padding reads -1.
+  """
+  time_plus_one = lambda physics: physics.time() + 1
+  observations = _composer_run(
+      {name: (time_plus_one,) + tuple(c) for name, c in configs.items()},
+      n,
+      num_steps,
+      plan=plan,
+  )
+  return {name: value - 1 for name, value in observations.items()}
 
 
 def _cycle(values):
+  """A zero-argument callable cycling through `values`."""
   return itertools.cycle(values).__next__
 
 
-# The observables of composer's testObservation.
-_TIMING_FUNCTIONS = {
-    'twice': lambda t: 2 * t,
-    'repeated': lambda t: np.array([t, t]),
-    'matrix': lambda t: np.full((2, 3), t),
-    'sqrt_plus_one': lambda t: np.sqrt(np.float32(t)) + np.float32(1),
-}
+def _replay(values, then):
+  """A zero-argument callable returning `values` in turn, then `then`.
+
+  composer plans samples up to two control steps ahead, so it draws past
+  the last sample a run takes.
+  """
+  values = iter(values)
+  return lambda: next(values, then)
 
 
 def _timing_observables():
@@ -395,68 +421,74 @@ def test_strip_singleton_buffer_dim():
 @pytest.mark.parametrize('pad_initial', [False, True])
 @pytest.mark.parametrize('style', ['static', 'scan'])
 def test_observation_timing_matches_composer(pad_initial, style):
+  """composer's testObservation: dm_control's FakePhysics observables
+  (`twice`, `repeated`, `matrix`, `sqrt_plus_one`) with the same intervals,
+  delays and buffers, in composer's updater and ours."""
   observables = _timing_observables()
   updater = updater_lib.Updater(
       observables, N_SUB_STEPS, pad_with_initial_value=pad_initial
   )
   observations, timestamps = _run(updater, NUM_CONTROL_STEPS, style=style)
-  for key, obs in observables.items():
-    u, d, b = obs.update_interval, obs.delay or 0, obs.buffer_size or 1
-    fn = _TIMING_FUNCTIONS[key]
-    reference = _Reference(fn, b, _constant(u), _constant(d), pad_initial)
+  schedules = {
+      key: (obs.update_interval, obs.delay or 0, obs.buffer_size or 1)
+      for key, obs in observables.items()
+  }
+  expected = _composer_run(
+      {
+          key: (getattr(dm_fake_physics.FakePhysics, key),) + schedule
+          for key, schedule in schedules.items()
+      },
+      N_SUB_STEPS,
+      NUM_CONTROL_STEPS,
+      pad_initial=pad_initial,
+  )
+  expected_timestamps = _composer_timestamps(
+      schedules, N_SUB_STEPS, NUM_CONTROL_STEPS
+  )
+  for key, (u, d, b) in schedules.items():
     for step in range(NUM_CONTROL_STEPS + 1):
       t = step * N_SUB_STEPS
-      if step:
-        for s in range(t - N_SUB_STEPS + 1, t + 1):
-          reference.substep(s)
-      expected_ts, expected = reference.read(t)
       # composer's closed form: newest visible u*floor((t-d)/u), B oldest
       # first, negative timestamps are padding.
       end = u * ((t - d) // u)
       formula = end + u * np.arange(-(b - 1), 1)
       np.testing.assert_array_equal(
-          expected_ts, np.where(formula < 0, -1, formula)
+          expected_timestamps[key][step], np.where(formula < 0, -1, formula)
       )
-      np.testing.assert_array_equal(
-          timestamps[key][step], expected_ts, err_msg=f'{key} at t={t}'
-      )
-      # rtol: the GPU's float32 sqrt may differ from numpy's by an ulp.
-      np.testing.assert_allclose(
-          observations[key][step],
-          expected,
-          rtol=1e-6,
-          err_msg=f'{key} at t={t}',
-      )
-
-
-def _schedule_observables(configs):
-  observables = collections.OrderedDict()
-  for u, d, b in configs:
-    observables[f'u{u}_d{d}_b{b}'] = base.Generic(
-        lambda p: p.time(), update_interval=u, delay=d, buffer_size=b
+    np.testing.assert_array_equal(
+        timestamps[key], expected_timestamps[key], err_msg=key
     )
-  for obs in observables.values():
-    obs.enabled = True
-  return observables
+    # float32 (ours) against float64 sqrt: rtol of a few float32 ulps.
+    np.testing.assert_allclose(
+        observations[key], expected[key], rtol=1e-6, err_msg=key
+    )
 
 
 @pytest.mark.parametrize('n', [1, 3, 4, 6])
-def test_constant_schedules_match_reference(n):
-  configs = [(u, d, b) for u in (1, 2, 3, 7) for d in (0, 1, 5) for b in (1, 3)]
-  observables = _schedule_observables(configs)
+def test_constant_schedules_match_composer(n):
+  configs = {
+      f'u{u}_d{d}_b{b}': (u, d, b)
+      for u in (1, 2, 3, 7)
+      for d in (0, 1, 5)
+      for b in (1, 3)
+  }
+  observables = collections.OrderedDict(
+      (
+          key,
+          base.Generic(
+              lambda p: p.time(), update_interval=u, delay=d, buffer_size=b
+          ),
+      )
+      for key, (u, d, b) in configs.items()
+  )
+  for obs in observables.values():
+    obs.enabled = True
   updater = updater_lib.Updater(observables, n)
   num_steps = 30
   _, timestamps = _run(updater, num_steps)
-  for (u, d, b), key in zip(configs, observables):
-    reference = _Reference(lambda t: t, b, _constant(u), _constant(d), False)
-    for step in range(num_steps + 1):
-      t = step * n
-      for s in range(t - n + 1, t + 1) if step else ():
-        reference.substep(s)
-      expected, _ = reference.read(t)
-      np.testing.assert_array_equal(
-          timestamps[key][step], expected, err_msg=f'{key} at t={t}'
-      )
+  expected = _composer_timestamps(configs, n, num_steps)
+  for key in configs:
+    np.testing.assert_array_equal(timestamps[key], expected[key], err_msg=key)
 
 
 def _library_sequence(values):
@@ -479,7 +511,20 @@ def test_variable_rates_and_delays(sequence):
   )
   updater = updater_lib.Updater(_enabled(time=obs), 10)
   assert updater.capacity('time') == 3 + 5  # B + ceil(max delay / min int)
-  observations, _ = _run(updater, 10)
+  observations, timestamps = _run(updater, 10)
+  expected = _composer_timestamps(
+      {
+          'time': (
+              _cycle([3, 2, 3, 3, 4, 1, 4]),
+              _cycle([3, 5, 2, 5, 1, 2, 4]),
+              3,
+          )
+      },
+      10,
+      10,
+  )
+  np.testing.assert_array_equal(timestamps['time'], expected['time'])
+  # composer's test's own expectations.
   for i in range(5):
     np.testing.assert_array_equal(
         observations['time'][2 * i + 1], 20 * i + np.array([0, 5, 3])
@@ -490,7 +535,8 @@ def test_variable_rates_and_delays(sequence):
 
 
 def _variable_run(updater, key, n, num_steps):
-  """Runs the updater and a reference fed with the same random draws."""
+  """Runs the updater; returns, per observable, its sample times, each
+  sample's delay and the buffers' timestamps after each control step."""
   entry_keys = updater.keys
 
   def control_step(carry, step_key):
@@ -534,7 +580,7 @@ def _variable_run(updater, key, n, num_steps):
   return results
 
 
-def test_variable_rates_random_against_reference():
+def test_variable_rates_random_against_composer():
   n, num_steps = 3, 80
   configs = {
       'interval': (_UniformInteger(1, 4), 0, 3),
@@ -559,43 +605,43 @@ def test_variable_rates_random_against_reference():
     # The random draws really vary.
     assert isinstance(u, int) or len(set(intervals)) > 1
     assert isinstance(d, int) or len(set(draws.values())) > 1
-    # Replay the same samples through composer's buffer semantics.
-    ref = _ReplayReference(b, times, draws)
-    for step in range(1, num_steps + 1):
-      t = step * n
-      np.testing.assert_array_equal(
-          timestamps[step - 1], ref.read(t), err_msg=f'{name} at t={t}'
-      )
+    # composer's updater, its intervals and delays replayed from ours (the
+    # interval after the run's last sample reaches past the run's end), each
+    # draw given to the sample ours gave it (`plan=False`).
+    expected = _composer_timestamps(
+        {
+            name: (
+                _replay(intervals, then=n * num_steps),
+                _replay([draws[s] for s in times], then=0),
+                b,
+            )
+        },
+        n,
+        num_steps,
+        plan=False,
+    )
+    np.testing.assert_array_equal(timestamps, expected[name][1:], err_msg=name)
 
 
-class _ReplayReference:
-  """composer's arrival-ordered buffer fed with known (timestamp, delay)."""
-
-  def __init__(self, buffer_size, times, delays):
-    self._times, self._delays = list(times), delays
-    self._arrived = collections.deque([-1] * buffer_size, maxlen=buffer_size)
-    self._pending = []
-    self._index = 0
-    self._count = itertools.count()
-
-  def read(self, t):
-    # Insert every sample taken up to t, moving arrivals as composer does.
-    while self._index < len(self._times) and self._times[self._index] <= t:
-      s = self._times[self._index]
-      self._move(s)
-      if self._delays[s] == 0:
-        self._arrived.append(s)
-      else:
-        bisect.insort(
-            self._pending, (s + self._delays[s], next(self._count), s)
-        )
-      self._index += 1
-    self._move(t)
-    return np.array(self._arrived)
-
-  def _move(self, t):
-    while self._pending and self._pending[0][0] <= t:
-      self._arrived.append(self._pending.pop(0)[2])
+def test_a_sequence_of_delays_is_drawn_once_per_sample_in_order():
+  """Each sample takes the next draw, as composer's updater gives them
+  without its planner; composer's planner drops sample 3 here (sample 1,
+  arriving later, hides it) and, it being the last one planned, plans
+  sub-step 4 again with the next draw: sample 4 then has delay 3, not 1,
+  and the read at 6 sees sample 5, not 3 (`docs/porting.md`)."""
+  delays = [1, 3]
+  obs = base.Generic(
+      lambda p: p.time(), update_interval=1, delay=_Sequence(delays)
+  )
+  updater = updater_lib.Updater(_enabled(x=obs), 2)
+  _, timestamps = _run(updater, 4)
+  config = {'x': (1, _cycle(delays), 1)}
+  unplanned = _composer_timestamps(config, 2, 4, plan=False)['x']
+  np.testing.assert_array_equal(timestamps['x'], unplanned)
+  np.testing.assert_array_equal(unplanned[:, 0], [-1, 0, 1, 3, 5])
+  config = {'x': (1, _cycle(delays), 1)}
+  planned = _composer_timestamps(config, 2, 4)['x']
+  np.testing.assert_array_equal(planned[:, 0], [-1, 0, 1, 5, 7])
 
 
 def test_adversarial_delays_respect_capacity():
@@ -612,13 +658,8 @@ def test_adversarial_delays_respect_capacity():
   updater = updater_lib.Updater(_enabled(x=obs), 1)
   assert updater.capacity('x') == 5
   _, timestamps = _run(updater, 40)
-  cycle = itertools.cycle(delays)
-  draws = {s: next(cycle) for s in range(41)}
-  ref = _ReplayReference(1, range(41), draws)
-  for t in range(41):
-    np.testing.assert_array_equal(
-        timestamps['x'][t], ref.read(t), err_msg=f't={t}'
-    )
+  expected = _composer_timestamps({'x': (1, _cycle(delays), 1)}, 1, 40)
+  np.testing.assert_array_equal(timestamps['x'], expected['x'])
 
 
 def test_variation_without_bounds_is_rejected():

@@ -4,6 +4,7 @@ One environment (2 worlds, a push every 2 steps, episodes of 6 steps) is
 compiled once for the module; the tests read one short trajectory of it.
 """
 
+from dm_control.utils import rewards
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -53,23 +54,7 @@ def _slices(env, group):
   return slices
 
 
-# -- an independent numpy version of dm_control's tolerance ------------------
-
-
-def _tolerance(x, lower, upper, margin, sigmoid, value_at_margin):
-  x = np.asarray(x, np.float64)
-  inside = (lower <= x) & (x <= upper)
-  d = np.where(x < lower, lower - x, x - upper) / margin
-  if sigmoid == 'gaussian':
-    scale = np.sqrt(-2 * np.log(value_at_margin))
-    out = np.exp(-0.5 * (d * scale) ** 2)
-  elif sigmoid == 'linear':
-    scaled = d * (1 - value_at_margin)
-    out = np.where(np.abs(scaled) < 1, 1 - scaled, 0.0)
-  else:  # quadratic
-    scaled = d * np.sqrt(1 - value_at_margin)
-    out = np.where(np.abs(scaled) < 1, 1 - scaled**2, 0.0)
-  return np.where(inside, 1.0, out)
+# -- the reference: dm_control's own `rewards.tolerance` ----------------------
 
 
 def _playground_reward(model, data, world):
@@ -77,29 +62,49 @@ def _playground_reward(model, data, world):
   torso = model.body('humanoid/torso').id
   sensor = model.sensor('humanoid/torso_subtreelinvel')
   com_velocity = data.sensordata[world, sensor.adr[0] : sensor.adr[0] + 3]
-  standing = _tolerance(
-      data.xpos[world, head, 2], 1.4, np.inf, 1.4 / 4, 'gaussian', 0.1
+  standing = rewards.tolerance(
+      data.xpos[world, head, 2],
+      bounds=(1.4, np.inf),
+      margin=1.4 / 4,
+      sigmoid='gaussian',
+      value_at_margin=0.1,
   )
-  upright = _tolerance(
-      data.xmat[world, torso].reshape(3, 3)[2, 2], 0.9, np.inf, 1.9, 'linear', 0
+  upright = rewards.tolerance(
+      data.xmat[world, torso].reshape(3, 3)[2, 2],
+      bounds=(0.9, np.inf),
+      margin=1.9,
+      sigmoid='linear',
+      value_at_margin=0,
   )
-  control = _tolerance(data.ctrl[world], 0, 0, 1, 'quadratic', 0).mean()
+  control = rewards.tolerance(
+      data.ctrl[world],
+      bounds=(0, 0),
+      margin=1,
+      sigmoid='quadratic',
+      value_at_margin=0,
+  ).mean()
   speed = np.linalg.norm(com_velocity[:2])
-  move = _tolerance(speed, 1.0, np.inf, 1.0, 'linear', 0)
+  move = rewards.tolerance(
+      speed,
+      bounds=(1.0, np.inf),
+      margin=1.0,
+      sigmoid='linear',
+      value_at_margin=0,
+  )
   return standing * upright * (4 + control) / 5 * (5 * move + 1) / 6
 
 
 def test_reward_is_playgrounds(run):
   env, _, states, actions = run
-  rewards = []
+  values = []
   for i, state in enumerate(states[1:_STEPS], start=1):
     # The control is the action, as written (not clipped).
     np.testing.assert_allclose(state.data.ctrl, actions[i - 1], rtol=1e-6)
     for world in range(_WORLDS):
       want = _playground_reward(env.mj_model, state.data, world)
       assert state.reward[world] == pytest.approx(want, rel=1e-5, abs=1e-6)
-      rewards.append(want)
-  assert 0 < min(rewards) and max(rewards) < 1  # Not a trivial reward.
+      values.append(want)
+  assert 0 < min(values) and max(values) < 1  # Not a trivial reward.
 
 
 def test_time_limit_truncates(run):

@@ -6,15 +6,14 @@ what the tests compare against is computed on the host with MuJoCo C's
 `mj_ray` on the same compiled model.
 """
 
+from dm_control.utils import rewards
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
 
-from mjx_composer.tasks import locomotion
 from mjx_composer.tasks import registry
-from mjx_composer.tasks import walk
 from mjx_composer.tasks import walk_terrain
 from mjx_composer.training import config
 from tests import terrain_tasks
@@ -131,28 +130,34 @@ def test_reward_is_walks_formula_with_the_head_above_the_terrain(run):
       assert state.metrics['head_height'][world] == pytest.approx(
           height, abs=1e-4
       )
-      # Walk's reward (walk.Walk.get_reward), term by term.
-      standing = locomotion.tolerance(
-          height, (walk.STAND_HEIGHT, np.inf), margin=walk.STAND_HEIGHT / 4
+      # Walk's documented reward (the `walk` module's docstring: stand at
+      # 1.4 m, walk at 1 m/s), term by term, with dm_control's tolerance.
+      standing = rewards.tolerance(
+          height,
+          bounds=(1.4, np.inf),
+          margin=1.4 / 4,
+          sigmoid='gaussian',
+          value_at_margin=0.1,
       )
-      upright = locomotion.tolerance(
+      upright = rewards.tolerance(
           state.data.xmat[world, torso].reshape(9)[8],
-          (0.9, np.inf),
+          bounds=(0.9, np.inf),
           margin=1.9,
           sigmoid='linear',
           value_at_margin=0,
       )
-      control = locomotion.tolerance(
+      control = rewards.tolerance(
           state.data.ctrl[world],
+          bounds=(0, 0),
           margin=1,
           sigmoid='quadratic',
           value_at_margin=0,
       )
       speed = np.linalg.norm(state.data.sensordata[world, adr : adr + 2])
-      move = locomotion.tolerance(
+      move = rewards.tolerance(
           speed,
-          (walk.WALK_SPEED, np.inf),
-          margin=walk.WALK_SPEED,
+          bounds=(1.0, np.inf),
+          margin=1.0,
           sigmoid='linear',
           value_at_margin=0,
       )

@@ -381,3 +381,99 @@ def test_bounds():
   # A compiled value that breaks its bound (an infinite plane) relaxes it.
   assert attributes.bound_for(size, [0, 0, 0.1]) is attributes.NONNEGATIVE
   assert attributes.bound_for(attributes.POSITIVE, -1.0) is attributes.FINITE
+
+
+# -- a world whose every attempt fails ------------------------------------------
+
+
+class _MassTask(_Task):
+  """The rig with the weight's mass drawn from [-1, 1] at every reset: about
+  half the attempts are invalid (a negative mass)."""
+
+  def __init__(self):
+    super().__init__()
+    self.mass = variation.PhysicsVariator()
+    self.mass.bind_attributes(
+        self.rig.weight, mass=distributions.Uniform(-1.0, 1.0)
+    )
+
+  def initialize_episode(self, physics, key):
+    return self.mass.apply_variations(physics, key)
+
+
+_MASS_ATTEMPTS = 2
+_MASS_STEPS = 4
+
+
+@pytest.fixture(scope='module', params=['next_step', 'same_step'])
+def mass_env(request):
+  return composer.Environment(
+      _MassTask(),
+      max_reset_attempts=_MASS_ATTEMPTS,
+      options=composer.ExecutionOptions(auto_reset=request.param),
+  )
+
+
+def _numbers(leaf):
+  """A state's leaf as a NumPy array (a PRNG key as its key data)."""
+  if jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+    leaf = jax.random.key_data(leaf)
+  return np.asarray(leaf)
+
+
+def _rollout(env, keys):
+  """The reset of `keys`' worlds and `_MASS_STEPS` steps, every state."""
+
+  @jax.jit
+  def run(keys):
+    state = jax.vmap(env.reset)(keys)
+    states = [state]
+    action = jnp.full((keys.shape[0], 1), 0.3)
+    for _ in range(_MASS_STEPS):
+      state = jax.vmap(env.step)(state, action)
+      states.append(state)
+    return states
+
+  return jax.device_get(run(keys))
+
+
+def test_a_world_whose_every_attempt_fails_never_runs_its_draw(mass_env):
+  """It keeps the compiled mass, is flagged, and its first step ends the
+  episode; the other worlds run bit for bit as in a batch without it."""
+  env = mass_env
+  weight = env.mj_model.body('rig/weight').id
+  nominal = env.mj_model.body_mass[weight]
+  candidates = jax.random.split(jax.random.key(7), 32)
+  first = jax.device_get(jax.jit(jax.vmap(env.reset))(candidates))
+  failed = np.flatnonzero(first.metrics['init_failed'] == 1)
+  passed = np.flatnonzero(first.metrics['init_failed'] == 0)
+  assert failed.size and passed.size >= 2, 'no failing or valid world drawn'
+  bad, good = failed[0], passed[:2]
+  assert first.metrics['init_failures'][bad] == _MASS_ATTEMPTS
+
+  with_bad = _rollout(env, candidates[np.array([good[0], bad, good[1]])])
+  without = _rollout(env, candidates[good])
+  mass = lambda state: state.model_fields['body_mass'][:, weight]
+
+  # The failing world: the compiled mass at reset, never a negative one.
+  start = with_bad[0]
+  assert mass(start)[1] == nominal
+  assert start.metrics['init_failed'][1] == 1
+  for state in with_bad + without:
+    assert np.all(mass(state) >= 0), mass(state)
+    assert np.all(np.isfinite(state.data.qpos))
+  # Its first step ends the episode, with nothing learned from it.
+  after = with_bad[1]
+  assert after.metrics['diverged'][1] == 0
+  assert after.step_type[1] == composer.StepType.LAST
+  assert after.reward[1] == 0 and after.discount[1] == 0
+  assert bool(after.terminated[1])
+
+  # The valid worlds run as in a batch without the failing one.
+  for state_with, state_without in zip(with_bad, without, strict=True):
+    for a, b in zip(
+        jax.tree.leaves(state_with), jax.tree.leaves(state_without), strict=True
+    ):
+      a, b = _numbers(a), _numbers(b)
+      if a.ndim and a.shape[0] == 3:
+        np.testing.assert_array_equal(a[np.array([0, 2])], b)

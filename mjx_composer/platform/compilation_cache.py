@@ -35,6 +35,15 @@ An entry that fails to load (a file truncated by a process killed while
 writing it, a full disk) is removed, with a warning, and written afresh by
 the compilation that follows: JAX itself keeps such an entry, and would
 read it and compile again in every process.
+
+Each entry also names the key it was written under (its file name is the
+key, but JAX would load whatever a file of that name holds). An entry that
+names another key (files renamed, copied between keys or swapped) or none
+(written by JAX without this package, or cut short) is removed, with a
+warning, and compiled afresh: loaded as it is, it would run another
+program, failing inside JAX's call machinery where the number of outputs
+differs, or silently returning the other program's results where the
+shapes agree.
 """
 
 import os
@@ -122,6 +131,7 @@ def enable(
     )
     return None
   internals.remove_unreadable_cache_entries(_warn_removed)
+  internals.bind_cache_entries_to_keys(_warn_misfiled)
   jax.config.update('jax_compilation_cache_dir', path)
   jax.config.update(
       'jax_persistent_cache_min_compile_time_secs', min_compile_time_secs
@@ -153,6 +163,24 @@ def _warn_removed(entry: str) -> None:
   warnings.warn(
       f'Removed the unreadable compilation cache entry {entry}: the program '
       'compiles again and is written afresh.'
+  )
+
+
+def _warn_misfiled(entry: str, holds: str | None) -> None:
+  if holds is None:
+    what = (
+        'holds no key: it was written without this package (by JAX alone) '
+        'or cut short'
+    )
+  else:
+    what = (
+        f'holds the program of key {holds!r} (entries renamed, copied or '
+        'swapped)'
+    )
+  warnings.warn(
+      f'Removed the compilation cache entry {entry}: it {what}, and loading '
+      'it would run another program. The program compiles again and is '
+      'written afresh; delete the cache folder to drop every entry.'
   )
 
 

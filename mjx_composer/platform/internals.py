@@ -1,6 +1,9 @@
 """Every use of JAX's, MJX's and MuJoCo Warp's private internals.
 
-The package needs a few things that JAX, MJX and MuJoCo Warp do not export:
+The package needs a few things that JAX, MJX and MuJoCo Warp do not export
+(and, while device hooks are traced, NumPy's random module refusing draws:
+`refusing_host_randomness`, the one place that patches another package's
+public module):
 a lowering rule of JAX's Cholesky primitive, JAX's dead-code elimination of
 a jaxpr, JAX's partitioner setting, the barrier of JAX's coordination service, MJX's implementation data
 (`mjx.Data._impl`, `mjx.Option._impl`), MJX's collision tables, ray-geom
@@ -17,9 +20,13 @@ Written against jax 0.10 and mujoco (MJX) 3.17.
 
 from __future__ import annotations
 
-from typing import Any, Callable
+import contextlib
+import functools
+import threading
+from typing import Any, Callable, Iterator
 
 import jax.numpy as jnp
+import numpy as np
 from mujoco import mjx
 
 # pylint: disable=protected-access
@@ -76,19 +83,154 @@ def remove_unreadable_cache_entries(on_removed: Callable[[str], Any]) -> bool:
       return original(cache_key, compile_options, backend, *args)
     except Exception:
       cache = module._get_cache(backend)
-      folder = getattr(cache, 'path', None)
-      if folder is not None and cache_key:
-        entry = folder / f'{cache_key}{_jax_lru_cache._CACHE_SUFFIX}'
-        atime = folder / f'{cache_key}{_jax_lru_cache._ATIME_SUFFIX}'
-        if entry.exists():
-          entry.unlink()
-          if atime.exists():
-            atime.unlink()
-          on_removed(str(entry))
+      folder = getattr(cache, 'path', None) or getattr(cache, '_path', None)
+      removed = _remove_entry(folder, cache_key)
+      if removed is not None:
+        on_removed(removed)
       raise
 
   get_executable_and_time.removes_unreadable_entries = True
   module.get_executable_and_time = get_executable_and_time
+  return True
+
+
+# `jax._src.compilation_cache.get_file_cache`, which JAX calls once per
+# process to make the persistent cache object (a `jax._src.lru_cache.LRUCache`,
+# maybe inside a `VerificationCache`). An entry's file name is its key, and
+# nothing inside the file says which program it holds: JAX loads whatever a
+# file of that name holds, and an entry renamed, copied or swapped with
+# another one loads another program, which fails far from the cause (an
+# assertion in `safe_zip` when the outputs are counted) or, where the two
+# programs take and return the same shapes, silently runs the wrong one.
+
+# What a bound entry starts with, followed by its key and a NUL byte.
+CACHE_KEY_HEADER = b'mjx_composer persistent cache entry, key: '
+
+
+def _entry_key(raw: bytes) -> str | None:
+  """The key a bound entry was written under, or None for an unbound one."""
+  if not raw.startswith(CACHE_KEY_HEADER):
+    return None
+  end = raw.find(b'\0', len(CACHE_KEY_HEADER))
+  if end < 0:
+    return None
+  try:
+    return raw[len(CACHE_KEY_HEADER) : end].decode('utf-8')
+  except UnicodeDecodeError:
+    return None
+
+
+def _remove_entry(folder, cache_key: str) -> str | None:
+  """Deletes `cache_key`'s entry files in `folder`; returns the entry's path."""
+  if folder is None or not cache_key or _jax_lru_cache is None:
+    return None
+  entry = folder / f'{cache_key}{_jax_lru_cache._CACHE_SUFFIX}'
+  atime = folder / f'{cache_key}{_jax_lru_cache._ATIME_SUFFIX}'
+  removed = None
+  if entry.exists():
+    entry.unlink()
+    removed = str(entry)
+  if atime.exists():
+    atime.unlink()
+  return removed
+
+
+if _jax_compilation_cache is not None and hasattr(
+    _jax_compilation_cache, 'CacheInterface'
+):
+
+  class _KeyBoundCache(_jax_compilation_cache.CacheInterface):
+    """A file cache whose entries each carry the key they were written under.
+
+    `put` writes `CACHE_KEY_HEADER + key + NUL` before JAX's bytes; `get`
+    returns JAX's bytes only when the entry names the key it is read under.
+    Any other entry (one renamed, copied or swapped from another key, or
+    written without the header by a JAX that did not bind its entries) is
+    removed, reported to `on_removed(path, key_it_holds_or_None)` and read
+    as a miss: JAX compiles the program and writes a bound entry.
+    """
+
+    def __init__(self, base, on_removed):
+      self._base_cache = base
+      self._on_removed = on_removed
+
+    @property
+    def _path(self):  # pytype: disable=signature-mismatch
+      return self._base_cache._path
+
+    @_path.setter
+    def _path(self, value):
+      self._base_cache._path = value
+
+    @property
+    def path(self):
+      return getattr(self._base_cache, 'path', self._base_cache._path)
+
+    def get(self, key: str):
+      raw = self._base_cache.get(key)
+      if raw is None:
+        return None
+      holds = _entry_key(raw)
+      if holds == key:
+        return raw[len(CACHE_KEY_HEADER) + len(key.encode('utf-8')) + 1 :]
+      removed = _remove_entry(self.path, key)
+      if removed is not None:
+        self._on_removed(removed, holds)
+      return None
+
+    def put(self, key: str, value: bytes):
+      self._base_cache.put(
+          key, CACHE_KEY_HEADER + key.encode('utf-8') + b'\0' + value
+      )
+
+    def clear(self):
+      clear = getattr(self._base_cache, 'clear', None)
+      if clear is not None:
+        clear()
+
+else:  # pragma: no cover - a JAX that moved them
+  _KeyBoundCache = None
+
+
+def bind_cache_entries_to_keys(
+    on_removed: Callable[[str, str | None], Any],
+) -> bool:
+  """Makes every persistent-cache entry name the key it was written under.
+
+  Wraps `jax._src.compilation_cache.get_file_cache` (once per process), so
+  the cache JAX makes when it first compiles with a cache folder writes the
+  key into each entry and refuses an entry that names another key (or
+  none): such an entry is removed, `on_removed(path, key_it_holds)` is
+  called (`key_it_holds` is None for an entry without a key) and JAX
+  compiles the program afresh, as for an entry it never had. Call it before
+  the first compilation with the cache folder set. Returns False where this
+  JAX lacks those internals (entries are then read as JAX reads them).
+  """
+  module = _jax_compilation_cache
+  if (
+      module is None
+      or _KeyBoundCache is None
+      or not hasattr(module, 'get_file_cache')
+  ):
+    return False
+  original = module.get_file_cache
+  if getattr(original, 'binds_entries_to_keys', False):
+    return True
+
+  def get_file_cache(path):
+    made = original(path)
+    if made is None:
+      return None
+    cache, folder = made
+    inner = getattr(cache, '_base_cache', None)
+    if inner is not None:  # a VerificationCache compares JAX's own bytes
+      cache._base_cache = _KeyBoundCache(inner, on_removed)
+    else:
+      cache = _KeyBoundCache(cache, on_removed)
+    return cache, folder
+
+  get_file_cache.binds_entries_to_keys = True
+  module.get_file_cache = get_file_cache
   return True
 
 
@@ -367,6 +509,173 @@ def _explaining_ptr(kind: str, original):
 
   __getattr__._explains_ptr = True  # pylint: disable=protected-access
   return __getattr__
+
+
+# -- NumPy ----------------------------------------------------------------------
+
+# `numpy.random`'s module-level draws are bound methods of one hidden, legacy
+# `RandomState` (`numpy.random.mtrand._rand`); `seed`, `ranf` and `sample` are
+# functions that use it. NumPy has no hook for "a draw happened": while a
+# device hook is traced these names are replaced (for the tracing thread only)
+# by functions that raise, and the constructors of new generators with them.
+_GLOBAL_RANDOM_STATE = np.random.mtrand._rand
+_NOT_DRAWS = ('get_state', 'set_state')
+_HOST_RANDOM_FUNCTIONS = tuple(
+    sorted(
+        name
+        for name in dir(np.random)
+        if getattr(getattr(np.random, name), '__self__', None)
+        is _GLOBAL_RANDOM_STATE
+        and name not in _NOT_DRAWS
+    )
+    + [name for name in ('seed', 'ranf', 'sample') if hasattr(np.random, name)]
+)
+_HOST_RANDOM_CONSTRUCTORS = ('default_rng', 'RandomState', 'Generator')
+
+_host_random_lock = threading.Lock()
+_host_random_thread = threading.local()  # .refusals: a stack of callables
+_host_random_users = 0
+_host_random_originals: dict[str, Any] = {}
+
+
+def _refusals() -> list:
+  stack = getattr(_host_random_thread, 'refusals', None)
+  if stack is None:
+    stack = _host_random_thread.refusals = []
+  return stack
+
+
+def _refusing_function(name: str, original):
+  """`original`, refused in a thread that is tracing a device hook."""
+
+  @functools.wraps(original)
+  def refuse(*args, **kwargs):
+    stack = _refusals()
+    if stack:
+      raise stack[-1](f'numpy.random.{name}')
+    return original(*args, **kwargs)
+
+  refuse.refuses_host_randomness = True
+  return refuse
+
+
+class _RefusingClassType(type):
+  """The metaclass of a stand-in for `numpy.random.RandomState`/`Generator`.
+
+  Calling the stand-in (making a generator) is refused in a thread that is
+  tracing a device hook and makes the real class elsewhere; `isinstance`
+  and `issubclass` answer as for the real class, so code that checks for a
+  numpy generator (e.g. to refuse one as a key) keeps working.
+  """
+
+  def __call__(cls, *args, **kwargs):
+    stack = _refusals()
+    if stack:
+      raise stack[-1](f'numpy.random.{cls._original.__name__}(...)')
+    return cls._original(*args, **kwargs)
+
+  def __instancecheck__(cls, instance):
+    return isinstance(instance, cls._original)
+
+  def __subclasscheck__(cls, subclass):
+    if isinstance(subclass, _RefusingClassType):
+      subclass = subclass._original
+    return issubclass(subclass, cls._original)
+
+
+def _refusing_class(original):
+  return _RefusingClassType(
+      original.__name__,
+      (),
+      {
+          '_original': original,
+          '__doc__': original.__doc__,
+          '__module__': original.__module__,
+      },
+  )
+
+
+def _install_host_random_refusals() -> None:
+  for name in _HOST_RANDOM_FUNCTIONS + _HOST_RANDOM_CONSTRUCTORS:
+    original = getattr(np.random, name)
+    _host_random_originals[name] = original
+    if isinstance(original, type):
+      setattr(np.random, name, _refusing_class(original))
+    else:
+      setattr(np.random, name, _refusing_function(name, original))
+
+
+def _remove_host_random_refusals() -> None:
+  for name, original in _host_random_originals.items():
+    setattr(np.random, name, original)
+  _host_random_originals.clear()
+
+
+def _global_random_state():
+  return _GLOBAL_RANDOM_STATE.get_state(legacy=False)
+
+
+def _same_random_state(before, after) -> bool:
+  """Whether two `get_state(legacy=False)` of a `RandomState` are equal: the
+  Mersenne Twister's key and position, and the cached Gaussian that every
+  other `normal` draw takes instead of moving the position."""
+  return (
+      before['state']['pos'] == after['state']['pos']
+      and np.array_equal(before['state']['key'], after['state']['key'])
+      and before['has_gauss'] == after['has_gauss']
+      and before['gauss'] == after['gauss']
+  )
+
+
+@contextlib.contextmanager
+def refusing_host_randomness(
+    refusal: Callable[[str], Exception],
+) -> Iterator[None]:
+  """Within the block, this thread's draws from NumPy's random module raise.
+
+  Made for the tracing of a device hook, where a host draw runs once, when
+  the hook is traced, and its value is then a constant of the compiled
+  program: the same in every world and every episode. Within the block,
+  in the thread that entered it:
+
+  * every module-level draw (`numpy.random.uniform`, `normal`, `randint`,
+    `rand`, `choice`, `shuffle`, ..., and `seed`: NumPy's legacy global
+    `RandomState`) and every new generator (`numpy.random.default_rng`,
+    `RandomState(...)`, `Generator(...)`) raises `refusal(what)`, where
+    `what` names the call (e.g. `'numpy.random.uniform'`);
+  * where the process runs no other Python thread, a draw from the global
+    `RandomState` through a name bound before the block (`from numpy.random
+    import uniform`) is found when the block ends (its state moved) and
+    raises `refusal(...)` too.
+
+  Other threads draw as usual; blocks nest (the innermost's `refusal`
+  answers). `isinstance(x, numpy.random.RandomState)` (and `Generator`)
+  answers as before. The names are patched on `numpy.random` while any
+  thread is in a block, and restored when the last one leaves.
+  """
+  global _host_random_users
+  with _host_random_lock:
+    if _host_random_users == 0:
+      _install_host_random_refusals()
+    _host_random_users += 1
+  stack = _refusals()
+  stack.append(refusal)
+  before = _global_random_state()
+  try:
+    yield
+    if threading.active_count() == 1 and not _same_random_state(
+        before, _global_random_state()
+    ):
+      raise refusal(
+          "numpy.random's global RandomState (through a name bound before "
+          'the hook ran, such as `from numpy.random import uniform`)'
+      )
+  finally:
+    stack.pop()
+    with _host_random_lock:
+      _host_random_users -= 1
+      if _host_random_users == 0:
+        _remove_host_random_refusals()
 
 
 # -- MuJoCo Warp ----------------------------------------------------------------

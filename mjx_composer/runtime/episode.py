@@ -20,7 +20,11 @@ What ends an episode (`step_type == LAST`), for one world:
   - `nonfinite_reward`: the task's reward or discount was not finite (with
     finite physics, e.g. a NaN command in the task state);
   - `nonfinite_observation`: the observation held a non-finite entry (with
-    finite physics).
+    finite physics);
+  - `init_failed` (set at the reset, kept for the episode): every
+    initialization attempt failed, so the world was held at what the reset
+    started from (`Transitions.initialize`) and its first step ends the
+    episode, which an auto-reset then resamples.
 
   Only that world is affected; its next reset replaces all of its data.
 
@@ -39,7 +43,10 @@ whose observation held a non-finite entry reports `nonfinite_observation
 At reset, an `initialize_episode` hook that leaves a non-finite qpos, qvel,
 act, ctrl, mocap_pos or mocap_quat fails that attempt
 (`nonfinite_initial_state`), as `physics.fail_initialization()` does: the
-attempt is retried and counted in `metrics['init_failures']`.
+attempt is retried and counted in `metrics['init_failures']`. Where the
+last attempt fails too (`metrics['init_failed']`), the failed values are
+never run: the world keeps what the reset started from and its first step
+ends the episode (LAST, reward 0, discount 0).
 
 Reported, not ended: `metrics['overflow'] = 1` from the step at which
 MuJoCo Warp first dropped a contact or constraint row of the world (its
@@ -263,8 +270,18 @@ class EpisodeRules:
     bad_observation = jnp.logical_and(
         finite_physics, jnp.logical_not(finite(observation))
     )
+    # A world whose initialization failed runs no episode: it ends here.
+    init_failed = previous.metrics['init_failed'] > 0
     failed = jnp.any(
-        jnp.stack([is_diverged, action_nonfinite, bad_reward, bad_observation])
+        jnp.stack(
+            [
+                is_diverged,
+                action_nonfinite,
+                bad_reward,
+                bad_observation,
+                init_failed,
+            ]
+        )
     )
     reward = jnp.where(failed, jnp.zeros_like(reward), reward)
     discount = jnp.where(failed, jnp.zeros_like(discount), discount)

@@ -34,7 +34,11 @@ Porting checks, at trace time: a device hook whose parameter is named
 to the `Physics` it received and then returned that very object
 (`Physics.wrote_to_result`): every write returns a new `Physics`, and
 dropping it (`walker.shift_pose(physics, ...)` without keeping the result)
-would lose the write silently. At build, an `initialize_episode_mjcf` hook
+would lose the write silently; so is a device hook that draws from NumPy's
+random module (`numpy.random.uniform`, ..., the legacy global `RandomState`,
+a generator made in the hook: `HostRandomnessError`), whose draw would be
+one constant for every world and episode. At build, an
+`initialize_episode_mjcf` hook
 that draws from the `random_state` it receives (composer's way to place a
 target per episode) is warned about (`BuildTimeDrawWarning`): it runs once,
 so the draw is one value for every world and episode.
@@ -43,6 +47,7 @@ so the draw is one value for every world and episode.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import inspect
 from typing import Any, Callable
 import warnings
@@ -54,6 +59,7 @@ import numpy as np
 from mjx_composer import entity as entity_lib
 from mjx_composer import physics as physics_lib
 from mjx_composer import task as task_lib
+from mjx_composer.platform import internals
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.variation import mjcf_variator
 
@@ -65,6 +71,17 @@ class BuildTimeDrawWarning(UserWarning):
   attribute set from it, a value kept on the task) is new every episode;
   here the hook runs once, when the `Environment` is built, and the draw is
   the same in every world and every episode.
+  """
+
+
+class HostRandomnessError(RuntimeError):
+  """A device hook drew from NumPy's random module while it was traced.
+
+  Device hooks (`initialize_episode`, the step hooks, scheduled hooks) run
+  once, when the reset or step is traced; a NumPy draw there is a constant
+  of the compiled program, the same in every world and every episode.
+  Raised at trace time, naming the hook; the fix is a draw from the hook's
+  `key` with `jax.random`.
   """
 
 
@@ -342,10 +359,12 @@ class EnvironmentHooks:
     _check_takes_key(participant, name)
     hook_key = keys_lib.hook_key(key, participant.identity)
     physics.forget_writes()
-    if participant.takes_action:
-      result = participant.hook(physics, action, hook_key)
-    else:
-      result = participant.hook(physics, hook_key)
+    refusal = functools.partial(_host_randomness_error, participant, name)
+    with internals.refusing_host_randomness(refusal):
+      if participant.takes_action:
+        result = participant.hook(physics, action, hook_key)
+      else:
+        result = participant.hook(physics, hook_key)
     if not isinstance(result, physics_lib.Physics):
       raise TypeError(
           f'{participant.describe}.{name} returned {type(result).__name__}: '
@@ -361,6 +380,23 @@ class EnvironmentHooks:
           'walker.shift_pose(physics, ...)`, and return the last one.'
       )
     return result
+
+
+def _host_randomness_error(participant, name, what):
+  """The `HostRandomnessError` for `participant`'s hook `name` drawing
+  `what` (e.g. 'numpy.random.uniform')."""
+  return HostRandomnessError(
+      f'{participant.describe}.{name} drew host randomness ({what}). Device '
+      'hooks are traced once and compiled: a NumPy draw runs once, while the '
+      'hook is traced, and its value is a constant of the program, the same '
+      "in every world and every episode. Draw from the hook's `key` "
+      'argument with jax.random instead (e.g. jax.random.uniform(key, shape, '
+      'minval=..., maxval=...); jax.random.split(key) for several draws, or '
+      'pass key=... to a variation or initializer). A value meant to be '
+      'drawn once, when the environment is built, belongs in a build-time '
+      'hook (initialize_episode_mjcf or after_compile, which receive a '
+      'random_state).'
+  )
 
 
 def _record_writers(writers, label, before, after):

@@ -449,9 +449,15 @@ class Transitions:
     so a failed attempt leaves no trace but its key. The hooks are traced
     once: the loop's body evaluates that trace.
     """
-    if self.max_reset_attempts == 1 or not self.hooks.initializes():
+    if not self.hooks.initializes():
       carry = self._attempt(init_key, start)
       return carry, carry.initialization_failed.astype(jnp.int32)
+    if self.max_reset_attempts == 1:
+      carry = self._attempt(init_key, start)
+      return (
+          self._fall_back(carry, start),
+          carry.initialization_failed.astype(jnp.int32),
+      )
     attempt, shapes = control_flow.trace_once(
         self._attempt, init_key, start, return_shapes=True
     )
@@ -482,10 +488,40 @@ class Transitions:
         body,
         (jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32), placeholder),
     )
-    return (
-        carry.replace(data=backend.restore_shared(carry.data, start.data)),
-        failures,
+    carry = carry.replace(data=backend.restore_shared(carry.data, start.data))
+    return self._fall_back(carry, start), failures
+
+  def _fall_back(self, carry, start):
+    """`carry`, or where its last attempt failed too, what the reset started
+    from: an invalid draw (a negative mass, a NaN) or a failed initializer
+    is never run.
+
+    A world whose every attempt failed keeps `start`: its data, task and
+    entity state, and the model it had before the reset (the compiled
+    values on `Environment.reset`, the previous episode's on an
+    auto-reset), so that neither the reset's forward pass nor any step
+    computes with the failed attempt's values. The persistent entries that
+    `start` lacks (created by the attempt, e.g. a variator's schedule) keep
+    what the attempt wrote; `start`'s own entries are restored. The flag
+    stays set: `metrics['init_failed']` reports the world and its first
+    step ends the episode (`EpisodeRules.end_of_step`), so an auto-reset
+    resamples it. A per-world select: other worlds are untouched.
+    """
+    fields = tuple(carry.model_fields)
+    physics = self.restore(start)
+    # What an attempt's hooks start from: `start`'s kinematics.
+    physics = physics.replace(
+        data=self._initial_kinematics.apply(physics.model, self.initial.data)
     )
+    nominal = physics.carry(fields)
+    nominal = nominal.replace(
+        persistent={**carry.persistent, **nominal.persistent},
+        initialization_failed=carry.initialization_failed,
+    )
+    nominal = dataclasses.replace(
+        nominal, scheduled_hooks=carry.scheduled_hooks
+    )
+    return control_flow.tree_select(carry.initialization_failed, nominal, carry)
 
   # -- step ----------------------------------------------------------------
 

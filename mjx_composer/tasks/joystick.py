@@ -470,13 +470,17 @@ class Joystick(task.Task):
       down = go1.trunk_contact(physics)
     return jnp.logical_or(upside_down, down)
 
-  def should_terminate_episode(self, physics):
+  def fell(self, physics):
+    """A fall that ends the episode (`fallen`, with `terminate_on_fall`)."""
     if not self._terminate_on_fall:
       return False
     return self.fallen(physics)
 
+  def should_terminate_episode(self, physics):
+    return self.fell(physics)
+
   def get_discount(self, physics):
-    return jnp.where(self.should_terminate_episode(physics), 0.0, 1.0)
+    return jnp.where(self.fell(physics), 0.0, 1.0)
 
   def reward_terms(self, physics):
     """Playground's unscaled reward terms (see `SCALES`)."""
@@ -509,9 +513,7 @@ class Joystick(task.Task):
             + jnp.clip(qpos - soft_high, 0.0, None)
         ),
         'pose': jnp.exp(-jnp.sum((qpos - self._home) ** 2 * _POSE_WEIGHTS)),
-        'termination': jnp.asarray(
-            self.should_terminate_episode(physics), jnp.float32
-        ),
+        'termination': jnp.asarray(self.fell(physics), jnp.float32),
         'stand_still': jnp.sum(jnp.abs(qpos - self._home)) * (1.0 - moving),
         'torques': jnp.sqrt(jnp.sum(torques**2)) + jnp.sum(jnp.abs(torques)),
         'action_rate': jnp.sum(

@@ -27,7 +27,9 @@ The Go1 collides with the terrain by its feet only (`collisions='feet'`,
 Playground's feet-only model): on a height field the trunk's box would
 cost dozens of grid cells at every physics step where a foot costs four.
 A fall is the trunk upside down or its box reaching below the terrain
-under it (`Joystick.fallen`). The contacts are capped at two per foot
+under it (`Joystick.fallen`). An episode whose trunk comes near the
+terrain's edge ends as a truncation, not a fall; the flat border around
+the grid keeps that rare (`terrain_part`). The contacts are capped at two per foot
 (`terrain_part`). The terrain's grid is 0.05 m, the finest at which a foot
 meets 2 x 2 cells (`locomotion.terrain.generator`).
 """
@@ -50,6 +52,7 @@ class TerrainJoystick(joystick.Joystick):
     kinds: the terrain's sub-terrain kinds (`sub_terrains.KINDS`).
     levels: the terrain's difficulty levels.
     tile_size: the side of a tile, metres.
+    border: the width of the flat border around the grid, metres.
     initial_levels: (low, high) of a world's first level.
     actuation_delay: (low, high) of the motors' delay in physics sub-steps.
     scan_size: (length, width) of the height scan's grid, metres.
@@ -67,6 +70,7 @@ class TerrainJoystick(joystick.Joystick):
       kinds=sub_terrains.KINDS,
       levels=5,
       tile_size=4.0,
+      border=terrain_part.BORDER,
       initial_levels=(0, 1),
       actuation_delay=(0, 2),
       scan_size=(1.6, 1.0),
@@ -90,6 +94,7 @@ class TerrainJoystick(joystick.Joystick):
         levels=levels,
         tile_size=tile_size,
         horizontal_scale=HORIZONTAL_SCALE,
+        border=border,
         initial_levels=initial_levels,
         scan_size=scan_size,
         scan_resolution=scan_resolution,
@@ -146,6 +151,19 @@ class TerrainJoystick(joystick.Joystick):
     return self._part.groups(super().observation_groups())
 
   # -- episode ---------------------------------------------------------------
+
+  def out_of_bounds(self, physics):
+    """Whether the trunk is near the terrain's edge (`TerrainPart`)."""
+    return self._part.out_of_bounds(physics.bind(self.go1.trunk).xpos[:2])
+
+  def should_terminate_episode(self, physics):
+    return jnp.logical_or(
+        super().should_terminate_episode(physics), self.out_of_bounds(physics)
+    )
+
+  def get_discount(self, physics):
+    """0 after a fall (as `Joystick`'s); 1 when leaving the terrain."""
+    return jnp.where(self.fell(physics), 0.0, 1.0)
 
   def initial_task_state(self):
     return {**super().initial_task_state(), **self._delay.initial_state()}

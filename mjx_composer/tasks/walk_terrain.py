@@ -25,8 +25,9 @@ on the kit's terrain, each locomotion part a reusable piece of
   noise per ray, delayed as `Walk`'s other policy inputs, and the critic
   its clean twin (`height_scan=False`: neither);
 * an episode also ends, as a truncation (discount 1), when the torso comes
-  within `OUT_OF_BOUNDS_MARGIN` of the terrain's edge: beyond it there is
-  no ground.
+  within `terrain_part.OUT_OF_BOUNDS_MARGIN` of the terrain's edge: beyond
+  it there is no ground; the flat border around the grid
+  (`terrain_part.BORDER`) keeps that rare.
 
 The humanoid collides with the terrain by its feet only
 (`collisions='feet'`: the four foot capsules; the head's height decides
@@ -61,7 +62,6 @@ KINDS = (
 )
 TERRAIN_GROUP = 2  # The humanoid's geoms are in group 0.
 HORIZONTAL_SCALE = 0.1  # Metres: a foot capsule meets 4 x 4 cells.
-OUT_OF_BOUNDS_MARGIN = 1.0  # Metres from the terrain's edge.
 _OWNER = 'TerrainWalk'
 
 
@@ -72,6 +72,7 @@ class TerrainWalk(walk.Walk):
     kinds: the terrain's sub-terrain kinds (`sub_terrains.KINDS`).
     levels: the terrain's difficulty levels.
     tile_size: the side of a tile, metres.
+    border: the width of the flat border around the grid, metres.
     initial_levels: (low, high) of a world's first level.
     scan_size: (length, width) of the height scan's grid, metres.
     scan_resolution: the height scan's spacing, metres.
@@ -87,6 +88,7 @@ class TerrainWalk(walk.Walk):
       kinds=KINDS,
       levels=5,
       tile_size=8.0,
+      border=terrain_part.BORDER,
       initial_levels=(0, 1),
       scan_size=(1.6, 1.0),
       scan_resolution=0.1,
@@ -101,6 +103,7 @@ class TerrainWalk(walk.Walk):
         levels=levels,
         tile_size=tile_size,
         horizontal_scale=HORIZONTAL_SCALE,
+        border=border,
         initial_levels=initial_levels,
         scan_size=scan_size,
         scan_resolution=scan_resolution,
@@ -174,10 +177,8 @@ class TerrainWalk(walk.Walk):
     return -self._head_ray.scan(physics)[0][0]
 
   def out_of_bounds(self, physics):
-    """Whether the torso is within `OUT_OF_BOUNDS_MARGIN` of the edge."""
-    xy = physics.bind(self.humanoid.torso).xpos[:2]
-    limit = jnp.asarray(self._arena.half_extent - OUT_OF_BOUNDS_MARGIN)
-    return jnp.any(jnp.abs(xy) > limit)
+    """Whether the torso is near the terrain's edge (`TerrainPart`)."""
+    return self._part.out_of_bounds(physics.bind(self.humanoid.torso).xpos[:2])
 
   def should_terminate_episode(self, physics):
     return jnp.logical_or(

@@ -54,7 +54,9 @@ once per world or between every-k-steps draws, is never invalid):
   (`physics.fail_initialization(invalid)`): `Environment(max_reset_attempts=
   N)` resamples the episode with a fresh key and counts the failed attempts
   in `metrics['init_failures']` (`metrics['init_failed']` when the last
-  attempt fails too), as recompiling an invalid MJCF would refuse it;
+  attempt fails too, and the world then keeps what its reset started from,
+  never running the invalid values: `Transitions.initialize`), as
+  recompiling an invalid MJCF would refuse it;
 * in a per-step call (every k steps), the draw is dropped: the world keeps
   its current values and variation states (a running episode cannot be
   resampled).

@@ -7,7 +7,10 @@ cache runs in a fresh Python process.
 
 import pathlib
 
+import numpy as np
+
 from mjx_composer.platform import compilation_cache
+from mjx_composer.platform import internals
 from tests import conftest
 
 # Enables the cache (writing every program, however fast it compiled), jits
@@ -138,3 +141,116 @@ def test_default_cache_dir(monkeypatch, tmp_path):
   )
   monkeypatch.setenv(compilation_cache.CACHE_DIR_ENV, str(tmp_path / 'mine'))
   assert compilation_cache.default_cache_dir() == str(tmp_path / 'mine')
+
+
+# Two programs of different signatures, so that each one's entry, loaded
+# for the other, would run another program (JAX failed in `safe_zip`
+# counting the outputs). `plain` writes the entries as JAX alone does.
+_TWO_PROGRAMS_SCRIPT = """
+import json, sys, warnings
+import jax
+import jax.numpy as jnp
+
+hits = []
+jax.monitoring.register_event_listener(
+    lambda event, **kwargs: hits.append(event)
+    if event == '/jax/compilation_cache/cache_hits' else None)
+
+from mjx_composer.platform import compilation_cache
+
+folder, plain = json.loads(sys.argv[1])
+if plain:
+  jax.config.update('jax_compilation_cache_dir', folder)
+  jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)
+  jax.config.update('jax_persistent_cache_min_entry_size_bytes', -1)
+else:
+  compilation_cache.enable(folder, min_compile_time_secs=0.0)
+
+@jax.jit
+def one(x):
+  return jnp.sin(x) * 3.0
+
+@jax.jit
+def three(x, y):
+  return x + y, x * y, jnp.cos(y)
+
+x = jnp.arange(3.0)
+with warnings.catch_warnings(record=True) as caught:
+  warnings.simplefilter('always')
+  results = [one(x), *three(x, x + 1.0)]
+print(json.dumps({
+    'results': [r.tolist() for r in results],
+    'hits': len(hits),
+    'warnings': [str(w.message) for w in caught],
+}))
+"""
+
+
+def _run_two_programs(tmp_path, folder, plain=False):
+  return conftest.run_script(
+      _TWO_PROGRAMS_SCRIPT, [str(folder), plain], tmp_path, drop=_OUR_VARS
+  )
+
+
+def _program_entries(folder):
+  one = [p for p in pathlib.Path(folder).glob('jit_one-*-cache')]
+  three = [p for p in pathlib.Path(folder).glob('jit_three-*-cache')]
+  assert len(one) == 1 and len(three) == 1, _entries(folder)
+  return one[0], three[0]
+
+
+def _key(entry):
+  return entry.name[: -len('-cache')]
+
+
+def _expected_results():
+  x = np.arange(3.0)
+  return [np.sin(x) * 3.0, x + x + 1.0, x * (x + 1.0), np.cos(x + 1.0)]
+
+
+def _assert_results(out):
+  for got, want in zip(out['results'], _expected_results(), strict=True):
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+
+
+def test_swapped_entries_are_compiled_afresh_not_run(tmp_path):
+  """An entry filed under another program's key is removed, not loaded."""
+  folder = tmp_path / 'cache'
+  first = _run_two_programs(tmp_path, folder)
+  _assert_results(first)
+  one, three = _program_entries(folder)
+  one_bytes, three_bytes = one.read_bytes(), three.read_bytes()
+  one.write_bytes(three_bytes)
+  three.write_bytes(one_bytes)
+
+  swapped = _run_two_programs(tmp_path, folder)
+  _assert_results(swapped)
+  removed = [w for w in swapped['warnings'] if 'holds the program of key' in w]
+  assert len(removed) == 2, swapped['warnings']
+  assert any(one.name in w and _key(three) in w for w in removed)
+  assert all('compiles again and is written afresh' in w for w in removed)
+  # Written afresh under their own keys: the next process loads both.
+  for entry in (one, three):
+    header = internals.CACHE_KEY_HEADER + _key(entry).encode() + b'\0'
+    assert entry.read_bytes().startswith(header)
+  again = _run_two_programs(tmp_path, folder)
+  _assert_results(again)
+  assert again['hits'] >= 2 and not again['warnings']
+
+
+def test_entries_written_by_jax_alone_are_compiled_afresh(tmp_path):
+  """An entry that names no key may hold any program: it is not loaded."""
+  folder = tmp_path / 'cache'
+  _assert_results(_run_two_programs(tmp_path, folder, plain=True))
+  one, three = _program_entries(folder)
+  one_bytes, three_bytes = one.read_bytes(), three.read_bytes()
+  one.write_bytes(three_bytes)
+  three.write_bytes(one_bytes)
+
+  out = _run_two_programs(tmp_path, folder)
+  _assert_results(out)
+  unbound = [w for w in out['warnings'] if 'holds no key' in w]
+  for entry in (one, three):
+    assert any(entry.name in w for w in unbound), out['warnings']
+  assert one.read_bytes().startswith(internals.CACHE_KEY_HEADER)
+  assert three.read_bytes().startswith(internals.CACHE_KEY_HEADER)

@@ -5,7 +5,9 @@ step), so they are cheap; `test_environment.py` checks the same order
 through `reset` and `step`.
 """
 
+import threading
 import warnings
+import zlib
 
 import jax
 import jax.numpy as jnp
@@ -125,16 +127,31 @@ def test_overriding_another_hook_does_not_change_an_owners_draw():
 
 
 def test_keys_derive_from_stable_identities():
-  # The same identity gives the same number in every process.
-  assert stable_id_lib.stable_id('entity:second/') == stable_id_lib.stable_id(
-      'entity:second/'
-  )
-  assert stable_id_lib.stable_id('task') != stable_id_lib.stable_id('entity:')
-  assert 0 <= stable_id_lib.stable_id('task') < 2**31
-  # CRC-32 of the UTF-8 text, its top bit cleared: a hook's key is the same
-  # in every process and release.
+  # The CRC-32 of the UTF-8 text, its top bit cleared (the same in every
+  # process and release), computed here by zlib.
+  for identity in ('task', 'entity:second/', 'extra:after_step:0', 'arm/ü'):
+    crc = zlib.crc32(identity.encode('utf-8'))
+    assert stable_id_lib.stable_digest(identity) == crc
+    assert stable_id_lib.stable_id(identity) == crc & 0x7FFFFFFF
   assert stable_id_lib.stable_id('task') == 1384045349
-  assert stable_id_lib.stable_digest('task') == 1384045349
+  # A hook's key is the reset's key with its owner's id folded in: the
+  # task's under 'task', an entity's under 'entity:<full identifier>'.
+  task = _DrawingTask()
+  _, physics = _run(task)
+  key = jax.random.key(0)
+  expected = {
+      'task': jax.random.uniform(
+          jax.random.fold_in(key, zlib.crc32(b'task') & 0x7FFFFFFF)
+      ),
+      'second': jax.random.uniform(
+          jax.random.fold_in(key, zlib.crc32(b'entity:second/') & 0x7FFFFFFF)
+      ),
+  }
+  assert float(physics.task_state['task_draw']) == float(expected['task'])
+  assert float(physics.entity_state(task.second)['draw']) == float(
+      expected['second']
+  )
+  assert expected['task'] != expected['second']
 
 
 def test_model_field_writers_name_the_hook():
@@ -240,3 +257,175 @@ def test_a_draw_in_initialize_episode_mjcf_is_warned_with_the_fix():
   assert not np.allclose(
       varied.model.geom_friction, physics.model.geom_friction
   )
+
+
+class _HostDraw(composer.NullTask):
+  """A pendulum whose hook `hook` sets the hinge from `draw()`, a host draw:
+  the habit of composer's hooks, which draw from a NumPy random state."""
+
+  def __init__(self, draw, hook='initialize_episode'):
+    arena = composer.Arena()
+    self.pendulum = conftest.Pendulum()
+    arena.attach(self.pendulum)
+    super().__init__(arena)
+    self._draw = draw
+    if hook == 'before_step':
+      self.before_step = self._before_step
+    else:
+      self.initialize_episode = self._initialize_episode
+
+  def _set(self, physics):
+    return physics.bind(self.pendulum.joint).set(qpos=self._draw())
+
+  def _initialize_episode(self, physics, key):
+    del key
+    return self._set(physics)
+
+  def _before_step(self, physics, action, key):
+    physics = super().before_step(physics, action, key)
+    return self._set(physics)
+
+
+def _hook_class(hook):
+  """`_HostDraw` with `hook` overridden as a method, as users write it."""
+  return type(
+      '_HostDraw',
+      (_HostDraw,),
+      {hook: getattr(_HostDraw, f'_{hook}')},
+  )
+
+
+# Bound when the module is imported, before any hook runs.
+_BOUND_UNIFORM = np.random.uniform
+
+
+@pytest.mark.parametrize(
+    'draw, what',
+    [
+        (lambda: np.random.uniform(-1, 1), r'numpy\.random\.uniform'),
+        (lambda: np.random.normal(), r'numpy\.random\.normal'),
+        (lambda: np.random.randint(3), r'numpy\.random\.randint'),
+        (lambda: np.random.rand(), r'numpy\.random\.rand\)'),
+        (lambda: np.random.choice([0.1, 0.2]), r'numpy\.random\.choice'),
+        (lambda: np.random.random(), r'numpy\.random\.random\)'),
+        (lambda: np.random.seed(0) or 0.0, r'numpy\.random\.seed'),
+        (
+            lambda: np.random.default_rng(0).uniform(),
+            r'numpy\.random\.default_rng',
+        ),
+        (
+            lambda: np.random.RandomState(0).uniform(),
+            r'numpy\.random\.RandomState\(\.\.\.\)',
+        ),
+        (
+            lambda: np.random.Generator(np.random.PCG64(0)).uniform(),
+            r'numpy\.random\.Generator\(\.\.\.\)',
+        ),
+        # The legacy global RandomState, through names bound before the hook.
+        (lambda: _BOUND_UNIFORM(), r"numpy\.random's global RandomState"),
+        (
+            lambda: np.random.mtrand._rand.normal(),
+            r"numpy\.random's global RandomState",
+        ),
+    ],
+)
+def test_host_randomness_in_a_device_hook_is_refused(draw, what):
+  """Drawn once at trace time, it would be one value for every world."""
+  with pytest.raises(
+      hooks_lib.HostRandomnessError,
+      match=r'^_HostDraw\.initialize_episode drew host randomness \('
+      + what
+      + r'.*same in every world and every episode\. Draw from the hook.s '
+      r'`key` argument with jax\.random.*build-time hook',
+  ):
+    _run(_hook_class('initialize_episode')(draw))
+
+
+def test_host_randomness_is_refused_when_the_reset_is_traced():
+  """Before any world runs, naming the hook (a step hook too)."""
+  env = composer.Environment(
+      _hook_class('initialize_episode')(lambda: np.random.uniform())
+  )
+  with pytest.raises(
+      hooks_lib.HostRandomnessError,
+      match=r'_HostDraw\.initialize_episode drew host randomness \(numpy\.'
+      r'random\.uniform\)',
+  ):
+    jax.eval_shape(jax.vmap(env.reset), jax.random.split(jax.random.key(0), 2))
+  env = composer.Environment(
+      _hook_class('before_step')(lambda: np.random.normal())
+  )
+  # The reset traces the step hooks too (the model fields they write).
+  with pytest.raises(
+      hooks_lib.HostRandomnessError,
+      match=r'_HostDraw\.before_step drew host randomness \(numpy\.random\.'
+      r'normal\)',
+  ):
+    jax.eval_shape(env.reset, jax.random.key(0))
+
+
+def test_numpy_random_is_restored_after_the_hooks():
+  originals = {
+      name: getattr(np.random, name)
+      for name in ('uniform', 'seed', 'default_rng', 'RandomState')
+  }
+  with pytest.raises(hooks_lib.HostRandomnessError):
+    _run(_hook_class('initialize_episode')(np.random.uniform))
+  for name, original in originals.items():
+    assert getattr(np.random, name) is original, name
+  assert 0 <= np.random.default_rng(0).uniform() < 1
+
+
+def test_device_hooks_without_host_draws_run_as_before():
+  """Checks for NumPy generators, and other threads' draws, still work."""
+  keep = np.random.RandomState(0)
+  seen = {}
+
+  def draw():
+    # isinstance answers as for the real classes.
+    seen['is_random_state'] = isinstance(keep, np.random.RandomState)
+    seen['is_generator'] = isinstance(keep, np.random.Generator)
+    seen['subclass'] = issubclass(np.random.RandomState, np.random.RandomState)
+    # Another thread draws as it likes.
+    thread = threading.Thread(
+        target=lambda: seen.update(other=np.random.default_rng(0).uniform())
+    )
+    thread.start()
+    thread.join()
+    return jnp.asarray(0.25)
+
+  _, physics = _run(_hook_class('initialize_episode')(draw))
+  assert seen == {
+      'is_random_state': True,
+      'is_generator': False,
+      'subclass': True,
+      'other': np.random.default_rng(0).uniform(),
+  }
+  assert float(physics.data.qpos[0]) == 0.25
+
+
+def test_a_variation_given_a_numpy_state_in_a_hook_still_names_key():
+  """The variation's own check of its key sees the real RandomState."""
+  keep = np.random.RandomState(0)
+  uniform = composer.variation.distributions.Uniform(0.0, 1.0)
+  with pytest.raises(TypeError, match='numpy random state'):
+    _run(_hook_class('initialize_episode')(lambda: uniform(key=keep)))
+
+
+def test_build_time_hooks_keep_host_randomness():
+  """initialize_episode_mjcf and after_compile run on the host, once."""
+  drawn = []
+
+  class _BuildDraws(_Task):
+
+    def initialize_episode_mjcf(self, random_state):
+      drawn.append(np.random.uniform())
+
+    def after_compile(self, physics, random_state):
+      drawn.append(np.random.default_rng(0).uniform())
+
+  task = _BuildDraws()
+  hooks = hooks_lib.EnvironmentHooks(task)
+  hooks.initialize_episode_mjcf(np.random.RandomState(0))
+  hooks.after_compile(_initial(task), np.random.RandomState(0))
+  assert len(drawn) == 2

@@ -332,11 +332,12 @@ def test_the_clean_restart_places_every_world(clean_restart):
 
 @pytest.mark.parametrize('mode', [PROP_ALWAYS, HOOK], ids=['prop', 'hook'])
 def test_a_nan_drawn_at_reset_fails_every_attempt(
-    fns, started, actions, clean_restart, mode
+    env, fns, started, actions, clean_restart, mode
 ):
   """A NaN from `PropPlacer`'s variation, or written by a hook into the
   state, fails the attempt; all of them fail here, so the world reports
-  `init_failed` and returns a finite first observation."""
+  `init_failed`, keeps the state its reset started from (the NaN is never
+  run) and its first step ends the episode."""
   restarted = _restart(fns, started, actions, mode)
   expected = np.zeros(WORLDS, np.float32)
   expected[POISONED] = ATTEMPTS
@@ -344,19 +345,23 @@ def test_a_nan_drawn_at_reset_fails_every_attempt(
   np.testing.assert_array_equal(
       restarted.metrics['init_failed'], expected / ATTEMPTS
   )
-  np.testing.assert_array_equal(
-      restarted.metrics['nonfinite_observation'], expected / ATTEMPTS
-  )
+  np.testing.assert_array_equal(restarted.metrics['nonfinite_observation'], 0)
   np.testing.assert_array_equal(restarted.step_type, composer.StepType.FIRST)
   assert bool(episode.finite(restarted.observation))
-  assert not np.isfinite(np.asarray(restarted.data.qpos[POISONED])).all()
+  np.testing.assert_array_equal(
+      restarted.data.qpos[POISONED], env.mj_model.qpos0
+  )
   for world in range(WORLDS):
     if world != POISONED:
       _assert_bitwise(_at(restarted, world), _at(clean_restart, world))
-  # Its first step ends it: the physics starts from NaN.
+  # Its first step ends it, from finite physics, with nothing to learn.
   stepped = fns['step'](restarted, actions)
   assert int(stepped.step_type[POISONED]) == composer.StepType.LAST
-  assert float(stepped.metrics['diverged'][POISONED]) == 1.0
+  assert bool(stepped.terminated[POISONED])
+  assert float(stepped.metrics['diverged'][POISONED]) == 0.0
+  assert float(stepped.reward[POISONED]) == 0.0
+  assert float(stepped.discount[POISONED]) == 0.0
+  assert np.isfinite(np.asarray(stepped.data.qpos[POISONED])).all()
   assert bool(episode.finite(stepped.observation))
 
 

@@ -46,7 +46,8 @@ class RoughTerrain(surface.HeightFieldArena):
     max_height: the height of the highest point, in metres (MJCF's
       hfield `size[2]`).
     base: the thickness of the solid below height 0 (`size[3]`).
-    bump_spacing: metres between the smooth bumps' control points.
+    bump_spacing: metres between the smooth bumps' control points, at
+      least the elevation grid's cell (`2 * size / (resolution - 1)`).
     roughness: the weight of the per-cell noise against the bumps (0: only
       smooth bumps).
     per_world: sample a profile per world and episode (else every world has
@@ -104,6 +105,21 @@ class RoughTerrain(surface.HeightFieldArena):
     self._auto_regenerate = validation.check_bool(
         'auto_regenerate', auto_regenerate, owner=_OWNER
     )
+    # Control points closer than the grid's own cannot be drawn (the grid
+    # samples them), and their count grows as 1 / bump_spacing**2: a tiny
+    # spacing asked for terabytes.
+    cell = max(
+        2 * self._size[0] / (self._cols - 1),
+        2 * self._size[1] / (self._rows - 1),
+    )
+    if bump_spacing < cell * (1 - 1e-9):
+      raise ValueError(
+          f"{_OWNER}: `bump_spacing` must be at least the elevation grid's "
+          f'cell, {cell:.4g} m (2 * size / (resolution - 1) along the coarser '
+          f"axis), got {bump_spacing!r}: bumps closer than the grid's points "
+          f'cannot be drawn. Pass bump_spacing >= {cell:.4g}, or a finer '
+          '`resolution`; `roughness` adds cell-scale detail.'
+      )
     # Bilinear upsampling from the bumps' control grid, as two matrices.
     coarse = [
         max(2, int(np.ceil(2 * s / bump_spacing)) + 1) for s in self._size
