@@ -14,6 +14,13 @@ give composer's view of a `physics.Physics`:
   hold what MuJoCo's `mj_subtreeVel` / `mj_rnePostConstraint` give on the
   same state; those MJX keeps in its implementation data (`cinert`, `crb`,
   actuator and tendon velocities) are read there.
+* composer's dirty flag, recorded: while the runtime traces a control
+  step's hooks in composer's order (`recording_dirty_events`), the binding
+  writes that mark dm_control's physics dirty, the binding reads that run
+  its `mj_forward` and the hooks' own `physics.forward()` calls are
+  recorded, so that the runtime can tell whether composer's physics is
+  dirty when a control step's sub-steps end
+  (`runtime/dirty_forward.py`).
 * no stale read: dm_control's bindings run `mj_forward` before reading
   anything after a write of `STATE_INPUT_FIELDS` or of a model field (but
   the visual ones, `marks_stale`). Here a read of a quantity that such a
@@ -25,6 +32,7 @@ give composer's view of a `physics.Physics`:
 
 from __future__ import annotations
 
+import contextlib
 from typing import TYPE_CHECKING
 
 import jax
@@ -142,6 +150,59 @@ _KINEMATICS_WRITTEN = {
     'body_subtreemass': frozenset({'subtree_com', 'cinert', 'cdof'}),
     'body_inertia': frozenset({'cinert'}),
 }
+
+
+# -- composer's dirty flag, as events recorded while tracing -----------------
+#
+# dm_control's `mjcf.Physics.bind` marks the physics dirty on a write of an
+# attribute that `marks_stale` (its `triggers_dirty`), and runs `mj_forward`,
+# clearing the mark, before a read of any other attribute while the mark is
+# set; `Physics.forward()` clears it too. `physics.named`, `physics.data`
+# and `set_control` neither set nor clear it, and `Physics.step` leaves it.
+# Here a binding records these events in every open `recording_dirty_events`
+# list, in the order the (pure) hooks call it, which is the order composer's
+# hooks run in; nothing is recorded where no list is open.
+
+DIRTYING_WRITE = 'write'
+FORWARDING_READ = 'read'
+FORWARD = 'forward'
+
+_RECORDINGS: list[list] = []
+
+
+@contextlib.contextmanager
+def recording_dirty_events():
+  """Records composer's dirty-flag events while open (see above).
+
+  Yields the list the events are appended to, as `(kind, field)` pairs:
+  `(DIRTYING_WRITE, field)` for a binding write that marks dm_control's
+  physics dirty, `(FORWARDING_READ, field)` for a binding read that runs
+  its forward pass where the physics is dirty, `(FORWARD, '')` for a
+  `Physics.forward()`.
+  """
+  events = []
+  _RECORDINGS.append(events)
+  try:
+    yield events
+  finally:
+    _RECORDINGS.remove(events)
+
+
+def record_dirty_event(kind: str, field: str = '') -> None:
+  """Appends `(kind, field)` to every open `recording_dirty_events` list."""
+  for events in _RECORDINGS:
+    events.append((kind, field))
+
+
+def _record_access(address: element_index.Address, write: bool) -> None:
+  """Records a binding's access of `address` (composer's dirty flag)."""
+  if not _RECORDINGS:
+    return
+  triggers = marks_stale(address.source, address.field)
+  if write and triggers:
+    record_dirty_event(DIRTYING_WRITE, address.field)
+  elif not write and not triggers:
+    record_dirty_event(FORWARDING_READ, address.field)
 
 
 class StaleReadError(ValueError):
@@ -299,7 +360,9 @@ class Binding:
       raise AttributeError(attr)
     if attr == 'element_id':
       raise _renamed_element_id()
-    return self._physics.read(self._address(attr))
+    address = self._address(attr)
+    _record_access(address, write=False)
+    return self._physics.read(address)
 
   def __setattr__(self, attr, value):
     if attr in Binding.__slots__:
@@ -320,7 +383,9 @@ class Binding:
     """Returns a new Physics with the given attributes written."""
     physics = self._physics
     for attr, value in values.items():
-      physics = physics.write(self._address(attr), value)
+      address = self._address(attr)
+      _record_access(address, write=True)
+      physics = physics.write(address, value)
     return physics
 
 

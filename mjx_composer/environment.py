@@ -380,6 +380,7 @@ class Environment:
         action_shape=tuple(task.action_spec(physics).shape),
         fixed_initial_state=self._fixed_initial_state,
         substep_sensors=options.substep_sensors,
+        dirty_forward=options.dirty_forward,
     )
     # `can_fuse_restart` is a fact of the host model: decide here, once.
     self._fuses = (
@@ -492,6 +493,17 @@ class Environment:
     `mjx_composer.runtime.substep_sensors`). Found by tracing what runs
     between the sub-steps on first use."""
     return self._transitions.sensors_once_per_step
+
+  @property
+  def step_forward_stage(self) -> str:
+    """The stage of the forward pass a control step runs after its last
+    physics step: 'none', 'position' or 'velocity' (what its readers read
+    of them, as composer's `Physics.step` leaves them current), or 'full'
+    where composer's physics is dirty after the step and its readers read
+    the acceleration stage (`ExecutionOptions.dirty_forward`,
+    `mjx_composer.runtime.dirty_forward`). Found by tracing the step's
+    hooks and readers on first use."""
+    return self._transitions.step_forward.stage
 
   def _fuses_restart(self) -> bool:
     """Whether `step` runs the restart in the sub-step loop."""

@@ -204,7 +204,12 @@ class Physics:
     )
 
   def forward(self) -> 'Physics':
-    """Recomputes every derived quantity (`mjx.forward`)."""
+    """Recomputes every derived quantity (`mjx.forward`).
+
+    Like dm_control's, it clears composer's dirty flag (recorded for the
+    runtime's analysis, `bindings.recording_dirty_events`).
+    """
+    bindings.record_dirty_event(bindings.FORWARD)
     return self.replace(data=mjx.forward(self.model, self.data))
 
   def kinematics(self) -> 'Physics':

@@ -205,13 +205,13 @@ def test_observations_are_composers_after_each_step(episode):
   assert touched, 'the scripted episode never touches the floor'
 
 
-class _ForwardingHopTask(_HopTask):
-  """`_HopTask` with composer's post-step reads of a walker's task: a
-  forward pass at the end of `after_step`."""
+class _BindingHopTask(_HopTask):
+  """`_HopTask` applying its action as dm_control's walkers do: `ctrl`
+  written through a binding in `before_step`."""
 
-  def after_step(self, physics, key):
+  def before_step(self, physics, action, key):
     del key
-    return physics.forward()
+    return physics.bind(self.hopper.motor).set(ctrl=action[0])
 
 
 def test_a_ctrl_written_through_a_binding_makes_composers_next_read_forward(
@@ -222,8 +222,9 @@ def test_a_ctrl_written_through_a_binding_makes_composers_next_read_forward(
   leaves the mark, and the first binding read after the step runs
   `mj_forward`: composer's accelerometer and touch after such a control
   step are of the new state, not of the state its last sub-step started
-  from (what `set_control` gives, and ours). A `physics.forward()` at the
-  end of `after_step` gives composer's values."""
+  from (what `set_control` gives). Ours end such a step with the forward
+  pass (`runtime/dirty_forward.py`): the same values, with no forward pass
+  in the task."""
   from dm_control import mjcf  # pylint: disable=g-import-not-at-top
 
   env, _, actions = episode
@@ -237,8 +238,9 @@ def test_a_ctrl_written_through_a_binding_makes_composers_next_read_forward(
       mjcf_model.find('sensor', f'hopper_{name}')
       for name in ('acc', 'touch', 'vel', 'zaxis')
   ]
-  forwarding = composer.Environment(_ForwardingHopTask())
-  reset, step = jax.jit(forwarding.reset), jax.jit(forwarding.step)
+  binding = composer.Environment(_BindingHopTask())
+  assert binding.step_forward_stage == 'full'
+  reset, step = jax.jit(binding.reset), jax.jit(binding.step)
   state = reset(jax.random.key(0))
   moved = 0.0
   for action in actions:
@@ -262,6 +264,6 @@ def test_a_ctrl_written_through_a_binding_makes_composers_next_read_forward(
     )
     moved = max(moved, float(np.max(np.abs(composers - stepped))) / scale)
   # The read's forward pass changed the sensors: the test tells the two
-  # timings apart. Without it, ours are the stepped values
+  # timings apart. Through `set_control`, ours are the stepped values
   # (`test_observations_are_composers_after_each_step`).
   assert moved > 0.05

@@ -977,6 +977,7 @@ _OPTION_VALUES = {
     'auto_reset_batch': 2,
     'reset_forward': 'full',
     'substep_sensors': 'all',
+    'dirty_forward': 'never',
 }
 
 

@@ -7,5 +7,5 @@ auto-reset fused into the sub-step loop (`fused_restart`), the episode's
 rules (`episode`), the loops that run once or never under `vmap`
 (`control_flow`), and the analyses that find, once, from shapes, the
 cheapest program that computes what the task reads (`data_reads`,
-`reset_forward`, `substep_sensors`).
+`reset_forward`, `substep_sensors`, `dirty_forward`).
 """

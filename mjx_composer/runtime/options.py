@@ -7,7 +7,9 @@ Every option chooses between programs that compute the same episodes (to
 float rounding where a field says so): when an ended episode restarts, which
 MJX implementation runs the physics, how a restart shares the step's forward
 pass, what a reset's forward pass computes, how often the sensors are
-computed. The task and `Environment`'s composer arguments say what the
+computed; one, `dirty_forward`, chooses which state the acceleration stage
+read after a control step belongs to (the trajectories are the same, to float
+rounding). The task and `Environment`'s composer arguments say what the
 episodes are. The options are checked when they are made, except for what
 depends on the device (whether MuJoCo Warp runs there), which `Environment`
 checks when it is built. Numbers for the choices are in docs/performance.md.
@@ -26,6 +28,7 @@ AutoReset = Literal['next_step', 'same_step']
 Impl = Literal['jax', 'warp']
 ResetForward = Literal['observed', 'full']
 SubstepSensors = Literal['read', 'all']
+DirtyForward = Literal['composer', 'never']
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,6 +115,25 @@ class ExecutionOptions:
       forward pass computes once, too (`runtime.substep_sensors`;
       `Environment.sensors_once_per_step` says whether). 'all': every
       sub-step computes them, as `mjx.step` does.
+    dirty_forward: 'composer' (default): where the hooks until a control
+      step's sub-steps end leave composer's physics dirty (a binding
+      write of `ctrl`, `qpos`, `qvel`, `act`, `qfrc_applied`,
+      `xfrc_applied` or a non-visual model field, as every dm_control
+      walker's `apply_action` writes `ctrl`, with no binding read of
+      anything else and no `physics.forward()` after it), and the control step's readers read,
+      through a binding, what only the acceleration stage computes
+      (accelerometer, touch, force and torque sensors, `qacc`, actuator
+      and contact forces, the contacts), the control step ends with
+      `mjx.forward` of the new state: what composer's forward pass at the
+      first binding read after the step gives. Otherwise (`set_control`,
+      no such reader) nothing changes (`runtime.dirty_forward`;
+      `Environment.step_forward_stage` says 'full' where it applies).
+      'never': the acceleration stage read after a control step is always
+      that of the state its last sub-step started from (MJX's
+      `mj_step`, composer's after `set_control`), one forward pass per
+      control step fewer for such tasks. Trajectories are the same either
+      way (to float rounding); what is read of the acceleration stage
+      after a step differs.
 
   Raises:
     ValueError: for a value outside a field's choices, or options that
@@ -129,6 +151,7 @@ class ExecutionOptions:
   auto_reset_batch: int | None = None
   reset_forward: ResetForward = 'observed'
   substep_sensors: SubstepSensors = 'read'
+  dirty_forward: DirtyForward = 'composer'
 
   def __post_init__(self):
     if isinstance(self.per_world_model_fields, str):
@@ -143,6 +166,7 @@ class ExecutionOptions:
     _check_choice('auto_reset', self.auto_reset, episode_lib.AUTO_RESET_MODES)
     _check_choice('reset_forward', self.reset_forward, ('observed', 'full'))
     _check_choice('substep_sensors', self.substep_sensors, ('read', 'all'))
+    _check_choice('dirty_forward', self.dirty_forward, ('composer', 'never'))
     if self.impl not in (None, 'jax', 'warp'):
       raise ValueError(
           "ExecutionOptions(impl=...): impl must be 'jax', 'warp' or None, "

@@ -50,9 +50,11 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer import bindings
 from mjx_composer.platform import backend
 from mjx_composer.platform import internals
 from mjx_composer.runtime import data_reads
+from mjx_composer.runtime import dirty_forward
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import substep_sensors
 
@@ -159,25 +161,41 @@ _WRITTEN: dict = {}
 _WRITTEN_MAX = 256
 
 
-def written(stage, model, data, sensors=True) -> frozenset[str]:
+def written(
+    stage, model, data, sensors=True, after_step=False
+) -> frozenset[str]:
   """The leaves of `data` that `forward(stage, ...)` writes (by tracing).
 
-  The answer depends on the shapes and structure of `model` and `data`
-  only, so it is traced once per structure (and kept for this process).
+  With `after_step`, those `StepForward(stage, sensors)` writes: the
+  stage as a control step runs it after its physics, with actuation and
+  (below `'full'`) without the reset's `fwd_actuation`. The answer
+  depends on the shapes and structure of `model` and `data` only, so it
+  is traced once per structure (and kept for this process).
   """
-  key = (stage, bool(sensors), _trace_key(model), _trace_key(data))
+  key = (
+      stage,
+      bool(sensors),
+      bool(after_step),
+      _trace_key(model),
+      _trace_key(data),
+  )
   if key not in _WRITTEN:
     if len(_WRITTEN) >= _WRITTEN_MAX:
       _WRITTEN.pop(next(iter(_WRITTEN)))
-    _WRITTEN[key] = _trace_written(stage, model, data, sensors)
+    _WRITTEN[key] = _trace_written(stage, model, data, sensors, after_step)
   return _WRITTEN[key]
 
 
-def _trace_written(stage, model, data, sensors) -> frozenset[str]:
+def _trace_written(
+    stage, model, data, sensors, after_step=False
+) -> frozenset[str]:
   out = {}
 
   def run(data):
-    result = forward(stage, model, data, sensors)
+    if after_step:
+      result = StepForward(stage, sensors)(model, data)
+    else:
+      result = forward(stage, model, data, sensors)
     before = jax.tree.leaves(data)
     after = jax.tree.leaves(result)
     out['names'] = frozenset(
@@ -374,15 +392,18 @@ class ResetForward:
 # everything of the position and velocity stages (poses, com velocities,
 # tendon and actuator lengths and velocities, position and velocity
 # sensors) is of the NEW state, and the acceleration stage (`qacc`, forces,
-# acceleration sensors, touch) is of the state the step started from.
+# acceleration sensors, touch) of the state the step started from.
 # `mjx.step` is MuJoCo's `mj_step`: everything but the integration state is
 # of the state the step started from. So the control step recomputes, after
 # its last physics step, the least stage (`AFTER_STEP_STAGES`) that covers
 # what its readers read of the position and velocity stages (found from
 # their jaxpr, as for the reset); the acceleration stage keeps the step's
-# values, as composer's does.
+# values, as composer's does, except where composer's physics is dirty
+# after the step (a binding wrote the action, `dirty_forward`) and a
+# binding read after the step runs `mj_forward`: there the stage is
+# `'full'`, `mjx.forward` of the new state.
 
-AFTER_STEP_STAGES = ('none', 'position', 'velocity')
+AFTER_STEP_STAGES = ('none', 'position', 'velocity', 'full')
 
 
 @dataclasses.dataclass(frozen=True)
@@ -392,17 +413,27 @@ class StepForward:
   Attributes:
     stage: one of `AFTER_STEP_STAGES`.
     sensors: whether the stage recomputes the sensors of its stages (the
-      position sensors; for `'velocity'` the velocity sensors too); the
-      acceleration sensors keep the step's values either way.
+      position sensors; for `'velocity'` the velocity sensors too; for
+      `'full'` every sensor); below `'full'` the acceleration sensors keep
+      the step's values either way.
   """
 
   stage: str = 'none'
   sensors: bool = False
 
   def __call__(self, model, data):
-    """`data` with the stage recomputed at its (new) integration state."""
+    """`data` with the stage recomputed at its (new) integration state.
+
+    `'full'` is `mjx.forward` with actuation, as dm_control's
+    `mj_forward` at a dirty physics' read. It leaves `qvel`, `act`,
+    `time`, `ctrl` and `qacc_warmstart` as they are and writes `qpos` back
+    with its quaternions normalized, as the next step's forward pass does
+    first: the trajectory is the one without it, to float rounding.
+    """
     if self.stage == 'none':
       return data
+    if self.stage == 'full':
+      return mjx.forward(model, data)
     return _STAGE_FNS[self.stage](model, data, self.sensors)
 
 
@@ -416,7 +447,8 @@ def _sensor_floor(mj_model, sensors) -> int:
 def choose_after_step(
     needed, model, data, mj_model, sensordata=None
 ) -> StepForward:
-  """The least stage that brings what `needed` reads up to date.
+  """The least stage that brings what `needed` reads of the position and
+  velocity stages up to date.
 
   Args:
     needed: the names (`data_reads.leaf_names`) of the fields the readers
@@ -439,10 +471,43 @@ def choose_after_step(
   if not needed:
     return StepForward()
   sensors = 'sensordata' in needed
-  for stage in AFTER_STEP_STAGES[max(floor, 1) :]:
+  for stage in AFTER_STEP_STAGES[max(floor, 1) : -1]:
     if needed <= written(stage, model, data, sensors):
       return StepForward(stage, sensors)
   return StepForward('velocity', sensors)
+
+
+def reads_acceleration(
+    needed, model, data, mj_model, sensordata=None, bound=()
+) -> bool:
+  """Whether `needed` reads what only the full forward pass computes.
+
+  That is: a field `mjx.forward` writes and the velocity stage does not
+  (actuator, constraint and contact forces, the contacts, ...), or a
+  sensor of the acceleration stage (`mjSTAGE_ACC`: accelerometer, touch,
+  force, torque, ...). `qacc` counts only where a binding reads it (in
+  `bound`, the fields of the readers' binding reads): the environment's
+  own divergence check (`episode.diverged`) reads it after every step.
+  Other arguments as `choose_after_step`'s.
+  """
+  needed = frozenset(needed)
+  if 'qacc' not in bound:
+    needed -= {'qacc'}
+  if 'sensordata' in needed:
+    sensors = sensors_of_elements(mj_model, sensordata)
+    if any(
+        int(mj_model.sensor_needstage[i]) == int(mujoco.mjtStage.mjSTAGE_ACC)
+        for i in sensors
+    ):
+      return True
+  needed -= {'sensordata'}
+  if not needed:
+    return False
+  # As a control step runs the stages (`StepForward`): actuator forces are
+  # of the acceleration stage.
+  full = written('full', model, data, after_step=True)
+  velocity = written('velocity', model, data, after_step=True)
+  return bool(needed & (full - velocity))
 
 
 def after_step(transitions) -> StepForward:
@@ -452,9 +517,15 @@ def after_step(transitions) -> StepForward:
   update, the reward, discount, termination and metrics, and the next
   step's hooks before its physics (scheduled, `before_step`, the first
   `before_substep`). Found from their jaxpr, traced with the shapes of a
-  reset's `State` (`Transitions.reset_shapes`). On MuJoCo Warp, whose
-  forward pass is one kernel sequence, nothing is recomputed (its
-  observations lag the state by one physics step).
+  reset's `State` (`Transitions.reset_shapes`): the position or velocity
+  stage where they read them (`choose_after_step`), and the full forward
+  pass where, in composer, the physics is dirty after the control step's
+  sub-steps (`dirty_forward.dirty_after_substeps`), a binding read among them
+  runs `mj_forward` (`dirty_forward.forwarding_read`) and they read what
+  only the acceleration stage computes (`reads_acceleration`), unless
+  `transitions.dirty_forward` is 'never'. On MuJoCo Warp, whose forward
+  pass is one kernel sequence, nothing is recomputed (its observations lag
+  the state by one physics step).
   """
   t = transitions
   model = t.initial.model
@@ -483,13 +554,29 @@ def after_step(transitions) -> StepForward:
     )
     return read, stepped.data
 
-  read = data_reads.reads(
-      readers, state.data, state, keys_lib.key_shape(), action
-  )
+  with bindings.recording_dirty_events() as events:
+    read = data_reads.reads(
+        readers, state.data, state, keys_lib.key_shape(), action
+    )
+  mj_model = t.initial.index.mj_model
+  if (
+      t.dirty_forward == 'composer'
+      and dirty_forward.forwarding_read(events)
+      and dirty_forward.dirty_after_substeps(t)
+      and reads_acceleration(
+          read.fields,
+          model,
+          state.data,
+          mj_model,
+          sensordata=read.sensordata,
+          bound={field for _, field in events},
+      )
+  ):
+    return StepForward('full', True)
   return choose_after_step(
       read.fields,
       model,
       state.data,
-      t.initial.index.mj_model,
+      mj_model,
       sensordata=read.sensordata,
   )

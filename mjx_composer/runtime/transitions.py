@@ -133,6 +133,11 @@ class Transitions:
     substep_sensors: 'read' (`step` computes the sensors once per control
       step where nothing between its sub-steps reads them,
       `sensors_once_per_step`) or 'all' (every sub-step, as `mjx.step`).
+    dirty_forward: 'composer' (a control step after which composer's
+      physics is dirty and a binding read runs its forward pass ends with
+      the full forward pass of the new state where its readers read the
+      acceleration stage, `step_forward`, `runtime.dirty_forward`) or
+      'never' (the acceleration stage keeps the step's values).
   """
 
   initial: physics_lib.Physics
@@ -146,6 +151,7 @@ class Transitions:
   action_shape: tuple = ()
   fixed_initial_state: bool = False
   substep_sensors: str = 'all'
+  dirty_forward: str = 'composer'
 
   # -- analyses of shapes: what shapes the programs ------------------------
 
@@ -318,7 +324,8 @@ class Transitions:
   def step_forward(self) -> reset_forward_lib.StepForward:
     """What a control step recomputes after its last physics step, so that
     its readers see the position and velocity stages of the new state, as
-    after composer's `Physics.step` (`reset_forward.after_step`)."""
+    after composer's `Physics.step`, and the acceleration stage too where
+    composer's physics is dirty after it (`reset_forward.after_step`)."""
     return reset_forward_lib.after_step(self)
 
   # -- a world's fields and its `Physics` ----------------------------------

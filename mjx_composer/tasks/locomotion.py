@@ -259,12 +259,22 @@ class Pushes:
     return jnp.where(due, kick, 0.0).astype(jnp.float32)
 
   def apply(self, physics, freejoint, step, key):
-    """Returns `(physics, kick)` with the kick added to `freejoint`'s qvel."""
+    """Returns `(physics, kick)` with the kick added to `freejoint`'s qvel.
+
+    The kick is written into the data as Playground writes it, through
+    `physics.named.data` (which leaves composer's physics clean), not
+    through a binding (which marks it dirty, so that composer's forward
+    pass would end the step): the tasks that push keep raw MJX's timing
+    of the sensors read after a step (docs/porting.md, "After a step").
+    """
     kick = self.kick(step, key)
     if self.interval <= 0:
       return physics, kick
     qvel = physics.bind(freejoint).qvel
-    return physics.bind(freejoint).set(qvel=qvel.at[:3].add(kick)), kick
+    (joint,) = physics.bind(freejoint).element_ids
+    start = int(physics.mj_model.jnt_dofadr[joint])
+    dofs = slice(start, start + qvel.shape[-1])
+    return physics.named.data.set('qvel', dofs, qvel.at[:3].add(kick)), kick
 
 
 # -- small helpers -------------------------------------------------------------
