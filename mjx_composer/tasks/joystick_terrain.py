@@ -157,13 +157,11 @@ class TerrainJoystick(joystick.Joystick):
     return self._part.out_of_bounds(physics.bind(self.go1.trunk).xpos[:2])
 
   def should_terminate_episode(self, physics):
+    """A fall, or leaving the terrain (`Joystick.get_discount` reads the
+    fall alone: discount 1 when leaving)."""
     return jnp.logical_or(
         super().should_terminate_episode(physics), self.out_of_bounds(physics)
     )
-
-  def get_discount(self, physics):
-    """0 after a fall (as `Joystick`'s); 1 when leaving the terrain."""
-    return jnp.where(self.fell(physics), 0.0, 1.0)
 
   def initial_task_state(self):
     return {**super().initial_task_state(), **self._delay.initial_state()}
