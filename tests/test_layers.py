@@ -37,7 +37,6 @@ LAYER_OF = {
     'robot': 'authoring',
     'task': 'authoring',
     'physics': 'authoring',
-    'bindings': 'authoring',
     'observation': 'authoring',
     'variation': 'authoring',
     'compiler': 'authoring',

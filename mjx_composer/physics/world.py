@@ -60,8 +60,8 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import bindings
 from mjx_composer.model import element_index
+from mjx_composer.physics import bindings
 
 # What bindings read and write (`bindings`), re-exported for callers of
 # this module.
