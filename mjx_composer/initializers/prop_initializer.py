@@ -56,13 +56,14 @@ import jax.numpy as jnp
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer.platform import backend
 from mjx_composer import initializer
-from mjx_composer.model import element_index
 from mjx_composer.initializers import contacts
 from mjx_composer.initializers import placement_tables
+from mjx_composer.model import element_index
+from mjx_composer.platform import backend
 from mjx_composer.variation import base as variation_base
 from mjx_composer.variation import rotations
+from mjx_composer.variation import structures
 
 _SETTLE_QVEL_TOL = 1e-3
 _POSE_SIZES = {'position': 3, 'quaternion': 4}
@@ -294,7 +295,7 @@ class PropPlacer(initializer.Initializer):
         ('position', self._position, 3),
         ('quaternion', self._quaternion, 4),
     ):
-      initial = variation_base.initial_state(structure, jnp.zeros(size))
+      initial = structures.initial_state(structure, jnp.zeros(size))
       if initial is not None:
         initial = physics.get_persistent(
             f'{self.persistent_name}/{suffix}', initial
@@ -585,9 +586,9 @@ def _finite(pose) -> jax.Array:
 
 
 def _draw(name, structure, state, key, initial, current):
-  """`variation_base.sample`, its shape errors naming the argument."""
+  """`structures.sample`, its shape errors naming the argument."""
   try:
-    return variation_base.sample(structure, state, key, initial, current)
+    return structures.sample(structure, state, key, initial, current)
   except ValueError as error:
     raise ValueError(
         f'PropPlacer: `{name}` {structure!r} could not be drawn for a '
