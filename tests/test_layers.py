@@ -39,6 +39,7 @@ LAYER_OF = {
     'physics': 'authoring',
     'observation': 'authoring',
     'variation': 'authoring',
+    'initializers': 'authoring',
     'compiler': 'authoring',
     'runtime': 'runtime',
     'environment': 'environment',
@@ -47,7 +48,6 @@ LAYER_OF = {
     'training': 'training',
     # Bundled parts: built with the authoring API like a user's own.
     'entities': 'bundled',
-    'initializers': 'bundled',
     'tasks': 'bundled',
     'locomotion': 'bundled',
     # Entry points: may import anything.
