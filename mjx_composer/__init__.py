@@ -5,6 +5,28 @@ entities on MjSpec, compose them under a task, and get pure, batched
 `reset(key)` / `step(state, action)` functions from `Environment`.
 """
 
+import importlib.metadata
+
+# The distribution's name (pyproject.toml's `[project] name`).
+_DISTRIBUTION = 'mjx-composer'
+# The version of a checkout imported without being installed (on
+# PYTHONPATH): it has no distribution metadata to read a version from.
+_UNINSTALLED_VERSION = '0+unknown'
+
+
+def _version() -> str:
+  """The installed distribution's version: pyproject.toml's, read once.
+
+  Installing the package (`pip install -e .` too) records pyproject.toml's
+  `version` in its metadata, so the number is written in one place only. A
+  checkout that is not installed reads '0+unknown', never a number that
+  could be stale.
+  """
+  try:
+    return importlib.metadata.version(_DISTRIBUTION)
+  except importlib.metadata.PackageNotFoundError:
+    return _UNINSTALLED_VERSION
+
 
 def _import_mjx_quietly():
   """Imports `mujoco.mjx` without its Warp probe's output.
@@ -67,7 +89,7 @@ from mjx_composer.robot import Robot
 from mjx_composer.task import NullTask
 from mjx_composer.task import Task
 
-__version__ = '0.2.0'
+__version__ = _version()
 
 # Cholesky without jaxlib's LAPACK kernel on the CPU, which can deadlock.
 from mjx_composer import platform  # pylint: disable=g-bad-import-order

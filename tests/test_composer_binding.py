@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import bindings
 from mjx_composer import physics as physics_lib
 from mjx_composer.model import element_index
 from mjx_composer.observation.observable import mjcf as mjcf_observable
+from mjx_composer.physics import bindings
 from mjx_composer.platform import internals
 from mjx_composer.variation import distributions
 from mjx_composer.variation import noises

@@ -37,9 +37,9 @@ LAYER_OF = {
     'robot': 'authoring',
     'task': 'authoring',
     'physics': 'authoring',
-    'bindings': 'authoring',
     'observation': 'authoring',
     'variation': 'authoring',
+    'initializers': 'authoring',
     'compiler': 'authoring',
     'runtime': 'runtime',
     'environment': 'environment',
@@ -48,7 +48,6 @@ LAYER_OF = {
     'training': 'training',
     # Bundled parts: built with the authoring API like a user's own.
     'entities': 'bundled',
-    'initializers': 'bundled',
     'tasks': 'bundled',
     'locomotion': 'bundled',
     # Entry points: may import anything.

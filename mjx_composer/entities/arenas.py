@@ -18,7 +18,7 @@ import mujoco
 import numpy as np
 
 from mjx_composer import arena
-from mjx_composer.variation import base as variation_base
+from mjx_composer.variation import structures
 
 _GROUNDPLANE_QUAD_SIZE = 0.25
 
@@ -205,7 +205,7 @@ class WalledArena(Floor):
     nominal = jnp.asarray(self._size, jnp.float32)
     size = jnp.broadcast_to(
         jnp.asarray(
-            variation_base.evaluate(
+            structures.evaluate(
                 self._size_variation,
                 initial_value=nominal,
                 current_value=nominal,

@@ -36,7 +36,7 @@ import numpy as np
 from mjx_composer import initializer
 from mjx_composer import robot
 from mjx_composer.initializers import contacts
-from mjx_composer.variation import base as variation_base
+from mjx_composer.variation import structures
 
 
 def _free_body_geoms(mj_model):
@@ -113,7 +113,7 @@ class ToolCenterPointInitializer(initializer.Initializer):
     self._max_ik_attempts = int(max_ik_attempts)
     self._max_rejection_samples = int(max_rejection_samples)
     for name, structure in (('position', position), ('quaternion', quaternion)):
-      if variation_base.initial_state(structure) is not None:
+      if structures.initial_state(structure) is not None:
         raise ValueError(
             f'ToolCenterPointInitializer: {name} is a stateful variation; '
             'pass a distribution, a constant or a callable (its state would '
@@ -158,11 +158,11 @@ class ToolCenterPointInitializer(initializer.Initializer):
       pos_key, quat_key, ik_key = jax.random.split(
           jax.random.fold_in(key, n), 3
       )
-      target_pos, _ = variation_base.sample(self._position, None, pos_key)
+      target_pos, _ = structures.sample(self._position, None, pos_key)
       target_pos = jnp.broadcast_to(jnp.asarray(target_pos, dtype), (3,))
       target_quat = None
       if self._quaternion is not None:
-        target_quat, _ = variation_base.sample(self._quaternion, None, quat_key)
+        target_quat, _ = structures.sample(self._quaternion, None, quat_key)
         target_quat = jnp.broadcast_to(jnp.asarray(target_quat, dtype), (4,))
       # Every sample starts from the pose before the call (`physics`).
       candidate, solved = self._arm.set_site_to_xpos(

@@ -34,7 +34,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from mjx_composer import bindings
+from mjx_composer.physics import bindings
 from mjx_composer.runtime import keys as keys_lib
 
 MODES = ('composer', 'never')

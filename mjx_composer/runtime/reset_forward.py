@@ -50,7 +50,7 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import bindings
+from mjx_composer.physics import bindings
 from mjx_composer.platform import backend
 from mjx_composer.platform import internals
 from mjx_composer.runtime import data_reads

@@ -26,11 +26,11 @@ from mjx_composer.variation import rotations
 from mjx_composer.variation import variation_broadcaster
 from mjx_composer.variation import variation_values
 from mjx_composer.variation.base import Variation
-from mjx_composer.variation.base import evaluate
-from mjx_composer.variation.base import evaluation_round
-from mjx_composer.variation.base import initial_state
-from mjx_composer.variation.base import sample
-from mjx_composer.variation.base import static_bounds
+from mjx_composer.variation.bounds import static_bounds
+from mjx_composer.variation.rounds import evaluation_round
+from mjx_composer.variation.structures import evaluate
+from mjx_composer.variation.structures import initial_state
+from mjx_composer.variation.structures import sample
 
 from mjx_composer.variation.mjcf_variator import MJCFVariator
 from mjx_composer.variation.physics_variator import PhysicsVariator

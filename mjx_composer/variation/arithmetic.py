@@ -15,8 +15,10 @@ import operator
 
 import numpy as np
 
-from mjx_composer.variation import base
+from mjx_composer.variation import arrays as arrays_lib
+from mjx_composer.variation import bounds as bounds_lib
 from mjx_composer.variation import composite
+from mjx_composer.variation import printing
 
 # Symbol and precedence (higher binds tighter) of each operator.
 _BINARY_SYMBOLS = {
@@ -40,7 +42,7 @@ def _precedence(value) -> int:
 
 
 def _format_operand(value, use_str, parenthesize):
-  text = base.format_value(value, use_str)
+  text = printing.format_value(value, use_str)
   return f"({text})" if parenthesize else text
 
 
@@ -52,32 +54,32 @@ class _BinaryOperation(composite.CompositeVariation):
     self._operands = (first, second)
 
   def _apply(self, values, key, initial_value, current_value):
-    first, second = (base.as_array(v) for v in values)
+    first, second = (arrays_lib.as_array(v) for v in values)
     return self._op(first, second)
 
   def static_bounds(self):
-    first, second = (base.static_bounds(v) for v in self._operands)
+    first, second = (bounds_lib.static_bounds(v) for v in self._operands)
     if first is None or second is None:
       return None
     (a_low, a_high), (b_low, b_high) = first, second
     op = self._op
     if op is operator.add:
-      return base.as_bounds(a_low + b_low, a_high + b_high)
+      return bounds_lib.as_bounds(a_low + b_low, a_high + b_high)
     if op is operator.sub:
-      return base.as_bounds(a_low - b_high, a_high - b_low)
+      return bounds_lib.as_bounds(a_low - b_high, a_high - b_low)
     if op is operator.mul:
-      return base.extremes(
+      return bounds_lib.extremes(
           [a_low * b_low, a_low * b_high, a_high * b_low, a_high * b_high]
       )
     if op in (operator.truediv, operator.floordiv):
       if not (np.all(b_low > 0) or np.all(b_high < 0)):
         return None  # The divisor's range contains zero.
-      low, high = base.extremes(
+      low, high = bounds_lib.extremes(
           [a_low / b_low, a_low / b_high, a_high / b_low, a_high / b_high]
       )
       if op is operator.floordiv:
         low, high = np.floor(low), np.floor(high)
-      return base.as_bounds(low, high)
+      return bounds_lib.as_bounds(low, high)
     return None
 
   def _eq_fields(self):
@@ -116,13 +118,13 @@ class _UnaryOperation(composite.CompositeVariation):
     self._operands = (operand,)
 
   def _apply(self, values, key, initial_value, current_value):
-    return self._op(base.as_array(values[0]))
+    return self._op(arrays_lib.as_array(values[0]))
 
   def static_bounds(self):
-    bounds = base.static_bounds(self._operands[0])
+    bounds = bounds_lib.static_bounds(self._operands[0])
     if bounds is None or self._op is not operator.neg:
       return None
-    return base.as_bounds(-bounds[1], -bounds[0])
+    return bounds_lib.as_bounds(-bounds[1], -bounds[0])
 
   def _eq_fields(self):
     return (self._op, self._operands)
@@ -170,15 +172,15 @@ class _GetItemOperation(composite.CompositeVariation):
     self._operands = (operand,)
 
   def _apply(self, values, key, initial_value, current_value):
-    return base.as_array(values[0])[_normalize_index(self._index)]
+    return arrays_lib.as_array(values[0])[_normalize_index(self._index)]
 
   def static_bounds(self):
-    bounds = base.static_bounds(self._operands[0])
+    bounds = bounds_lib.static_bounds(self._operands[0])
     if bounds is None:
       return None
     # The bounds may be smaller than the value (they broadcast), so an index
     # into the value need not address the bounds: use the loosest bounds.
-    return base.as_bounds(np.min(bounds[0]), np.max(bounds[1]))
+    return bounds_lib.as_bounds(np.min(bounds[0]), np.max(bounds[1]))
 
   def _eq_fields(self):
     return (self._operands, _format_index(self._index))

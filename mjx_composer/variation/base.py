@@ -1,4 +1,4 @@
-"""Variation base class, composition operators and structure evaluation.
+"""The `Variation` protocol: how a variation is called, keyed and combined.
 
 A `Variation` describes how to produce a new value for something that is being
 randomized (a model field, an observation, a task parameter). It mirrors
@@ -71,8 +71,8 @@ the variation (a variator, an observation corruptor, a task):
   For stateless variations this is all there is. For stateful ones it is the
   *first* value (the first element of a `Sequence`, the first step of a random
   walk); calling it repeatedly does not advance: use `sample`.
-* The module functions `initial_state`, `sample` and `evaluate` do the same
-  for a nested structure of variations; the state of a structure is the state
+* `structures`' `initial_state`, `sample` and `evaluate` do the same for a
+  nested structure of variations; the state of a structure is the state
   of the variation when the structure is one, else a tuple with one entry per
   flattened leaf (or `None` when no leaf is stateful).
 
@@ -96,64 +96,26 @@ variations, like composer's `_BinaryOperation`, `_UnaryOperation` and
 `_GetItemOperation`. Variations compare structurally (`==`) and print
 readably, e.g. `str(Uniform() + 2) == 'Uniform(low=0.0, high=1.0) + 2'`.
 
-Where things live: this module holds the `Variation` protocol, structure
-evaluation and static bounds; `composite` the base of nodes built from
-operands (`CompositeVariation`); the arithmetic
-nodes are in `arithmetic`, key checks and evaluation rounds in `rounds`
-(`evaluation_round` is re-exported here).
+Where things live: this module holds the `Variation` protocol (what a
+variation is, how it is called, compared and combined); `structures` the
+evaluation of nested structures of variations (`initial_state`, `sample`,
+`evaluate`); `bounds` static bounds; `composite` the base of nodes built from
+operands (`CompositeVariation`); the arithmetic nodes are in `arithmetic`,
+key checks and evaluation rounds in `rounds`; `random_state` refuses
+composer's `random_state=` argument; `arrays` and `printing` are the helpers
+nodes share to convert their operands and to print themselves.
 """
 
 import abc
-import functools
 import operator
-from typing import Any, Optional, Tuple
+from typing import Optional
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import tree
 
+from mjx_composer.variation import arrays
+from mjx_composer.variation import random_state as random_state_lib
 from mjx_composer.variation import rounds
-from mjx_composer.variation.rounds import evaluation_round
-
-Bounds = Tuple[np.ndarray, np.ndarray]
-
-
-class _NoRandomState:
-  """The default of `random_state=`: composer's argument was not passed."""
-
-  def __repr__(self):
-    return "NO_RANDOM_STATE"
-
-
-NO_RANDOM_STATE = _NoRandomState()
-
-
-def reject_random_state(random_state, where: str) -> None:
-  """Raises a `TypeError` where composer's `random_state=` was passed.
-
-  composer draws from a shared numpy `RandomState`; here every draw is a
-  pure function of a JAX PRNG key, so a ported call must pass `key=`.
-
-  Args:
-    random_state: the value passed as `random_state=` (`NO_RANDOM_STATE`
-      where none was).
-    where: what was called, for the message.
-  """
-  if random_state is NO_RANDOM_STATE:
-    return
-  raise TypeError(
-      f"{where} got random_state={random_state!r}: pass key=... instead, a "
-      "JAX PRNG key (key=jax.random.key(seed)); a device hook "
-      "(initialize_episode, the step hooks) passes on the key it receives. "
-      "composer's numpy RandomState has no counterpart in a jitted, batched "
-      "step: every draw is a pure function of its key. The build-time hooks "
-      "(initialize_episode_mjcf, after_compile) receive no key: they run "
-      "once, so a value drawn there would be the same in every world and "
-      "episode. Bind the MJCF attribute to a variation.MJCFVariator (its "
-      "apply_variations(random_state) there varies it every episode), or "
-      "draw the value in initialize_episode."
-  )
 
 
 class Variation(metaclass=abc.ABCMeta):
@@ -182,7 +144,7 @@ class Variation(metaclass=abc.ABCMeta):
       initial_value=None,
       current_value=None,
       *,
-      random_state=NO_RANDOM_STATE,
+      random_state=random_state_lib.NO_RANDOM_STATE,
   ):
     """Draws a value and advances the state.
 
@@ -200,9 +162,9 @@ class Variation(metaclass=abc.ABCMeta):
     Returns:
       `(value, new_state)`, `new_state` with the structure of `state`.
     """
-    reject_random_state(random_state, f"{self!r}.sample")
+    random_state_lib.reject(random_state, f"{self!r}.sample")
     rounds.check_key(key, self)
-    with evaluation_round(key):
+    with rounds.evaluation_round(key):
       return self._sample(state, key, initial_value, current_value)
 
   def __call__(
@@ -211,20 +173,20 @@ class Variation(metaclass=abc.ABCMeta):
       current_value=None,
       key=None,
       *,
-      random_state=NO_RANDOM_STATE,
+      random_state=random_state_lib.NO_RANDOM_STATE,
   ):
     """Returns a value drawn from a fresh state (see module docstring).
 
     `random_state=` (composer's numpy `RandomState`) raises a `TypeError`
     that says to pass `key=` instead.
     """
-    reject_random_state(random_state, repr(self))
+    random_state_lib.reject(random_state, repr(self))
     value, _ = self.sample(
         self.initial_state(initial_value), key, initial_value, current_value
     )
     return value
 
-  def static_bounds(self) -> Optional[Bounds]:
+  def static_bounds(self) -> Optional[tuple[np.ndarray, np.ndarray]]:
     """Returns `(low, high)` bounding every value, or `None` if unknown.
 
     Both bounds are inclusive numpy arrays (0-d for scalars) that broadcast
@@ -343,228 +305,14 @@ class Variation(metaclass=abc.ABCMeta):
     return arithmetic.get_item_operation(self, index)
 
 
-# --------------------------------------------------------------------------
-# Structures of variations.
-
-
-def _is_variation(x) -> bool:
+def is_variation(x) -> bool:
   """composer's rule: any callable leaf is a variation, the rest constants."""
   return isinstance(x, Variation) or callable(x)
 
 
 def contains_variation(structure) -> bool:
-  return any(_is_variation(leaf) for leaf in tree.flatten(structure))
-
-
-def collapse(states):
-  """A tuple of states, or `None` when none of them holds an array."""
-  states = tuple(states)
-  return tuple(states) if jax.tree_util.tree_leaves(states) else None
-
-
-def _leaf_values(structure, n, value, per_leaf):
-  """The initial/current value handed to each flattened leaf of `structure`.
-
-  With `per_leaf`, a `value` that has the structure of `structure` is split
-  leaf by leaf; anything else (an array, a scalar, a structure that does not
-  match) is handed whole to every leaf, as composer's `evaluate` does.
-  """
-  if value is None:
-    return [None] * n
-  if per_leaf:
-    try:
-      return tree.flatten_up_to(structure, value)
-    except (TypeError, ValueError):
-      pass
-  return [value] * n
-
-
-def structure_initial_state(structure, initial_value, per_leaf):
-  if isinstance(structure, Variation):
-    return structure.initial_state(initial_value)
-  leaves = tree.flatten(structure)
-  ivs = _leaf_values(structure, len(leaves), initial_value, per_leaf)
-  return collapse(
-      leaf.initial_state(iv) if isinstance(leaf, Variation) else None
-      for leaf, iv in zip(leaves, ivs)
-  )
-
-
-def sample_structure(
-    structure, state, key, initial_value, current_value, per_leaf
-):
-  """Evaluates every variation leaf of `structure`; returns (values, state)."""
-  if isinstance(structure, Variation):
-    return structure._sample(state, key, initial_value, current_value)
-  if callable(structure):
-    return structure(initial_value, current_value, key), None
-  leaves = tree.flatten(structure)
-  if not any(_is_variation(leaf) for leaf in leaves):
-    return structure, None
-  n = len(leaves)
-  ivs = _leaf_values(structure, n, initial_value, per_leaf)
-  cvs = _leaf_values(structure, n, current_value, per_leaf)
-  states = state if state is not None else (None,) * n
-  # Leaf i's key is fold_in(key, i), all of them from one hash.
-  keyed = [i for i, leaf in enumerate(leaves) if callable(leaf)]
-  leaf_keys = dict(zip(keyed, rounds.fold_in_each(key, keyed)))
-  values, new_states = [], []
-  for i, (leaf, leaf_state, iv, cv) in enumerate(zip(leaves, states, ivs, cvs)):
-    if isinstance(leaf, Variation):
-      value, leaf_state = leaf._sample(leaf_state, leaf_keys[i], iv, cv)
-    elif callable(leaf):
-      value = leaf(iv, cv, leaf_keys[i])
-    else:
-      value = leaf
-    values.append(value)
-    new_states.append(leaf_state)
-  return tree.unflatten_as(structure, values), collapse(new_states)
-
-
-def initial_state(structure, initial_value=None):
-  """Returns the state of a nested structure of variations.
-
-  Args:
-    structure: a variation, a constant, or a nested structure (lists,
-      tuples, dicts, namedtuples) of them.
-    initial_value: `None`, a structure matching `structure` (one value per
-      leaf), or a single value handed to every leaf.
-
-  Returns:
-    The variation's own state if `structure` is a variation; otherwise a
-    tuple with one state per flattened leaf, or `None` if nothing in the
-    structure is stateful.
-  """
-  return structure_initial_state(structure, initial_value, per_leaf=True)
-
-
-def sample(
-    structure,
-    state,
-    key=None,
-    initial_value=None,
-    current_value=None,
-    *,
-    random_state=NO_RANDOM_STATE,
-):
-  """Evaluates a nested structure of variations and advances its state.
-
-  Args:
-    structure: a variation, a constant, or a nested structure of them.
-      Non-variation leaves are returned unchanged (no array conversion, so
-      Python ints stay static). Any callable leaf is treated as a stateless
-      variation and called as `leaf(initial_value, current_value, key)`.
-    state: as returned by `initial_state(structure, ...)` or a previous call.
-    key: a JAX PRNG key, split per leaf as described in the module
-      docstring, or `None` if the structure is deterministic.
-    initial_value: `None`, a structure matching `structure` (one value per
-      leaf), or a single value handed to every leaf (composer's behaviour).
-    current_value: like `initial_value`.
-
-    random_state: composer's numpy `RandomState`: raises a `TypeError` that
-      says to pass `key=`.
-
-  Returns:
-    `(values, new_state)`: `values` has the structure of `structure`.
-  """
-  reject_random_state(random_state, "variation.sample")
-  rounds.check_key(key, structure)
-  with evaluation_round(key):
-    return sample_structure(
-        structure, state, key, initial_value, current_value, per_leaf=True
-    )
-
-
-def evaluate(
-    structure,
-    initial_value=None,
-    current_value=None,
-    key=None,
-    *,
-    random_state=NO_RANDOM_STATE,
-):
-  """Evaluates every variation in a nested structure (composer's `evaluate`).
-
-  Stateful leaves are evaluated from a fresh state (see the module
-  docstring); use `initial_state` and `sample` to carry their state.
-
-  Args:
-    structure: a variation, a constant, or a nested structure (lists,
-      tuples, dicts, namedtuples) of them; constants pass through.
-    initial_value: `None`, a structure matching `structure` (one value per
-      leaf), or a single value handed to every leaf.
-    current_value: like `initial_value`.
-    key: a JAX PRNG key. Leaf `i` gets `jax.random.fold_in(key, i)`, so its
-      value does not depend on the other leaves; a bare variation gets `key`.
-    random_state: composer's numpy `RandomState` argument: passing it
-      raises a `TypeError` that says to pass `key=` instead.
-
-  Returns:
-    The structure with every variation replaced by its value.
-  """
-  reject_random_state(random_state, "variation.evaluate")
-  state = initial_state(structure, initial_value)
-  values, _ = sample(structure, state, key, initial_value, current_value)
-  return values
-
-
-# --------------------------------------------------------------------------
-# Static bounds.
-
-
-def numeric_array(value) -> Optional[np.ndarray]:
-  """`np.asarray(value)` if that gives a numeric array, else `None`."""
-  try:
-    array = np.asarray(value)
-  except (ValueError, TypeError):
-    return None
-  if array.dtype.kind not in "biuf":
-    return None
-  return array
-
-
-def static_bounds(value) -> Optional[Bounds]:
-  """`(low, high)` for a variation, a constant or a structure of them.
-
-  Constants are their own bounds. A (nested) list of scalar-valued
-  variations and constants gets elementwise bounds. Returns `None` when any
-  part is unbounded or not statically known.
-  """
-  if isinstance(value, Variation):
-    return value.static_bounds()
-  if callable(value):
-    return None
-  if tree.is_nested(value) and contains_variation(value):
-    leaves = tree.flatten(value)
-    bounds = [static_bounds(leaf) for leaf in leaves]
-    if any(b is None for b in bounds):
-      return None
-    low = numeric_array(tree.unflatten_as(value, [b[0] for b in bounds]))
-    high = numeric_array(tree.unflatten_as(value, [b[1] for b in bounds]))
-    if low is None or high is None:
-      return None
-    return low, high
-  array = numeric_array(value)
-  if array is None:
-    return None
-  return array, array
-
-
-def extremes(candidates) -> Bounds:
-  """Elementwise min and max over arrays that broadcast together."""
-  return as_bounds(
-      functools.reduce(np.minimum, candidates),
-      functools.reduce(np.maximum, candidates),
-  )
-
-
-def as_bounds(low, high) -> Bounds:
-  """`(low, high)` as numpy arrays."""
-  return np.asarray(low), np.asarray(high)
-
-
-# --------------------------------------------------------------------------
-# Equality and printing helpers.
+  """Whether any leaf of `structure` is a variation (`is_variation`)."""
+  return any(is_variation(leaf) for leaf in tree.flatten(structure))
 
 
 def _structurally_equal(a, b) -> bool:
@@ -577,7 +325,7 @@ def _structurally_equal(a, b) -> bool:
   if a is b:
     return True
   if not (contains_variation(a) or contains_variation(b)):
-    array_a, array_b = numeric_array(a), numeric_array(b)
+    array_a, array_b = arrays.numeric_array(a), arrays.numeric_array(b)
     if array_a is not None and array_b is not None:
       return array_a.shape == array_b.shape and bool(np.all(array_a == array_b))
   if isinstance(a, dict) and isinstance(b, dict):
@@ -592,30 +340,6 @@ def _structurally_equal(a, b) -> bool:
     return bool(a == b)
   except (TypeError, ValueError):
     return False
-
-
-def format_value(value, use_str=False) -> str:
-  """Text for an argument in a variation's repr (str of variations if asked)."""
-  if isinstance(value, Variation):
-    return str(value) if use_str else repr(value)
-  return repr(value)
-
-
-def format_call(name, *args, **kwargs) -> str:
-  """`Name(arg, key=value, ...)` with variation arguments printed by repr."""
-  parts = [format_value(a) for a in args]
-  parts += [f"{k}={format_value(v)}" for k, v in kwargs.items()]
-  return f"{name}({', '.join(parts)})"
-
-
-def as_array(value):
-  """Converts an evaluated operand (maybe a list of arrays) to a jnp array."""
-  return None if value is None else jnp.asarray(value)
-
-
-def float_dtype(*values):
-  """Floating dtype of a result computed from `values` (default float)."""
-  return jnp.result_type(*[v for v in values if v is not None], float)
 
 
 # `Variation`'s operators build the arithmetic nodes (`CompositeVariation`

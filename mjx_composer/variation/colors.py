@@ -18,13 +18,14 @@ without a last axis of size 4 are handed whole to every channel, as composer.
 
 import jax.numpy as jnp
 
-from mjx_composer.variation import base
+from mjx_composer.variation import arrays as arrays_lib
 from mjx_composer.variation import composite
+from mjx_composer.variation import printing
 
 
 def _stack_channels(channels):
   arrays = [jnp.asarray(c) for c in channels]
-  dtype = base.float_dtype(*arrays)
+  dtype = arrays_lib.float_dtype(*arrays)
   return jnp.stack(
       jnp.broadcast_arrays(*[a.astype(dtype) for a in arrays]), axis=-1
   )
@@ -45,7 +46,7 @@ def _split_rgba(value):
 def _hsv_to_rgb(h, s, v):
   """Vectorised `colorsys.hsv_to_rgb` (same sector rule: int() truncation)."""
   h, s, v = (jnp.asarray(x) for x in (h, s, v))
-  dtype = base.float_dtype(h, s, v)
+  dtype = arrays_lib.float_dtype(h, s, v)
   h, s, v = (x.astype(dtype) for x in (h, s, v))
   sector = jnp.trunc(h * 6.0)
   f = h * 6.0 - sector
@@ -102,7 +103,7 @@ class RgbVariation(composite.CompositeVariation):
     return self._operands
 
   def __repr__(self):
-    return base.format_call(
+    return printing.format_call(
         type(self).__name__, r=self._r, g=self._g, b=self._b, alpha=self._alpha
     )
 
@@ -142,7 +143,7 @@ class HsvVariation(composite.CompositeVariation):
     return self._operands
 
   def __repr__(self):
-    return base.format_call(
+    return printing.format_call(
         type(self).__name__, h=self._h, s=self._s, v=self._v, alpha=self._alpha
     )
 
@@ -160,6 +161,6 @@ class GrayVariation(HsvVariation):
     super().__init__(h=0.0, s=0.0, v=gray_level, alpha=alpha)
 
   def __repr__(self):
-    return base.format_call(
+    return printing.format_call(
         type(self).__name__, gray_level=self._v, alpha=self._alpha
     )

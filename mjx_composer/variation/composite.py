@@ -13,6 +13,7 @@ import jax
 
 from mjx_composer.variation import base
 from mjx_composer.variation import rounds
+from mjx_composer.variation import structures
 
 
 class CompositeVariation(base.Variation):
@@ -46,8 +47,8 @@ class CompositeVariation(base.Variation):
 
   def initial_state(self, initial_value=None):
     inputs = self._operand_inputs(initial_value, None)
-    return base.collapse(
-        base.structure_initial_state(operand, iv, per_leaf=False)
+    return structures.collapse(
+        structures.structure_initial_state(operand, iv, per_leaf=False)
         for operand, (iv, _) in zip(self._operands, inputs)
     )
 
@@ -80,10 +81,10 @@ class CompositeVariation(base.Variation):
         zip(self._operands, states, inputs)
     ):
       operand_key_i = operand_keys.get(i)
-      value, operand_state = base.sample_structure(
+      value, operand_state = structures.sample_structure(
           operand, operand_state, operand_key_i, iv, cv, per_leaf=False
       )
       values.append(value)
       new_states.append(operand_state)
     value = self._apply(tuple(values), own_key, initial_value, current_value)
-    return value, base.collapse(new_states)
+    return value, structures.collapse(new_states)

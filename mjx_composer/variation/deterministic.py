@@ -10,7 +10,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_composer.variation import arrays as arrays_lib
 from mjx_composer.variation import base
+from mjx_composer.variation import bounds as bounds_lib
+from mjx_composer.variation import printing
+from mjx_composer.variation import structures
 
 
 class Constant(base.Variation):
@@ -23,7 +27,7 @@ class Constant(base.Variation):
 
   def __init__(self, value):
     self._value = value
-    self._array = base.numeric_array(value)
+    self._array = arrays_lib.numeric_array(value)
 
   @property
   def value(self):
@@ -46,7 +50,7 @@ class Constant(base.Variation):
     return str(self._value)
 
   def __repr__(self):
-    return base.format_call("Constant", self._value)
+    return printing.format_call("Constant", self._value)
 
 
 class SequenceState(NamedTuple):
@@ -108,8 +112,8 @@ class Sequence(base.Variation):
       self._table = np.stack(arrays)
 
   def initial_state(self, initial_value=None):
-    item_states = base.collapse(
-        base.structure_initial_state(item, initial_value, per_leaf=False)
+    item_states = structures.collapse(
+        structures.structure_initial_state(item, initial_value, per_leaf=False)
         for item in self._items
     )
     return SequenceState(jnp.zeros((), jnp.int32), item_states)
@@ -134,7 +138,7 @@ class Sequence(base.Variation):
     def branch_for(i):
       def branch(item_states, key, initial_value, current_value):
         states = (None,) * n if stateless else item_states
-        value, new_state = base.sample_structure(
+        value, new_state = structures.sample_structure(
             self._items[i],
             states[i],
             key,
@@ -170,18 +174,22 @@ class Sequence(base.Variation):
 
   def static_bounds(self):
     if self._table is not None:
-      return base.as_bounds(self._table.min(axis=0), self._table.max(axis=0))
-    bounds = [base.static_bounds(item) for item in self._items]
+      return bounds_lib.as_bounds(
+          self._table.min(axis=0), self._table.max(axis=0)
+      )
+    bounds = [bounds_lib.static_bounds(item) for item in self._items]
     if any(b is None for b in bounds):
       return None
     lows, highs = [b[0] for b in bounds], [b[1] for b in bounds]
-    return base.as_bounds(base.extremes(lows)[0], base.extremes(highs)[1])
+    return bounds_lib.as_bounds(
+        bounds_lib.extremes(lows)[0], bounds_lib.extremes(highs)[1]
+    )
 
   def _eq_fields(self):
     return (self._items,)
 
   def __repr__(self):
-    return base.format_call("Sequence", self._values)
+    return printing.format_call("Sequence", self._values)
 
 
 class Identity(base.Variation):

@@ -38,136 +38,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_composer.variation import arrays as arrays_lib
 from mjx_composer.variation import base
+from mjx_composer.variation import bounds as bounds_lib
 from mjx_composer.variation import composite
-
-
-def _int_dtype():
-  return jnp.result_type(int)
-
-
-class _Domain:
-  """The values a parameter may take, checked on its static bounds."""
-
-  def __init__(self, requirement, valid, fix):
-    self.requirement = requirement  # "must be ..." in the message.
-    self.valid = valid  # (low, high) bound arrays -> all valid.
-    self.fix = fix
-
-  def check(self, owner, name, value):
-    """Raises for a constant, or bounded variation, outside the domain."""
-    if not base.contains_variation(value) and not callable(value):
-      array = base.numeric_array(value)
-      if array is None:
-        if isinstance(value, jax.core.Tracer):
-          return  # Traced (inside a user's jit): checked by no one here.
-        raise TypeError(
-            f"{owner}: `{name}` must be a number, array or variation, got "
-            f"{value!r}. {self.fix}"
-        )
-    bounds = base.static_bounds(value)
-    if bounds is None:
-      return  # An unbounded variation: its draws cannot be checked here.
-    low, high = (np.asarray(b, dtype=float) for b in bounds)
-    with np.errstate(invalid="ignore"):
-      ok = bool(np.all(self.valid(low, high)))
-    if not ok:
-      if base.contains_variation(value):
-        got = (
-            f"a variation with values in [{_brief(low)}, {_brief(high)}] "
-            f"({value!r})"
-        )
-      else:
-        got = repr(value)
-      raise ValueError(
-          f"{owner}: `{name}` must be {self.requirement}, got {got}. "
-          f"{self.fix}"
-      )
-
-
-def _below(low, high):
-  """False if some `low` may be >= `high` (True when bounds are unknown)."""
-  low_bounds, high_bounds = base.static_bounds(low), base.static_bounds(high)
-  if low_bounds is None or high_bounds is None:
-    return True
-  return bool(np.all(np.asarray(low_bounds[1]) < np.asarray(high_bounds[0])))
-
-
-def _brief(array):
-  return np.array2string(np.asarray(array), threshold=6)
-
-
-def _finite(low, high):
-  return np.isfinite(low) & np.isfinite(high)
-
-
-_FINITE = _Domain("finite", _finite, "Pass finite values.")
-_NONNEGATIVE = _Domain(
-    "finite and >= 0 (numpy.random refuses negative ones)",
-    lambda low, high: _finite(low, high) & (low >= 0),
-    "Pass values >= 0.",
-)
-_PROBABILITY = _Domain(
-    "a probability in [0, 1] (numpy.random refuses others)",
-    lambda low, high: _finite(low, high) & (low >= 0) & (high <= 1),
-    "Pass values between 0 and 1.",
-)
-
-
-def _poisson_max():
-  """numpy's largest rate for int64 samples, for the default integer type."""
-  maximum = float(np.iinfo(_int_dtype()).max)
-  return maximum - 10 * np.sqrt(maximum)
-
-
-_RATE = _Domain(
-    "finite, >= 0 and small enough for the integer type (numpy.random "
-    "refuses others)",
-    lambda low, high: _finite(low, high)
-    & (low >= 0)
-    & (high <= _poisson_max()),
-    "Pass a rate >= 0 (and below about 2e9 for int32 samples, without x64).",
-)
-
-
-def _integral(low, high):
-  return _finite(low, high) & (low == np.round(low)) & (high == np.round(high))
-
-
-_INTEGER = _Domain(
-    "integers", _integral, "Pass integer bounds, e.g. UniformInteger(0, 5)."
-)
-
-
-def _shape_list(shapes):
-  return ", ".join(f"`{name}` {shape}" for name, shape in shapes.items())
-
-
-def _check_shapes(owner, params):
-  """Raises if constant parameters' shapes do not broadcast together.
-
-  numpy's samplers refuse them too ("shape mismatch"); checked here, at
-  construction, rather than inside JAX's broadcasting when a world draws.
-  Variation parameters are left out: their values' shapes are known only
-  when they are drawn.
-  """
-  shapes = {}
-  for name, value in params.items():
-    if value is None or callable(value) or base.contains_variation(value):
-      continue
-    array = base.numeric_array(value)
-    if array is None:
-      continue
-    try:
-      np.broadcast_shapes(*shapes.values(), array.shape)
-    except ValueError:
-      raise ValueError(
-          f"{owner}: `{name}` has shape {array.shape}, which does not "
-          f"broadcast with {_shape_list(shapes)}. Pass parameters of one "
-          "shape, or shapes that broadcast together (e.g. a scalar and an "
-          "array), as numpy's samplers require."
-      ) from None
-    shapes[name] = array.shape
+from mjx_composer.variation import parameter_checks
+from mjx_composer.variation import printing
 
 
 class Distribution(composite.CompositeVariation):
@@ -184,7 +60,8 @@ class Distribution(composite.CompositeVariation):
   """
 
   _DRAWS_RANDOMNESS = True
-  # Parameter name -> `_Domain` its values must lie in (checked at __init__).
+  # Parameter name -> `parameter_checks.Domain` its values must lie in
+  # (checked at __init__).
   _DOMAINS = {}
 
   def __init__(self, single_sample=False, **params):
@@ -192,7 +69,7 @@ class Distribution(composite.CompositeVariation):
     for name, value in params.items():
       if name in self._DOMAINS and value is not None:
         self._DOMAINS[name].check(owner, name, value)
-    _check_shapes(owner, params)
+    parameter_checks.check_shapes(owner, params)
     self._single_sample = bool(single_sample)
     self._params = dict(params)
     self._operands = tuple(params.values())
@@ -226,8 +103,9 @@ class Distribution(composite.CompositeVariation):
       # values of a shape that does not broadcast with the others.
       raise ValueError(
           f"{type(self).__name__}: its parameters' values have shapes "
-          f"{_shape_list(shapes)}, which do not broadcast together. Pass "
-          "parameters (or variations) whose values have one shape, or "
+          f"{parameter_checks.shape_list(shapes)}, which do not broadcast "
+          "together. Pass parameters (or variations) whose values have one "
+          "shape, or "
           "shapes that broadcast, e.g. a scalar and an array."
       ) from None
     if initial_value is None:
@@ -245,7 +123,7 @@ class Distribution(composite.CompositeVariation):
     return (param_shape if self._single_sample else full_shape), full_shape
 
   def _apply(self, values, key, initial_value, current_value):
-    params = [base.as_array(v) for v in values]
+    params = [arrays_lib.as_array(v) for v in values]
     draw_shape, full_shape = self._shapes(params, initial_value)
     sample = self._draw(key, draw_shape, **dict(zip(self._params, params)))
     return jnp.broadcast_to(sample, full_shape)
@@ -255,7 +133,7 @@ class Distribution(composite.CompositeVariation):
 
   def __repr__(self):
     extra = {"single_sample": True} if self._single_sample else {}
-    return base.format_call(type(self).__name__, **self._params, **extra)
+    return printing.format_call(type(self).__name__, **self._params, **extra)
 
 
 class Uniform(Distribution):
@@ -265,7 +143,10 @@ class Uniform(Distribution):
   does; non-finite bounds are refused.
   """
 
-  _DOMAINS = {"low": _FINITE, "high": _FINITE}
+  _DOMAINS = {
+      "low": parameter_checks.FINITE,
+      "high": parameter_checks.FINITE,
+  }
 
   def __init__(self, low=0.0, high=1.0, single_sample=False):
     """Initializes a `Uniform`.
@@ -279,16 +160,17 @@ class Uniform(Distribution):
     super().__init__(low=low, high=high, single_sample=single_sample)
 
   def _draw(self, key, shape, low, high):
-    dtype = base.float_dtype(low, high)
+    dtype = arrays_lib.float_dtype(low, high)
     # Not jax.random.uniform(minval=, maxval=): it clamps at minval, which
     # breaks numpy's `low > high` case.
     return low + (high - low) * jax.random.uniform(key, shape, dtype)
 
   def static_bounds(self):
-    low, high = base.static_bounds(self.low), base.static_bounds(self.high)
+    low = bounds_lib.static_bounds(self.low)
+    high = bounds_lib.static_bounds(self.high)
     if low is None or high is None:
       return None
-    return base.as_bounds(
+    return bounds_lib.as_bounds(
         np.minimum(low[0], high[0]), np.maximum(low[1], high[1])
     )
 
@@ -301,7 +183,10 @@ class UniformInteger(Distribution):
   high` (or `low <= 0` without `high`) and non-integer bounds are refused.
   """
 
-  _DOMAINS = {"low": _INTEGER, "high": _INTEGER}
+  _DOMAINS = {
+      "low": parameter_checks.INTEGER,
+      "high": parameter_checks.INTEGER,
+  }
 
   def __init__(self, low, high=None, single_sample=False):
     """Initializes a `UniformInteger`.
@@ -320,14 +205,14 @@ class UniformInteger(Distribution):
     """
     super().__init__(low=low, high=high, single_sample=single_sample)
     if high is None:
-      if not _below(0, low):
+      if not parameter_checks.below(0, low):
         raise ValueError(
             "UniformInteger: `low` (the exclusive upper bound when `high` is "
             f"None) must be >= 1, got {low!r}: the range [0, low) is empty "
             "(or may be, for a variation), which numpy.random refuses. Pass "
             "UniformInteger(n) with n >= 1 for [0, n)."
         )
-    elif not _below(low, high):
+    elif not parameter_checks.below(low, high):
       raise ValueError(
           f"UniformInteger: `high` must be greater than `low`, got "
           f"low={low!r}, high={high!r}: the range [low, high) is empty (or "
@@ -338,20 +223,22 @@ class UniformInteger(Distribution):
   def _draw(self, key, shape, low, high):
     if high is None:
       low, high = 0, low
-    return jax.random.randint(key, shape, low, high, dtype=_int_dtype())
+    return jax.random.randint(
+        key, shape, low, high, dtype=parameter_checks.int_dtype()
+    )
 
   def static_bounds(self):
-    low = base.static_bounds(self.low)
+    low = bounds_lib.static_bounds(self.low)
     if self.high is None:
       return (
           None
           if low is None
-          else base.as_bounds(np.zeros_like(low[0]), low[1] - 1)
+          else bounds_lib.as_bounds(np.zeros_like(low[0]), low[1] - 1)
       )
-    high = base.static_bounds(self.high)
+    high = bounds_lib.static_bounds(self.high)
     if low is None or high is None:
       return None
-    return base.as_bounds(low[0], high[1] - 1)
+    return bounds_lib.as_bounds(low[0], high[1] - 1)
 
 
 class UniformChoice(Distribution):
@@ -401,7 +288,7 @@ class UniformChoice(Distribution):
     super().__init__(choices=choices, single_sample=single_sample)
 
   def _apply(self, values, key, initial_value, current_value):
-    choices = base.as_array(values[0])
+    choices = arrays_lib.as_array(values[0])
     row_shape = choices.shape[1:]
     if initial_value is None:
       full_shape = row_shape
@@ -416,10 +303,12 @@ class UniformChoice(Distribution):
     return jnp.broadcast_to(choices[index], full_shape)
 
   def static_bounds(self):
-    bounds = base.static_bounds(self.choices)
+    bounds = bounds_lib.static_bounds(self.choices)
     if bounds is None or np.ndim(bounds[0]) == 0:
       return None
-    return base.as_bounds(np.min(bounds[0], axis=0), np.max(bounds[1], axis=0))
+    return bounds_lib.as_bounds(
+        np.min(bounds[0], axis=0), np.max(bounds[1], axis=0)
+    )
 
 
 class UniformPointOnSphere(base.Variation):
@@ -444,7 +333,7 @@ class UniformPointOnSphere(base.Variation):
       shape = tuple(np.shape(initial_value))
       full_shape = shape if shape[-1:] == (3,) else shape + (3,)
     draw_shape = (3,) if self._single_sample else full_shape
-    point = jax.random.normal(key, draw_shape, base.float_dtype())
+    point = jax.random.normal(key, draw_shape, arrays_lib.float_dtype())
     point = point / jnp.linalg.norm(point, axis=-1, keepdims=True)
     return jnp.broadcast_to(point, full_shape), state
 
@@ -456,57 +345,67 @@ class UniformPointOnSphere(base.Variation):
 
   def __repr__(self):
     extra = {"single_sample": True} if self._single_sample else {}
-    return base.format_call(type(self).__name__, **extra)
+    return printing.format_call(type(self).__name__, **extra)
 
 
 class Normal(Distribution):
   """Gaussian with mean `loc` and standard deviation `scale` (finite, >= 0)."""
 
-  _DOMAINS = {"loc": _FINITE, "scale": _NONNEGATIVE}
+  _DOMAINS = {
+      "loc": parameter_checks.FINITE,
+      "scale": parameter_checks.NONNEGATIVE,
+  }
 
   def __init__(self, loc=0.0, scale=1.0, single_sample=False):
     super().__init__(loc=loc, scale=scale, single_sample=single_sample)
 
   def _draw(self, key, shape, loc, scale):
-    dtype = base.float_dtype(loc, scale)
+    dtype = arrays_lib.float_dtype(loc, scale)
     return loc + scale * jax.random.normal(key, shape, dtype)
 
 
 class LogNormal(Distribution):
   """`exp(N(mean, sigma))` (numpy's `lognormal` parametrisation; `sigma >= 0`)."""
 
-  _DOMAINS = {"mean": _FINITE, "sigma": _NONNEGATIVE}
+  _DOMAINS = {
+      "mean": parameter_checks.FINITE,
+      "sigma": parameter_checks.NONNEGATIVE,
+  }
 
   def __init__(self, mean=0.0, sigma=1.0, single_sample=False):
     super().__init__(mean=mean, sigma=sigma, single_sample=single_sample)
 
   def _draw(self, key, shape, mean, sigma):
-    dtype = base.float_dtype(mean, sigma)
+    dtype = arrays_lib.float_dtype(mean, sigma)
     return jnp.exp(mean + sigma * jax.random.normal(key, shape, dtype))
 
 
 class Exponential(Distribution):
   """Exponential with mean `scale` (numpy's parametrisation; `scale >= 0`)."""
 
-  _DOMAINS = {"scale": _NONNEGATIVE}
+  _DOMAINS = {"scale": parameter_checks.NONNEGATIVE}
 
   def __init__(self, scale=1.0, single_sample=False):
     super().__init__(scale=scale, single_sample=single_sample)
 
   def _draw(self, key, shape, scale):
-    return scale * jax.random.exponential(key, shape, base.float_dtype(scale))
+    return scale * jax.random.exponential(
+        key, shape, arrays_lib.float_dtype(scale)
+    )
 
 
 class Poisson(Distribution):
   """Poisson with rate `lam` (finite, >= 0); integer samples."""
 
-  _DOMAINS = {"lam": _RATE}
+  _DOMAINS = {"lam": parameter_checks.RATE}
 
   def __init__(self, lam=1.0, single_sample=False):
     super().__init__(lam=lam, single_sample=single_sample)
 
   def _draw(self, key, shape, lam):
-    return jax.random.poisson(key, lam, shape, dtype=_int_dtype())
+    return jax.random.poisson(
+        key, lam, shape, dtype=parameter_checks.int_dtype()
+    )
 
 
 class Bernoulli(Distribution):
@@ -515,15 +414,17 @@ class Bernoulli(Distribution):
   `prob` must lie in [0, 1], as numpy's `binomial` requires.
   """
 
-  _DOMAINS = {"prob": _PROBABILITY}
+  _DOMAINS = {"prob": parameter_checks.PROBABILITY}
 
   def __init__(self, prob=0.5, single_sample=False):
     super().__init__(prob=prob, single_sample=single_sample)
 
   def _draw(self, key, shape, prob):
     # jax.random.bernoulli refuses integer (or bool) probabilities: cast.
-    prob = prob.astype(base.float_dtype(prob))
-    return jax.random.bernoulli(key, prob, shape).astype(_int_dtype())
+    prob = prob.astype(arrays_lib.float_dtype(prob))
+    return jax.random.bernoulli(key, prob, shape).astype(
+        parameter_checks.int_dtype()
+    )
 
   def static_bounds(self):
     return np.asarray(0), np.asarray(1)
@@ -579,7 +480,7 @@ class BiasedRandomWalk(base.Variation):
 
   def initial_state(self, initial_value=None):
     del initial_value  # The walk's shape is that of its parameters.
-    return jnp.zeros(self._shape, base.float_dtype())
+    return jnp.zeros(self._shape, arrays_lib.float_dtype())
 
   def _sample(self, state, key, initial_value, current_value):
     self._require_key(key)
@@ -589,6 +490,6 @@ class BiasedRandomWalk(base.Variation):
     return value, value
 
   def __repr__(self):
-    return base.format_call(
+    return printing.format_call(
         type(self).__name__, stdev=self._stdev, timescale=self._timescale
     )

@@ -17,8 +17,10 @@ Keyword arguments such as `axis` must stay static (plain Python values).
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer.variation import base
+from mjx_composer.variation import arrays as arrays_lib
+from mjx_composer.variation import bounds as bounds_lib
 from mjx_composer.variation import composite
+from mjx_composer.variation import printing
 
 
 class MathOp(composite.CompositeVariation):
@@ -37,7 +39,7 @@ class MathOp(composite.CompositeVariation):
     self._operands = tuple(args) + tuple(kwargs.values())
 
   def _apply(self, values, key, initial_value, current_value):
-    args = [base.as_array(a) for a in values[: len(self._args)]]
+    args = [arrays_lib.as_array(a) for a in values[: len(self._args)]]
     kwargs = dict(zip(self._kwargs, values[len(self._args) :]))
     return type(self)._callable(*args, **kwargs)
 
@@ -45,7 +47,9 @@ class MathOp(composite.CompositeVariation):
     return (self._args, self._kwargs)
 
   def __repr__(self):
-    return base.format_call(type(self).__name__, *self._args, **self._kwargs)
+    return printing.format_call(
+        type(self).__name__, *self._args, **self._kwargs
+    )
 
 
 class Log(MathOp):
@@ -64,7 +68,7 @@ class _Reduction(MathOp):
     # broadcast (are smaller than the value) would not reduce the same way.
     if len(self._args) != 1 or self._kwargs:
       return None
-    bounds = base.static_bounds(self._args[0])
+    bounds = bounds_lib.static_bounds(self._args[0])
     if bounds is None:
       return None
     reduce = type(self)._numpy_reduce

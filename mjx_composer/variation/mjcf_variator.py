@@ -66,10 +66,10 @@ import contextvars
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer import bindings
 from mjx_composer import compiler
 from mjx_composer.compiler import attributes
 from mjx_composer.model import pymjcf
+from mjx_composer.physics import bindings
 from mjx_composer.variation import variator_base
 
 

@@ -8,8 +8,9 @@ feeds each result back as the next `current_value`).
 
 import jax.numpy as jnp
 
-from mjx_composer.variation import base
+from mjx_composer.variation import arrays as arrays_lib
 from mjx_composer.variation import composite
+from mjx_composer.variation import printing
 
 
 class _Noise(composite.CompositeVariation):
@@ -38,14 +39,14 @@ class _Noise(composite.CompositeVariation):
     if value is None:
       which = "current_value" if self._cumulative else "initial_value"
       raise ValueError(f"{self!r} acts on {which}, but {which} is None.")
-    return self._combine(jnp.asarray(value), base.as_array(values[0]))
+    return self._combine(jnp.asarray(value), arrays_lib.as_array(values[0]))
 
   def _eq_fields(self):
     return (self._variation, self._cumulative)
 
   def __repr__(self):
     extra = {"cumulative": True} if self._cumulative else {}
-    return base.format_call(type(self).__name__, self._variation, **extra)
+    return printing.format_call(type(self).__name__, self._variation, **extra)
 
 
 class Additive(_Noise):

@@ -18,8 +18,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.utils import transformations as tr
+from mjx_composer.variation import arrays as arrays_lib
 from mjx_composer.variation import base
 from mjx_composer.variation import composite
+from mjx_composer.variation import printing
 
 IDENTITY_QUATERNION = np.array([1.0, 0.0, 0.0, 0.0])
 
@@ -32,7 +34,7 @@ def _axisangle_to_quat(rotation_vector):
   Like dm_control's `transformations.axisangle_to_quat`, the axis is not
   assumed to be unit length: the angle is the norm of `axis * angle`.
   """
-  r = jnp.asarray(rotation_vector, base.float_dtype(rotation_vector))
+  r = jnp.asarray(rotation_vector, arrays_lib.float_dtype(rotation_vector))
   angle = jnp.linalg.norm(r, axis=-1, keepdims=True)
   small = angle < _EPS
   safe_angle = jnp.where(small, 1.0, angle)
@@ -51,7 +53,7 @@ class UniformQuaternion(base.Variation):
 
   def _sample(self, state, key, initial_value, current_value):
     self._require_key(key)
-    dtype = base.float_dtype()
+    dtype = arrays_lib.float_dtype()
     u1, u2, u3 = jax.random.uniform(key, (3,), dtype) * jnp.asarray(
         [1.0, 2 * np.pi, 2 * np.pi], dtype
     )
@@ -90,14 +92,14 @@ class QuaternionFromAxisAngle(composite.CompositeVariation):
     return [(None, None)] * 2  # See the module docstring.
 
   def _apply(self, values, key, initial_value, current_value):
-    axis, angle = (base.as_array(v) for v in values)
+    axis, angle = (arrays_lib.as_array(v) for v in values)
     return _axisangle_to_quat(axis * angle)
 
   def _eq_fields(self):
     return (self._axis, self._angle)
 
   def __repr__(self):
-    return base.format_call(
+    return printing.format_call(
         type(self).__name__, axis=self._axis, angle=self._angle
     )
 
@@ -128,9 +130,9 @@ class QuaternionPreMultiply(composite.CompositeVariation):
     if base_quat is None:
       which = "current_value" if self._cumulative else "initial_value"
       raise ValueError(f"{self!r} multiplies {which}, but {which} is None.")
-    quat = base.as_array(values[0])
+    quat = arrays_lib.as_array(values[0])
     base_quat = jnp.asarray(base_quat)
-    dtype = base.float_dtype(quat, base_quat)
+    dtype = arrays_lib.float_dtype(quat, base_quat)
     return tr.quat_mul(quat.astype(dtype), base_quat.astype(dtype))
 
   def _eq_fields(self):
@@ -138,7 +140,7 @@ class QuaternionPreMultiply(composite.CompositeVariation):
 
   def __repr__(self):
     extra = {"cumulative": True} if self._cumulative else {}
-    return base.format_call(type(self).__name__, self._quat, **extra)
+    return printing.format_call(type(self).__name__, self._quat, **extra)
 
 
 class QuaternionRotate(composite.CompositeVariation):
@@ -175,8 +177,8 @@ class QuaternionRotate(composite.CompositeVariation):
             f"{self!r} rotates {which} (no vec given), but {which} is None."
         )
     vec = jnp.asarray(vec)
-    vec = vec.astype(base.float_dtype(vec))
-    return tr.rotate_vec(jnp.asarray(base.as_array(quat), vec.dtype), vec)
+    vec = vec.astype(arrays_lib.float_dtype(vec))
+    return tr.rotate_vec(jnp.asarray(arrays_lib.as_array(quat), vec.dtype), vec)
 
   def _eq_fields(self):
     return (self._quat, self._vec, self._cumulative)
@@ -187,4 +189,4 @@ class QuaternionRotate(composite.CompositeVariation):
       kwargs["vec"] = self._vec
     if self._cumulative:
       kwargs["cumulative"] = True
-    return base.format_call(type(self).__name__, self._quat, **kwargs)
+    return printing.format_call(type(self).__name__, self._quat, **kwargs)

@@ -8,7 +8,7 @@ Pure-JAX semantics (deviation from composer): composer keeps a queue of drawn
 values per proxy and draws a new value whenever an empty queue is read, so a
 proxy called twice before the others returns the *next* value. Here there is
 no mutable queue. A "round" is one outermost evaluation (one `evaluate`,
-`sample` or call, or an explicit `base.evaluation_round(key)` block), and
+`sample` or call, or an explicit `rounds.evaluation_round(key)` block), and
 within a round every proxy of a broadcaster returns the same value, drawn
 with a key derived only from the round's key and the broadcaster (not from
 the proxy or from where it sits in the expression). Reading a proxy twice in
@@ -29,7 +29,10 @@ once per round, which is composer's documented contract.
 import jax
 
 from mjx_composer.variation import base
+from mjx_composer.variation import bounds as bounds_lib
+from mjx_composer.variation import printing
 from mjx_composer.variation import rounds
+from mjx_composer.variation import structures
 
 # Separates broadcaster keys from the per-leaf keys fold_in(round_key, i).
 _SALT = 0x62726F61
@@ -64,7 +67,7 @@ class VariationBroadcaster:
     return jax.random.fold_in(jax.random.fold_in(current.key, _SALT), slot)
 
   def __repr__(self):
-    return base.format_call(type(self).__name__, self._wrapped_variation)
+    return printing.format_call(type(self).__name__, self._wrapped_variation)
 
 
 class _BroadcastedValueProxy(base.Variation):
@@ -75,12 +78,12 @@ class _BroadcastedValueProxy(base.Variation):
 
   def initial_state(self, initial_value=None):
     del initial_value  # The wrapped variation is evaluated without one.
-    return base.structure_initial_state(
+    return structures.structure_initial_state(
         self._broadcaster.wrapped_variation, None, per_leaf=False
     )
 
   def _sample(self, state, key, initial_value, current_value):
-    return base.sample_structure(
+    return structures.sample_structure(
         self._broadcaster.wrapped_variation,
         state,
         self._broadcaster._round_key(key),
@@ -90,7 +93,7 @@ class _BroadcastedValueProxy(base.Variation):
     )
 
   def static_bounds(self):
-    return base.static_bounds(self._broadcaster.wrapped_variation)
+    return bounds_lib.static_bounds(self._broadcaster.wrapped_variation)
 
   def __repr__(self):
     return f"BroadcastedValueProxy({self._broadcaster!r})"

@@ -5,8 +5,8 @@ Kept as a module so that code written against composer's
 lives in `base` (see its docstring for the key and state protocols).
 """
 
-from mjx_composer.variation.base import evaluate
-from mjx_composer.variation.base import initial_state
-from mjx_composer.variation.base import sample
+from mjx_composer.variation.structures import evaluate
+from mjx_composer.variation.structures import initial_state
+from mjx_composer.variation.structures import sample
 
 __all__ = ["evaluate", "initial_state", "sample"]

@@ -78,6 +78,7 @@ import numpy as np
 from mjx_composer.utils import stable_id as stable_id_lib
 from mjx_composer.variation import base
 from mjx_composer.variation import rounds
+from mjx_composer.variation import structures
 
 
 @dataclasses.dataclass(frozen=True)
@@ -358,7 +359,7 @@ class Variator:
     initial = plan.initial_values
     current = plan.read_current(physics, entry)
     fresh_states = tuple(
-        base.initial_state(b.variation, initial[i])
+        structures.initial_state(b.variation, initial[i])
         for i, b in enumerate(bindings)
     )
     states = (
@@ -388,9 +389,9 @@ class Variator:
     binding_keys = rounds.fold_in_each(
         key, [binding.slot for binding in bindings]
     )
-    with base.evaluation_round(key):
+    with rounds.evaluation_round(key):
       for i, binding in enumerate(bindings):
-        value, state = base.sample(
+        value, state = structures.sample(
             binding.variation,
             states[i],
             binding_keys[i],
@@ -483,8 +484,12 @@ def check_static_shape(
   shape = np.shape(initial)
 
   def draw(key):
-    value, _ = base.sample(
-        variation, base.initial_state(variation, initial), key, initial, initial
+    value, _ = structures.sample(
+        variation,
+        structures.initial_state(variation, initial),
+        key,
+        initial,
+        initial,
     )
     return jnp.asarray(value)
 

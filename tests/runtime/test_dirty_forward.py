@@ -14,8 +14,8 @@ import jax.numpy as jnp
 import pytest
 
 import mjx_composer as composer
-from mjx_composer import bindings
 from mjx_composer.observation import observable
+from mjx_composer.physics import bindings
 from mjx_composer.runtime import dirty_forward
 from mjx_composer.runtime import reset_forward
 

@@ -1,56 +1,16 @@
-"""`Physics`: one world's model, data and task state, with dm_control-style access.
+"""`Physics`: one world's model, data and state, as hooks read and write it.
 
-A `Physics` is a pytree (a `flax.struct` dataclass) that hooks, observables and
-rewards receive instead of dm_control's stateful `mjcf.Physics`. Reads look like
-dm_control::
-
-    physics.bind(hand_site).xpos              # (3,)
-    physics.bind([j1, j2]).qpos               # (2,)
-    physics.named.data.qpos['arm/shoulder']   # (1,)
-    physics.named.model.body_mass[['arm/upper', 'arm/lower']]
-
-and writes are functional: they return a new `Physics`::
-
-    physics = physics.bind(joint).set(qpos=0.3)
-    physics = physics.named.data.set('qvel', 'arm/shoulder', 0.0)
-
-Elements are MjSpec handles (`mujoco.MjsBody`, `MjsGeom`, `MjsSite`, `MjsJoint`,
-`MjsActuator`, `MjsSensor`, `MjsTendon`, `MjsCamera`, `MjsLight`, `MjsEquality`)
-taken from an entity's own spec, or fully qualified names. They are resolved to
-static integer indices while tracing, through the `ElementIndex` built once when
-the environment compiles; nothing on the device looks a name up.
-
-Shapes are dm_control's: `physics.bind(...)` and `physics.named` give the
-rotation matrices `xmat`, `ximat`, `geom_xmat`, `site_xmat` and `cam_xmat` as
-flat 9-vectors (`(9,)` for one element, `(n, 9)` for a list), as
-`dm_control.mujoco.Physics.bind` does; `physics.data` is the raw `mjx.Data`,
-whose matrices are `(n, 3, 3)`.
-
-Fields that MJX computes only when a sensor needs them (`subtree_linvel`,
-`subtree_angmom`: `mjx.subtree_vel`; `cacc`, `cfrc_int`, `cfrc_ext`:
-`mjx.rne_postconstraint`) are computed from the data when read through a
-binding, so they hold what MuJoCo's `mj_forward` followed by
-`mj_subtreeVel` / `mj_rnePostConstraint` gives on the same state.
-
-dm_control's bindings run `mj_forward` lazily: a read after a write of
-`qpos`, `qvel`, `act`, `ctrl`, `qfrc_applied`, `xfrc_applied` or a model field
-(but the visual ones, such as `rgba`) sees the new state. Here a binding read
-of a derived quantity after such a write, with no forward pass between:
-
-* in the `initialize_episode` hooks (`forward_stale_reads`), reads it from the
-  stage of the forward pass that computes it (kinematics for positions, the
-  full pass otherwise), as composer's reset context does; the hooks start
-  from the reset's state, whose positions are computed and whose velocities
-  and sensors are not (`mark_written`);
-* in the step hooks, raises at trace time (`StaleReadError`): there an
-  unseen forward pass would add a second copy of the physics to every
-  control step. Call `physics.forward()` (or `physics.kinematics()`)
-  yourself.
+A `Physics` is a pytree (a `flax.struct` dataclass) that hooks, observables
+and rewards receive instead of dm_control's stateful `mjcf.Physics`: reads
+through `bind` and `named` (`bindings`), functional writes that return a new
+`Physics`, the task's and entities' per-episode state, persistent entries,
+scheduled hooks, and the trace-time records of writes that make a read stale
+or that a read-only method must not make. The package's docstring shows how
+it is used; `world_fields` holds what the runtime carries of it.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any
 
 from flax import struct
@@ -60,26 +20,15 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer import bindings
 from mjx_composer.model import element_index
-
-# What bindings read and write (`bindings`), re-exported for callers of
-# this module.
-FLAT_MATRIX_FIELDS = bindings.FLAT_MATRIX_FIELDS
-ON_DEMAND_FIELDS = bindings.ON_DEMAND_FIELDS
-STATE_INPUT_FIELDS = bindings.STATE_INPUT_FIELDS
-StaleReadError = bindings.StaleReadError
-Binding = bindings.Binding
-EmptyBinding = bindings.EmptyBinding
+from mjx_composer.physics import bindings
+from mjx_composer.physics import world_fields as world_fields_lib
 
 
 class ReadOnlyPhysicsError(TypeError):
   """A write to the physics handed to a method that only reads it (the
   task's outcome methods: `get_reward`, `get_discount`,
   `should_terminate_episode`, `get_metrics`), raised at trace time."""
-
-
-_MODEL_FIELD_NAMES = tuple(f.name for f in dataclasses.fields(mjx.Model))
 
 
 @struct.dataclass
@@ -153,13 +102,13 @@ class Physics:
         scheduled_hooks=self.scheduled_hooks,
     )
 
-  def carry(self, model_fields) -> 'PhysicsCarry':
+  def carry(self, model_fields) -> world_fields_lib.PhysicsCarry:
     """The per-world parts of this physics, for a scan or a loop.
 
     Args:
       model_fields: as in `world_fields`.
     """
-    return PhysicsCarry(
+    return world_fields_lib.PhysicsCarry(
         **self.world_fields(model_fields),
         initialization_failed=self.initialization_failed,
     )
@@ -341,7 +290,7 @@ class Physics:
     if (
         address.source == 'data'
         and self.batch_ndim
-        and (address.field in ON_DEMAND_FIELDS)
+        and (address.field in bindings.ON_DEMAND_FIELDS)
     ):
       raise NotImplementedError(
           f'data.{address.field} is computed when read, one world at a time: '
@@ -422,7 +371,7 @@ class Physics:
 
   def _written(self, new: 'Physics', field: str) -> 'Physics':
     new = self._derived(new, f'a write of {field}')
-    if field in STATE_INPUT_FIELDS:
+    if field in bindings.STATE_INPUT_FIELDS:
       object.__setattr__(new, '_unsynced', self.unsynced_writes | {field})
     return new
 
@@ -490,86 +439,6 @@ class Physics:
   def forget_writes(self) -> None:
     """Clears `wrote_to_result` (the hooks' runner, before each hook)."""
     object.__setattr__(self, '_wrote_result', False)
-
-
-def changed_model_fields(before: mjx.Model, after: mjx.Model) -> list[str]:
-  """The fields of `after` that are not `before`'s (by identity).
-
-  A hook that writes a model field returns a model whose field is a new
-  array; the fields it leaves alone are the same objects. So this tells,
-  while tracing, which fields a hook wrote.
-  """
-  return [
-      name
-      for name in _MODEL_FIELD_NAMES
-      if getattr(after, name) is not getattr(before, name)
-  ]
-
-
-@struct.dataclass
-class WorldFields:
-  """What one world carries of its `Physics`: everything but the shared
-  model constants and the static index tables.
-
-  `runtime.state.State` (carried between steps) and `PhysicsCarry` (carried
-  through a loop) extend it; `Physics.world_fields` makes its fields and
-  `restore` takes them back. Its leaves come first in both, in this order.
-
-  Attributes:
-    data: the world's `mjx.Data`.
-    task_state: the task's per-episode state (`Task.initial_task_state`).
-    entity_states: each entity's per-episode state (`Entity.initial_state`),
-      keyed by the entity's full identifier ('' for the root entity).
-    model_fields: per-world values of the model fields that hooks or
-      variations write (`{field name: value}`); every other model field is
-      the environment's shared constant.
-    persistent: per-world entries that survive auto-resets
-      (`Physics.get_persistent`), keyed by their owner's name.
-    scheduled_hooks: hooks registered by `Physics.schedule_before_step`
-      (static: part of the pytree's structure, not of its leaves).
-  """
-
-  data: mjx.Data
-  task_state: Any
-  entity_states: Any
-  model_fields: dict
-  persistent: Any
-  scheduled_hooks: tuple = struct.field(
-      pytree_node=False, default=(), kw_only=True
-  )
-
-  def restore(
-      self, model: mjx.Model, index: element_index.ElementIndex
-  ) -> Physics:
-    """The `Physics` with these parts over the shared `model`."""
-    if self.model_fields:
-      model = model.replace(**self.model_fields)
-    return Physics(
-        model=model,
-        data=self.data,
-        task_state=self.task_state,
-        index=index,
-        persistent=self.persistent,
-        initialization_failed=self._initialization_failed(),
-        entity_states=self.entity_states,
-        scheduled_hooks=self.scheduled_hooks,
-    )
-
-  def _initialization_failed(self):
-    return None
-
-
-@struct.dataclass
-class PhysicsCarry(WorldFields):
-  """The per-world parts of a `Physics`, and whether its initialization
-  failed: what a `lax.scan` over sub-steps or a reset's retry loop carries.
-  Made by `Physics.carry`; `restore` rebuilds the `Physics`.
-  """
-
-  initialization_failed: Any
-
-  def _initialization_failed(self):
-    return self.initialization_failed
 
 
 def _entity_key(entity, entity_states) -> str:
