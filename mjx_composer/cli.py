@@ -1,6 +1,6 @@
 """The `mjx-composer` command line: `mjx-composer demo|list|train|play|export`.
 
-`demo` builds a registered task (`mjx_composer.tasks.registry`: the bundled
+`demo` builds a registered task (`mjx_composer.suite.tasks.registry`: the bundled
 ones, or yours), runs N worlds for T control steps on the default JAX device
 (the CPU unless a GPU build of JAX is installed) with a random policy, shows
 progress, and prints throughput and episode statistics. `list` prints the
@@ -25,7 +25,7 @@ import tqdm
 
 from mjx_composer import environment
 from mjx_composer import platform
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 
 _COMMANDS = ('demo', 'list', 'train', 'play', 'export')
 
@@ -219,7 +219,7 @@ def list_tasks(argv=None):
   """`mjx-composer list`: the registered tasks, one a line."""
   argparse.ArgumentParser(
       prog='mjx-composer list',
-      description='List the registered tasks (mjx_composer.tasks.registry).',
+      description='List the registered tasks (mjx_composer.suite.tasks.registry).',
   ).parse_args(argv)
   width = max(map(len, registry.names()), default=0)
   for name in registry.names():

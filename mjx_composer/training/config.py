@@ -26,7 +26,7 @@ import json
 import os
 from typing import Any, Literal, Mapping, Optional
 
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,14 +170,14 @@ def register_defaults(task: str, **overrides) -> None:
 
   Raises:
     ValueError: for a task that is not registered (register it first, with
-      `mjx_composer.tasks.registry.register`), or a name that is not a
+      `mjx_composer.suite.tasks.registry.register`), or a name that is not a
       `TrainConfig` field.
   """
   if not isinstance(task, str) or task not in registry.names():
     raise ValueError(
         f'register_defaults: `task` {task!r} is not a registered task, so '
         'no run would use these defaults. Register the task first '
-        f'(mjx_composer.tasks.registry.register({task!r}, make_task)), then '
+        f'(mjx_composer.suite.tasks.registry.register({task!r}, make_task)), then '
         f'its defaults; registered tasks: {", ".join(registry.names())}.'
     )
   _check_keys(overrides, f'register_defaults({task!r}, ...)')

@@ -28,8 +28,8 @@ centre of its flat platform.
 import mujoco
 import numpy as np
 
-from mjx_composer.locomotion.terrain import sub_terrains
-from mjx_composer.locomotion.terrain import surface
+from mjx_composer.suite.locomotion.terrain import sub_terrains
+from mjx_composer.suite.locomotion.terrain import surface
 from mjx_composer.utils import validation
 
 _OWNER = 'TerrainGenerator'

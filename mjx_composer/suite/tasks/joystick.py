@@ -61,13 +61,15 @@ from dm_env import specs
 import numpy as np
 
 from mjx_composer import task
-from mjx_composer.entities import arenas
-from mjx_composer.entities import go1 as go1_lib
-from mjx_composer.locomotion import commands as commands_lib
-from mjx_composer.locomotion import terrain as terrain_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
-from mjx_composer.tasks import locomotion
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import go1 as go1_lib
+from mjx_composer.suite.locomotion import commands as commands_lib
+from mjx_composer.suite.locomotion import policy_critic
+from mjx_composer.suite.locomotion import pushes as pushes_lib
+from mjx_composer.suite.locomotion import terrain as terrain_lib
+from mjx_composer.utils import transformations
 from mjx_composer.utils import validation
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
@@ -208,7 +210,7 @@ class Joystick(task.Task):
         zero_probability=tuple(1.0 - np.asarray(COMMAND_KEEP, np.float64)),
     )
     self._randomize = bool(randomize)
-    self._pushes = locomotion.Pushes(push_interval, push_magnitude)
+    self._pushes = pushes_lib.Pushes(push_interval, push_magnitude)
     self._terminate_on_fall = bool(terminate_on_fall)
     self._variator = mjcf_variator.MJCFVariator()
     if randomize:
@@ -261,7 +263,7 @@ class Joystick(task.Task):
       bind(actuator, kp=scale(0.9, 1.1))
 
   def _configure_observables(self, noise_level, delay, history):
-    self._twins = locomotion.split_policy_and_critic(
+    self._twins = policy_critic.split_policy_and_critic(
         self._go1.observables,
         _POLICY,
         _PRIVILEGED,
@@ -392,7 +394,9 @@ class Joystick(task.Task):
     physics, origin, ground = self._ground(physics, keys[1], xy)
     xy = origin + xy
     position = jnp.concatenate([xy, jnp.reshape(ground + go1.home_height, 1)])
-    physics = go1.set_pose(physics, position, locomotion.yaw_quaternion(yaw))
+    physics = go1.set_pose(
+        physics, position, transformations.yaw_quaternion(yaw)
+    )
     physics = go1.set_velocity(physics, velocity[:3], velocity[3:])
     physics = physics.bind(list(go1.joints)).set(qpos=joints)
     # The actuators hold the initial pose until the first action.

@@ -1,6 +1,6 @@
 """Named tasks: the bundled ones, and your own, built by name.
 
-    from mjx_composer.tasks import registry
+    from mjx_composer.suite.tasks import registry
 
     registry.names()                     # ('reach', 'push', 'walk', ...)
     env = registry.make_environment(
@@ -143,7 +143,7 @@ def entry(name: str) -> Entry:
   except KeyError:
     raise KeyError(
         f'Unknown task {name!r}; registered tasks: {", ".join(_ENTRIES)}. '
-        'Add your own with mjx_composer.tasks.registry.register.'
+        'Add your own with mjx_composer.suite.tasks.registry.register.'
     ) from None
 
 
@@ -200,7 +200,7 @@ def make_environment(
     distance='hand-target distance',
 )
 def _reach():
-  from mjx_composer.tasks import reach
+  from mjx_composer.suite.tasks import reach
 
   return reach.Reach()
 
@@ -211,7 +211,7 @@ def _reach():
     distance='box-zone distance',
 )
 def _push():
-  from mjx_composer.tasks import push
+  from mjx_composer.suite.tasks import push
 
   return push.Push()
 
@@ -225,7 +225,7 @@ def _push():
     distance='distance walked',
 )
 def _walk():
-  from mjx_composer.tasks import walk
+  from mjx_composer.suite.tasks import walk
 
   return walk.Walk()
 
@@ -239,7 +239,7 @@ def _walk():
     distance='distance travelled',
 )
 def _joystick():
-  from mjx_composer.tasks import joystick
+  from mjx_composer.suite.tasks import joystick
 
   return joystick.Joystick(terrain='flat')
 
@@ -253,7 +253,7 @@ def _joystick():
     distance='distance travelled',
 )
 def _joystick_rough():
-  from mjx_composer.tasks import joystick
+  from mjx_composer.suite.tasks import joystick
 
   return joystick.Joystick(terrain='rough')
 
@@ -268,7 +268,7 @@ def _joystick_rough():
     distance='distance travelled',
 )
 def _joystick_terrain():
-  from mjx_composer.tasks import joystick_terrain
+  from mjx_composer.suite.tasks import joystick_terrain
 
   return joystick_terrain.TerrainJoystick()
 
@@ -282,6 +282,6 @@ def _joystick_terrain():
     distance='distance walked',
 )
 def _walk_terrain():
-  from mjx_composer.tasks import walk_terrain
+  from mjx_composer.suite.tasks import walk_terrain
 
   return walk_terrain.TerrainWalk()

@@ -30,9 +30,9 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer.locomotion.terrain import surface as terrain_surface
 from mjx_composer.model import element_index
 from mjx_composer.observation import observable
+from mjx_composer.suite.locomotion.terrain import surface as terrain_surface
 from mjx_composer.utils import validation
 
 ALIGNMENTS = ('yaw', 'base', 'world')

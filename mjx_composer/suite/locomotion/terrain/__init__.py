@@ -10,9 +10,9 @@
   below a point, on the device.
 """
 
-from mjx_composer.locomotion.terrain import sub_terrains
-from mjx_composer.locomotion.terrain import surface
-from mjx_composer.locomotion.terrain.generator import TerrainGenerator
-from mjx_composer.locomotion.terrain.rough import RoughTerrain
+from mjx_composer.suite.locomotion.terrain import sub_terrains
+from mjx_composer.suite.locomotion.terrain import surface
+from mjx_composer.suite.locomotion.terrain.generator import TerrainGenerator
+from mjx_composer.suite.locomotion.terrain.rough import RoughTerrain
 
 __all__ = ['RoughTerrain', 'TerrainGenerator', 'sub_terrains', 'surface']

@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer.locomotion import terrain as terrain_lib
+from mjx_composer.suite.locomotion import terrain as terrain_lib
 from mjx_composer.utils import validation
 
 _OWNER = 'TerrainCurriculum'

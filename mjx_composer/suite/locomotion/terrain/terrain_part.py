@@ -37,11 +37,11 @@ stands.
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer.locomotion import curriculum as curriculum_lib
-from mjx_composer.locomotion import height_scan as height_scan_lib
-from mjx_composer.locomotion.terrain import generator
 from mjx_composer.observation import groups as groups_lib
-from mjx_composer.tasks import locomotion
+from mjx_composer.suite.locomotion import curriculum as curriculum_lib
+from mjx_composer.suite.locomotion import height_scan as height_scan_lib
+from mjx_composer.suite.locomotion import policy_critic
+from mjx_composer.suite.locomotion.terrain import generator
 from mjx_composer.utils import validation
 
 HEIGHT_SCAN_NOISE = 0.1  # Metres, per ray (Isaac Lab's height_scan noise).
@@ -127,13 +127,13 @@ class TerrainPart:
         resolution=resolution,
         geomgroup=self.terrain.geomgroup,
     )
-    locomotion.policy_observable(
+    policy_critic.policy_observable(
         self.scan,
         n_sub_steps,
-        corruptor=locomotion.uniform_noise(noise) if noise else None,
+        corruptor=policy_critic.uniform_noise(noise) if noise else None,
         delay=delay,
     )
-    self.scan_twin = locomotion.clean_twin(self.scan)
+    self.scan_twin = policy_critic.clean_twin(self.scan)
 
   def cap_contacts(self, feet):
     """Sets MJX's contact cap for `feet`, the geoms that touch the terrain.

@@ -20,8 +20,8 @@ import mujoco
 import numpy as np
 
 from mjx_composer import arena
-from mjx_composer.entities import arenas
 from mjx_composer.model import element_index
+from mjx_composer.suite.entities import arenas
 
 
 def surface_height(heights, half_size, xy):

@@ -45,11 +45,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer import task
-from mjx_composer.entities import arenas
-from mjx_composer.entities import humanoid as humanoid_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
-from mjx_composer.tasks import locomotion
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import humanoid as humanoid_lib
+from mjx_composer.suite.locomotion import policy_critic
+from mjx_composer.suite.locomotion import pushes as pushes_lib
+from mjx_composer.utils import rewards
+from mjx_composer.utils import transformations
 from mjx_composer.utils import validation
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
@@ -189,7 +192,7 @@ class Walk(task.Task):
     self.set_timesteps(control_timestep, physics_timestep)
     self._randomize = bool(randomize)
     self._pose_noise = float(initial_pose_noise) if randomize else 0.0
-    self._pushes = locomotion.Pushes(push_interval, push_magnitude)
+    self._pushes = pushes_lib.Pushes(push_interval, push_magnitude)
     self._terminate_on_fall = bool(terminate_on_fall)
     self._fall_height = float(fall_height)
     self._variator = mjcf_variator.MJCFVariator()
@@ -228,7 +231,7 @@ class Walk(task.Task):
       bind(actuator, gear=scale(0.9, 1.1))
 
   def _configure_observables(self, noise_level, delay, history):
-    self._twins = locomotion.split_policy_and_critic(
+    self._twins = policy_critic.split_policy_and_critic(
         self._humanoid.observables,
         _POLICY,
         _PRIVILEGED,
@@ -310,7 +313,7 @@ class Walk(task.Task):
     if self._randomize:
       yaw = jax.random.uniform(yaw_key, (), minval=-np.pi, maxval=np.pi)
     physics = humanoid.set_pose(
-        physics, position, locomotion.yaw_quaternion(jnp.asarray(yaw))
+        physics, position, transformations.yaw_quaternion(jnp.asarray(yaw))
     )
     if self._pose_noise:
       joints = physics.bind(list(humanoid.joints))
@@ -346,27 +349,27 @@ class Walk(task.Task):
   def reward_terms(self, physics):
     """Playground's reward factors: standing, upright, small_control, move."""
     humanoid = self._humanoid
-    standing = locomotion.tolerance(
+    standing = rewards.tolerance(
         self.head_height(physics),
         bounds=(STAND_HEIGHT, float('inf')),
         margin=STAND_HEIGHT / 4,
     )
-    upright = locomotion.tolerance(
+    upright = rewards.tolerance(
         humanoid.upright(physics),
         bounds=(0.9, float('inf')),
         sigmoid='linear',
         margin=1.9,
         value_at_margin=0,
     )
-    small_control = locomotion.tolerance(
+    small_control = rewards.tolerance(
         physics.data.ctrl, margin=1, value_at_margin=0, sigmoid='quadratic'
     ).mean()
     small_control = (4 + small_control) / 5
     horizontal = self._com_velocity(physics)[:2]
     if self._move_speed == 0.0:
-      move = locomotion.tolerance(horizontal, margin=2).mean()
+      move = rewards.tolerance(horizontal, margin=2).mean()
     else:
-      move = locomotion.tolerance(
+      move = rewards.tolerance(
           jnp.linalg.norm(horizontal),
           bounds=(self._move_speed, float('inf')),
           margin=self._move_speed,

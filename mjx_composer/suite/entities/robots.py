@@ -3,8 +3,8 @@
 import mujoco
 
 from mjx_composer import define
-from mjx_composer.entities.manipulators import base as manipulators
 from mjx_composer.observation import observable
+from mjx_composer.suite.entities.manipulators import base as manipulators
 
 
 class ArmObservables(observable.Observables):

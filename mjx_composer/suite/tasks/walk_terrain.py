@@ -2,7 +2,7 @@
 
 `Walk`'s humanoid, reward, observation and randomization (`tasks/walk.py`)
 on the kit's terrain, each locomotion part a reusable piece of
-`mjx_composer.locomotion`:
+`mjx_composer.suite.locomotion`:
 
 * the arena is a `TerrainGenerator` (by default `KINDS`: flat, rough,
   slopes up and down, waves, stairs up and down; 5 levels of 8 m tiles,
@@ -44,9 +44,9 @@ field's (the terrain's one geom, as `Walk` randomizes its floor's).
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer.locomotion import height_scan as height_scan_lib
-from mjx_composer.tasks import terrain_part
-from mjx_composer.tasks import walk
+from mjx_composer.suite.locomotion import height_scan as height_scan_lib
+from mjx_composer.suite.locomotion.terrain import terrain_part
+from mjx_composer.suite.tasks import walk
 
 # The default sub-terrain kinds: continuous ground and stairs, without the
 # stepping stones, beams, grids and obstacles (`kinds=sub_terrains.KINDS`

@@ -2,7 +2,7 @@
 
 `Floor` is locomotion's flat checkered floor; `WalledArena` adds four walls
 around it. The terrain arenas (`RoughTerrain`, `TerrainGenerator`) live in
-`mjx_composer.locomotion.terrain`.
+`mjx_composer.suite.locomotion.terrain`.
 Where a composer arena's `regenerate` changed the MJCF and needed a
 recompile every episode, here `regenerate_world(physics, key)` writes the
 equivalent per-world model fields instead (the arena's `initialize_episode`
@@ -249,15 +249,15 @@ def add_grid_and_light(spec, rgb1, rgb2, **material):
 
 def __getattr__(name):
   """`arenas.RoughTerrain`, kept for this release: it moved to
-  `mjx_composer.locomotion.terrain`."""
+  `mjx_composer.suite.locomotion.terrain`."""
   if name != 'RoughTerrain':
     raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
   warnings.warn(
-      'mjx_composer.entities.arenas.RoughTerrain moved to '
-      'mjx_composer.locomotion.terrain.RoughTerrain; import it from there.',
+      'mjx_composer.suite.entities.arenas.RoughTerrain moved to '
+      'mjx_composer.suite.locomotion.terrain.RoughTerrain; import it from there.',
       DeprecationWarning,
       stacklevel=2,
   )
-  from mjx_composer.locomotion import terrain  # pylint: disable=g-import-not-at-top
+  from mjx_composer.suite.locomotion import terrain  # pylint: disable=g-import-not-at-top
 
   return terrain.RoughTerrain

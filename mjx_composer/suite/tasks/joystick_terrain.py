@@ -2,7 +2,7 @@
 
 Isaac Lab's and mjlab's rough-terrain velocity task on `Joystick`'s robot,
 rewards and randomization (`tasks/joystick.py`), with each locomotion part
-a reusable piece of `mjx_composer.locomotion`, joined by the terrain part
+a reusable piece of `mjx_composer.suite.locomotion`, joined by the terrain part
 that `TerrainWalk` shares (`terrain_part.TerrainPart`):
 
 * the arena is a `TerrainGenerator` (every sub-terrain kind, stairs, stones
@@ -37,10 +37,10 @@ meets 2 x 2 cells (`locomotion.terrain.generator`).
 import jax
 import jax.numpy as jnp
 
-from mjx_composer.locomotion import actuation_delay as delay_lib
-from mjx_composer.locomotion.terrain import sub_terrains
-from mjx_composer.tasks import joystick
-from mjx_composer.tasks import terrain_part
+from mjx_composer.suite.locomotion import actuation_delay as delay_lib
+from mjx_composer.suite.locomotion.terrain import sub_terrains
+from mjx_composer.suite.locomotion.terrain import terrain_part
+from mjx_composer.suite.tasks import joystick
 
 HORIZONTAL_SCALE = 0.05  # Metres: a foot meets 2 x 2 cells (docstring).
 

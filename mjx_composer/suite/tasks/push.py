@@ -20,14 +20,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer import task
-from mjx_composer.entities import arenas
-from mjx_composer.entities import position_detector
-from mjx_composer.entities import props
-from mjx_composer.entities import robots
-from mjx_composer.entities import simulation_options as options_lib
 from mjx_composer.initializers import prop_initializer
 from mjx_composer.observation import groups as groups_lib
-from mjx_composer.tasks import reach
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import position_detector
+from mjx_composer.suite.entities import props
+from mjx_composer.suite.entities import robots
+from mjx_composer.suite.entities import simulation_options as options_lib
+from mjx_composer.suite.tasks import reach
 from mjx_composer.utils import validation
 from mjx_composer.variation import distributions
 from mjx_composer.variation import rotations

@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjx_composer.locomotion.terrain import surface
+from mjx_composer.suite.locomotion.terrain import surface
 from mjx_composer.utils import validation
 
 _OWNER = 'RoughTerrain'

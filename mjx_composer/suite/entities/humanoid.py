@@ -38,8 +38,8 @@ import mujoco
 
 from mjx_composer import define
 from mjx_composer import robot
-from mjx_composer.entities import simulation_options as options_lib
 from mjx_composer.observation import observable
+from mjx_composer.suite.entities import simulation_options as options_lib
 
 ASSET_DIR = pathlib.Path(__file__).parent / 'assets' / 'humanoid'
 XML_PATH = ASSET_DIR / 'humanoid.xml'

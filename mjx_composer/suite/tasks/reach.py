@@ -21,12 +21,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer import task
-from mjx_composer.entities import arenas
-from mjx_composer.entities import props
-from mjx_composer.entities import robots
-from mjx_composer.entities import simulation_options as options_lib
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.observation import observable
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import props
+from mjx_composer.suite.entities import robots
+from mjx_composer.suite.entities import simulation_options as options_lib
 from mjx_composer.utils import validation
 from mjx_composer.variation import colors
 from mjx_composer.variation import distributions
