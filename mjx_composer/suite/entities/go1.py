@@ -51,9 +51,9 @@ import mujoco
 import numpy as np
 
 from mjx_composer import define
-from mjx_composer import robot
 from mjx_composer.observation import observable
 from mjx_composer.suite.entities import simulation_options as options_lib
+from mjx_composer.suite.entities import spec_robot
 
 ASSET_DIR = pathlib.Path(__file__).parent / 'assets' / 'go1'
 XML_PATH = ASSET_DIR / 'go1.xml'
@@ -148,8 +148,11 @@ class Go1Observables(observable.Observables):
     return observable.MJCFFeature('force', self._entity.actuators)
 
 
-class Go1(robot.Robot):
+class Go1(spec_robot.SpecRobot):
   """Unitree Go1 from MuJoCo Menagerie, set up for MJX (module docstring).
+
+  Its `joints` are the 12 leg hinges, in the actuators' order (FR, FL, RR,
+  RL legs).
 
   Args:
     name: the entity's name (its compiled names' prefix).
@@ -173,11 +176,7 @@ class Go1(robot.Robot):
     options_lib.put(spec, MJX_OPTIONS)
     _remove_meshes(spec)
     trunk = spec.body('trunk')
-    for joint in list(trunk.joints):
-      if joint.type == mujoco.mjtJoint.mjJNT_FREE:
-        spec.delete(joint)
-    self._initial_height = float(trunk.pos[2])
-    trunk.pos = [0.0, 0.0, 0.0]
+    spec_robot.free_at_origin(spec, trunk)
     home = spec.key('home')
     home_qpos = np.array(list(home.qpos))
     self._home_height = float(home_qpos[2])
@@ -279,20 +278,7 @@ class Go1(robot.Robot):
   def _build_observables(self):
     return Go1Observables(self)
 
-  @property
-  def mjcf_model(self):
-    return self._spec
-
   # -- elements ------------------------------------------------------------
-
-  @property
-  def actuators(self):
-    return self._actuators
-
-  @property
-  def joints(self):
-    """The 12 leg hinges, in the actuators' order (FR, FL, RR, RL legs)."""
-    return self._joints
 
   @property
   def trunk(self):

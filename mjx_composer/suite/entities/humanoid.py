@@ -37,9 +37,9 @@ import jax.numpy as jnp
 import mujoco
 
 from mjx_composer import define
-from mjx_composer import robot
 from mjx_composer.observation import observable
 from mjx_composer.suite.entities import simulation_options as options_lib
+from mjx_composer.suite.entities import spec_robot
 
 ASSET_DIR = pathlib.Path(__file__).parent / 'assets' / 'humanoid'
 XML_PATH = ASSET_DIR / 'humanoid.xml'
@@ -113,8 +113,12 @@ class HumanoidObservables(observable.Observables):
     return observable.MJCFFeature('force', self._entity.actuators)
 
 
-class Humanoid(robot.Robot):
+class Humanoid(spec_robot.SpecRobot):
   """The dm_control suite humanoid, as MuJoCo Playground's MJX XML has it.
+
+  Its `joints` are the 21 hinges in the XML's (qpos) order; the actuators
+  (the action) come in the XML's actuator order, which is not the same:
+  `abdomen_y` drives the second joint, for one.
 
   Args:
     name: the entity's name (its compiled names' prefix).
@@ -132,11 +136,7 @@ class Humanoid(robot.Robot):
     spec.modelname = name
     spec.delete(spec.geom('floor'))
     torso = spec.body('torso')
-    for joint in list(torso.joints):
-      if joint.type == mujoco.mjtJoint.mjJNT_FREE:
-        spec.delete(joint)
-    self._initial_height = float(torso.pos[2])
-    torso.pos = [0.0, 0.0, 0.0]
+    self._initial_height = spec_robot.free_at_origin(spec, torso)
     self._simulation_options = options_lib.take(spec)
     self._spec = spec
     self._torso = torso
@@ -162,24 +162,7 @@ class Humanoid(robot.Robot):
   def _build_observables(self):
     return HumanoidObservables(self)
 
-  @property
-  def mjcf_model(self):
-    return self._spec
-
   # -- elements ------------------------------------------------------------
-
-  @property
-  def actuators(self):
-    return self._actuators
-
-  @property
-  def joints(self):
-    """The 21 hinge joints, in the XML's (qpos) order.
-
-    The actuators (the action) come in the XML's actuator order, which is
-    not the same: `abdomen_y` drives the second joint, for one.
-    """
-    return self._joints
 
   @property
   def torso(self):

@@ -4,7 +4,7 @@
 one geom in the prop's worldbody (so it sits in the attachment frame, which
 `Arena.add_free_entity` makes free) and `framepos`, `framequat`,
 `framelinvel` and `frameangvel` sensors on that geom, exposed through
-`PrimitiveObservables` (a `FreePropObservableMixin`). `Sphere`, `Box`,
+`FrameSensorObservables` (a `FreePropObservableMixin`; `Ball`'s too). `Sphere`, `Box`,
 `Capsule`, `Cylinder` and `Ellipsoid` are its shapes with named sizes, as in
 `dm_control.manipulation.props.primitive`.
 
@@ -51,26 +51,52 @@ def _geom_type_name(geom_type) -> str:
   return name
 
 
-class PrimitiveObservables(
+# A free prop's pose and velocity sensors, in `FrameSensorObservables` order.
+_FRAME_SENSORS = (
+    mujoco.mjtSensor.mjSENS_FRAMEPOS,
+    mujoco.mjtSensor.mjSENS_FRAMEQUAT,
+    mujoco.mjtSensor.mjSENS_FRAMELINVEL,
+    mujoco.mjtSensor.mjSENS_FRAMEANGVEL,
+)
+
+
+def _add_frame_sensors(spec, objtype, objname, names):
+  """The four frame sensors of one object, world frame, named `names`."""
+  return tuple(
+      spec.add_sensor(name=name, type=kind, objtype=objtype, objname=objname)
+      for name, kind in zip(names, _FRAME_SENSORS, strict=True)
+  )
+
+
+class FrameSensorObservables(
     observable.Observables, observable.FreePropObservableMixin
 ):
-  """Pose and velocity of a `Primitive`'s geom, from its frame sensors."""
+  """A prop's pose and velocity, from its four frame sensors.
+
+  The entity's `frame_sensors`: `framepos`, `framequat`, `framelinvel` and
+  `frameangvel` of one object, in the world frame.
+  """
 
   @define.observable
   def position(self):
-    return observable.MJCFFeature('sensordata', self._entity.position)
+    return observable.MJCFFeature('sensordata', self._entity.frame_sensors[0])
 
   @define.observable
   def orientation(self):
-    return observable.MJCFFeature('sensordata', self._entity.orientation)
+    return observable.MJCFFeature('sensordata', self._entity.frame_sensors[1])
 
   @define.observable
   def linear_velocity(self):
-    return observable.MJCFFeature('sensordata', self._entity.linear_velocity)
+    return observable.MJCFFeature('sensordata', self._entity.frame_sensors[2])
 
   @define.observable
   def angular_velocity(self):
-    return observable.MJCFFeature('sensordata', self._entity.angular_velocity)
+    return observable.MJCFFeature('sensordata', self._entity.frame_sensors[3])
+
+
+# Composer's names of the two props' observables, one class now.
+PrimitiveObservables = FrameSensorObservables
+BallObservables = FrameSensorObservables
 
 
 class Primitive(entity.Entity):
@@ -104,27 +130,16 @@ class Primitive(entity.Entity):
     self._geom = spec.worldbody.add_geom(
         name='geom', type=_GEOM_TYPES[type_name], size=padded, **geom_kwargs
     )
-    geom_obj = mujoco.mjtObj.mjOBJ_GEOM
-    (
-        self._position,
-        self._orientation,
-        self._linear_velocity,
-        self._angular_velocity,
-    ) = (
-        spec.add_sensor(
-            name=sensor_name, type=sensor_type, objtype=geom_obj, objname='geom'
-        )
-        for sensor_name, sensor_type in (
-            ('position', mujoco.mjtSensor.mjSENS_FRAMEPOS),
-            ('orientation', mujoco.mjtSensor.mjSENS_FRAMEQUAT),
-            ('linear_velocity', mujoco.mjtSensor.mjSENS_FRAMELINVEL),
-            ('angular_velocity', mujoco.mjtSensor.mjSENS_FRAMEANGVEL),
-        )
+    self._sensors = _add_frame_sensors(
+        spec,
+        mujoco.mjtObj.mjOBJ_GEOM,
+        'geom',
+        ('position', 'orientation', 'linear_velocity', 'angular_velocity'),
     )
     self._spec = spec
 
   def _build_observables(self):
-    return PrimitiveObservables(self)
+    return FrameSensorObservables(self)
 
   @property
   def mjcf_model(self):
@@ -136,24 +151,29 @@ class Primitive(entity.Entity):
     return self._geom
 
   @property
+  def frame_sensors(self):
+    """The geom's `framepos`, `framequat`, `framelinvel` and `frameangvel`."""
+    return self._sensors
+
+  @property
   def position(self):
     """The `framepos` sensor of the geom (world frame)."""
-    return self._position
+    return self._sensors[0]
 
   @property
   def orientation(self):
     """The `framequat` sensor of the geom (world frame, w x y z)."""
-    return self._orientation
+    return self._sensors[1]
 
   @property
   def linear_velocity(self):
     """The `framelinvel` sensor of the geom (world frame)."""
-    return self._linear_velocity
+    return self._sensors[2]
 
   @property
   def angular_velocity(self):
     """The `frameangvel` sensor of the geom (world frame)."""
-    return self._angular_velocity
+    return self._sensors[3]
 
 
 class Sphere(Primitive):
@@ -193,28 +213,6 @@ class Ellipsoid(Primitive):
     super()._build('ellipsoid', radii, name=name, **geom_kwargs)
 
 
-class BallObservables(
-    observable.Observables, observable.FreePropObservableMixin
-):
-  """Pose and velocity of a ball, from frame sensors."""
-
-  @define.observable
-  def position(self):
-    return observable.MJCFFeature('sensordata', self._entity.sensors[0])
-
-  @define.observable
-  def orientation(self):
-    return observable.MJCFFeature('sensordata', self._entity.sensors[1])
-
-  @define.observable
-  def linear_velocity(self):
-    return observable.MJCFFeature('sensordata', self._entity.sensors[2])
-
-  @define.observable
-  def angular_velocity(self):
-    return observable.MJCFFeature('sensordata', self._entity.sensors[3])
-
-
 class Ball(entity.Entity):
   """A sphere with frame sensors; attach it with `Arena.add_free_entity`.
 
@@ -235,24 +233,17 @@ class Ball(entity.Entity):
         mass=mass,
         rgba=rgba,
     )
-    site = body.add_site(name='center', size=[0.01, 0, 0])
-    obj = mujoco.mjtObj.mjOBJ_SITE
-    self._sensors = tuple(
-        spec.add_sensor(
-            name=kind, type=sensor_type, objtype=obj, objname='center'
-        )
-        for kind, sensor_type in (
-            ('pos', mujoco.mjtSensor.mjSENS_FRAMEPOS),
-            ('quat', mujoco.mjtSensor.mjSENS_FRAMEQUAT),
-            ('linvel', mujoco.mjtSensor.mjSENS_FRAMELINVEL),
-            ('angvel', mujoco.mjtSensor.mjSENS_FRAMEANGVEL),
-        )
+    body.add_site(name='center', size=[0.01, 0, 0])
+    self._sensors = _add_frame_sensors(
+        spec,
+        mujoco.mjtObj.mjOBJ_SITE,
+        'center',
+        ('pos', 'quat', 'linvel', 'angvel'),
     )
-    del site
     self._spec = spec
 
   def _build_observables(self):
-    return BallObservables(self)
+    return FrameSensorObservables(self)
 
   @property
   def mjcf_model(self):
@@ -263,5 +254,12 @@ class Ball(entity.Entity):
     return self._geom
 
   @property
+  def frame_sensors(self):
+    """The centre site's `framepos`, `framequat`, `framelinvel`,
+    `frameangvel`."""
+    return self._sensors
+
+  @property
   def sensors(self):
+    """`frame_sensors` (the name it had first)."""
     return self._sensors

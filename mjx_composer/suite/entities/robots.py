@@ -4,6 +4,7 @@ import mujoco
 
 from mjx_composer import define
 from mjx_composer.observation import observable
+from mjx_composer.suite.entities import spec_robot
 from mjx_composer.suite.entities.manipulators import base as manipulators
 
 
@@ -27,7 +28,7 @@ class ArmObservables(observable.Observables):
     return observable.MJCFFeature('force', self._entity.actuators)
 
 
-class Arm(manipulators.RobotArm):
+class Arm(spec_robot.SpecRobot, manipulators.RobotArm):
   """A three-joint arm: base yaw, shoulder and elbow pitch, torque motors.
 
   A `RobotArm` whose `wrist_site` is its `hand` site: three joints place
@@ -126,18 +127,6 @@ class Arm(manipulators.RobotArm):
 
   def _build_observables(self):
     return ArmObservables(self)
-
-  @property
-  def mjcf_model(self):
-    return self._spec
-
-  @property
-  def joints(self):
-    return self._joints
-
-  @property
-  def actuators(self):
-    return self._actuators
 
   @property
   def hand(self):
