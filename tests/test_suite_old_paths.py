@@ -91,12 +91,13 @@ def test_an_old_path_is_the_new_module_and_warns(old, new):
 
 
 def test_from_the_old_package_import_a_module():
+  # pylint: disable=g-import-not-at-top
   with pytest.warns(DeprecationWarning, match='mjx_composer.suite.tasks'):
-    from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+    from mjx_composer.tasks import walk
   with pytest.warns(DeprecationWarning, match='terrain.terrain_part'):
-    from mjx_composer.tasks import terrain_part  # pylint: disable=g-import-not-at-top
-  from mjx_composer.suite.locomotion.terrain import terrain_part as new_part  # pylint: disable=g-import-not-at-top
-  from mjx_composer.suite.tasks import walk as new_walk  # pylint: disable=g-import-not-at-top
+    from mjx_composer.tasks import terrain_part
+  from mjx_composer.suite.locomotion.terrain import terrain_part as new_part
+  from mjx_composer.suite.tasks import walk as new_walk
 
   assert walk is new_walk
   assert terrain_part is new_part
@@ -111,6 +112,7 @@ def test_an_old_path_warns_once():
 
 
 def test_the_dissolved_module_gives_its_names_from_their_new_homes():
+  # pylint: disable=g-import-not-at-top
   module, messages = _import('mjx_composer.tasks.locomotion')
   assert any('was dissolved' in m for m in messages)
   for name, home in old_paths.MOVED_NAMES.items():
@@ -118,7 +120,7 @@ def test_the_dissolved_module_gives_its_names_from_their_new_homes():
     assert home in messages[-1]
   with warnings.catch_warnings():
     warnings.simplefilter('error')
-    from mjx_composer.tasks import locomotion  # pylint: disable=g-import-not-at-top
+    from mjx_composer.tasks import locomotion
   assert locomotion is module
 
 

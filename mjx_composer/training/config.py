@@ -177,8 +177,9 @@ def register_defaults(task: str, **overrides) -> None:
     raise ValueError(
         f'register_defaults: `task` {task!r} is not a registered task, so '
         'no run would use these defaults. Register the task first '
-        f'(mjx_composer.suite.tasks.registry.register({task!r}, make_task)), then '
-        f'its defaults; registered tasks: {", ".join(registry.names())}.'
+        '(mjx_composer.suite.tasks.registry.register('
+        f'{task!r}, make_task)), then its defaults; registered tasks: '
+        f'{", ".join(registry.names())}.'
     )
   _check_keys(overrides, f'register_defaults({task!r}, ...)')
   TASK_DEFAULTS[task] = dict(overrides)

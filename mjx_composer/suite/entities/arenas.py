@@ -254,7 +254,8 @@ def __getattr__(name):
     raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
   warnings.warn(
       'mjx_composer.suite.entities.arenas.RoughTerrain moved to '
-      'mjx_composer.suite.locomotion.terrain.RoughTerrain; import it from there.',
+      'mjx_composer.suite.locomotion.terrain.RoughTerrain; import it from '
+      'there.',
       DeprecationWarning,
       stacklevel=2,
   )

@@ -8,6 +8,9 @@
   episode.
 * `surface.HeightField`: what both are built from, and where the ground is
   below a point, on the device.
+* `terrain_part.TerrainPart`: what the terrain tasks add to their flat
+  twins (a `TerrainGenerator`, its curriculum, a height scan), and
+  `terrain_part.check_arguments`, their terrain arguments' checks.
 """
 
 from mjx_composer.suite.locomotion.terrain import sub_terrains
