@@ -27,7 +27,7 @@ from mjx_composer.suite.entities import position_detector
 from mjx_composer.suite.entities import props
 from mjx_composer.suite.entities import robots
 from mjx_composer.suite.entities import simulation_options as options_lib
-from mjx_composer.suite.tasks import reach
+from mjx_composer.suite.tasks import arm_parts
 from mjx_composer.utils import validation
 from mjx_composer.variation import distributions
 from mjx_composer.variation import rotations
@@ -105,7 +105,7 @@ class Push(task.Task):
           minimum=1,
           fix='Pass an int >= 1, or None for no cap.',
       )
-    reach.check_arm_task_arguments(
+    arm_parts.check_arm_task_arguments(
         'Push',
         control_timestep,
         physics_timestep,
@@ -166,14 +166,14 @@ class Push(task.Task):
         max_attempts_per_prop=max_attempts_per_prop,
     )
     self.set_timesteps(control_timestep, physics_timestep)
-    reach.cap_solver(self._arena, solver_iterations, solver_ls_iterations)
+    arm_parts.cap_solver(self._arena, solver_iterations, solver_ls_iterations)
 
     arm_obs = self._arm.observables
     arm_obs.joint_positions.configure(
-        enabled=True, corruptor=reach.gaussian_noise(observation_noise)
+        enabled=True, corruptor=arm_parts.gaussian_noise(observation_noise)
     )
     arm_obs.joint_velocities.configure(
-        enabled=True, corruptor=reach.gaussian_noise(10 * observation_noise)
+        enabled=True, corruptor=arm_parts.gaussian_noise(10 * observation_noise)
     )
     arm_obs.hand_position.enabled = True
     for box in self._boxes:

@@ -27,6 +27,7 @@ from mjx_composer.suite.entities import arenas
 from mjx_composer.suite.entities import props
 from mjx_composer.suite.entities import robots
 from mjx_composer.suite.entities import simulation_options as options_lib
+from mjx_composer.suite.tasks import arm_parts
 from mjx_composer.utils import validation
 from mjx_composer.variation import colors
 from mjx_composer.variation import distributions
@@ -35,61 +36,6 @@ from mjx_composer.variation import noises
 
 _TARGET_LOW = np.array([-0.45, -0.45, 0.15], np.float32)
 _TARGET_HIGH = np.array([0.45, 0.45, 0.6], np.float32)
-
-
-def gaussian_noise(scale):
-  """A corruptor adding N(0, scale²) noise to every sample."""
-
-  def corrupt(value, key):
-    return value + scale * jax.random.normal(
-        key, jnp.shape(value), jnp.result_type(value)
-    )
-
-  return corrupt
-
-
-def check_arm_task_arguments(
-    owner,
-    control_timestep,
-    physics_timestep,
-    observation_noise,
-    solver_iterations,
-    solver_ls_iterations,
-):
-  """The arguments the arm tasks share, checked before anything is built.
-
-  Raises:
-    TypeError, ValueError: naming the argument, its value and the fix.
-  """
-  validation.check_positive('control_timestep', control_timestep, owner=owner)
-  validation.check_positive('physics_timestep', physics_timestep, owner=owner)
-  validation.check_nonnegative(
-      'observation_noise',
-      observation_noise,
-      owner=owner,
-      fix='Pass a standard deviation >= 0 (0: no noise).',
-  )
-  for name, value in (
-      ('solver_iterations', solver_iterations),
-      ('solver_ls_iterations', solver_ls_iterations),
-  ):
-    if value is not None:
-      validation.check_integer(
-          name,
-          value,
-          owner=owner,
-          minimum=1,
-          fix="Pass an int >= 1, or None to keep MuJoCo's default.",
-      )
-
-
-def cap_solver(arena, iterations, ls_iterations):
-  """Writes the solver's iteration caps on `arena`'s spec (None: keep)."""
-  option = arena.mjcf_model.option
-  if iterations is not None:
-    option.iterations = iterations
-  if ls_iterations is not None:
-    option.ls_iterations = ls_iterations
 
 
 class Reach(task.Task):
@@ -119,7 +65,7 @@ class Reach(task.Task):
       solver_iterations=options_lib.SOLVER_CAPS['iterations'],
       solver_ls_iterations=options_lib.SOLVER_CAPS['ls_iterations'],
   ):
-    check_arm_task_arguments(
+    arm_parts.check_arm_task_arguments(
         'Reach',
         control_timestep,
         physics_timestep,
@@ -134,14 +80,14 @@ class Reach(task.Task):
     self._ball = props.Ball()
     self._arena.add_free_entity(self._ball)
     self.set_timesteps(control_timestep, physics_timestep)
-    cap_solver(self._arena, solver_iterations, solver_ls_iterations)
+    arm_parts.cap_solver(self._arena, solver_iterations, solver_ls_iterations)
 
     arm_obs = self._arm.observables
     arm_obs.joint_positions.configure(
-        enabled=True, corruptor=gaussian_noise(observation_noise)
+        enabled=True, corruptor=arm_parts.gaussian_noise(observation_noise)
     )
     arm_obs.joint_velocities.configure(
-        enabled=True, corruptor=gaussian_noise(10 * observation_noise)
+        enabled=True, corruptor=arm_parts.gaussian_noise(10 * observation_noise)
     )
     # A slower, delayed hand tracker: sampled every 2 sub-steps, 1 sub-step
     # late, the last 3 samples stacked.
@@ -155,7 +101,7 @@ class Reach(task.Task):
         aggregator='mean',
     )
     self._ball.observables.position.configure(
-        enabled=True, corruptor=gaussian_noise(observation_noise)
+        enabled=True, corruptor=arm_parts.gaussian_noise(observation_noise)
     )
     for name in ('orientation', 'linear_velocity', 'angular_velocity'):
       self._ball.observables.get_observable(name).enabled = True
