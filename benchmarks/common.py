@@ -41,27 +41,27 @@ def make_task(name='reach', **task_kwargs):
   """A bundled task by name, with `task_kwargs` passed to its constructor."""
   # pylint: disable=g-import-not-at-top
   if name == 'reach':
-    from mjx_composer.tasks import reach
+    from mjx_composer.suite.tasks import reach
 
     return reach.Reach(**task_kwargs)
   if name == 'push':
-    from mjx_composer.tasks import push
+    from mjx_composer.suite.tasks import push
 
     return push.Push(**task_kwargs)
   if name == 'walk':
-    from mjx_composer.tasks import walk
+    from mjx_composer.suite.tasks import walk
 
     return walk.Walk(**task_kwargs)
   if name == 'walk_terrain':
-    from mjx_composer.tasks import walk_terrain
+    from mjx_composer.suite.tasks import walk_terrain
 
     return walk_terrain.TerrainWalk(**task_kwargs)
   if name == 'joystick':
-    from mjx_composer.tasks import joystick
+    from mjx_composer.suite.tasks import joystick
 
     return joystick.Joystick(**task_kwargs)
   if name == 'joystick_terrain':
-    from mjx_composer.tasks import joystick_terrain
+    from mjx_composer.suite.tasks import joystick_terrain
 
     return joystick_terrain.TerrainJoystick(**task_kwargs)
   # pylint: enable=g-import-not-at-top
@@ -153,7 +153,7 @@ def make_walk_like_playground(time_limit, **env_kwargs):
   """
   # pylint: disable=g-import-not-at-top
   from mjx_composer import environment
-  from mjx_composer.tasks import walk
+  from mjx_composer.suite.tasks import walk
 
   # pylint: enable=g-import-not-at-top
   task = walk.Walk(**walk.PLAYGROUND_EQUIVALENT)

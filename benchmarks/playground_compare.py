@@ -217,7 +217,7 @@ def env_variants(names, **env_kwargs):
   """
   # pylint: disable=g-import-not-at-top
   from mjx_composer import environment
-  from mjx_composer.tasks import walk
+  from mjx_composer.suite.tasks import walk
 
   # pylint: enable=g-import-not-at-top
   envs = {}

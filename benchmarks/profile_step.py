@@ -53,7 +53,7 @@ def _make_envs(task, variants, impl='jax'):
   """`{name: Environment}` for the composed programs to profile."""
   kwargs = {}
   if task == 'walk':
-    from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+    from mjx_composer.suite.tasks import walk  # pylint: disable=g-import-not-at-top
 
     kwargs = dict(walk.PLAYGROUND_EQUIVALENT, time_limit=walk.EPISODE_SECONDS)
   elif task == 'reach':

@@ -29,7 +29,7 @@ import optax
 
 import mjx_composer as composer
 from mjx_composer import platform
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 
 
 class Policy(nn.Module):

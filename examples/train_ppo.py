@@ -109,7 +109,7 @@ TASK_DEFAULTS = {
 
 
 def parse_args(argv=None):
-  from mjx_composer.tasks import registry  # pylint: disable=g-import-not-at-top
+  from mjx_composer.suite.tasks import registry  # pylint: disable=g-import-not-at-top
 
   parser = argparse.ArgumentParser(description=__doc__.split('\n')[0])
   parser.add_argument('--task', default='reach', choices=registry.names())
@@ -543,7 +543,7 @@ def make_brax_env(args):
   # pylint: disable=g-import-not-at-top
   import mjx_composer as composer
   from mjx_composer.adapters import brax as brax_adapter
-  from mjx_composer.tasks import registry
+  from mjx_composer.suite.tasks import registry
 
   # pylint: enable=g-import-not-at-top
 

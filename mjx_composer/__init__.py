@@ -95,3 +95,9 @@ __version__ = _version()
 from mjx_composer import platform  # pylint: disable=g-bad-import-order
 
 platform.safe_defaults()
+
+# The bundled content's old paths (`mjx_composer.entities`, `.tasks` and
+# `.locomotion`, now in `mjx_composer.suite`), for this release.
+from mjx_composer.suite import old_paths  # pylint: disable=g-bad-import-order
+
+old_paths.install()

@@ -1,13 +1,13 @@
 """The `mjx-composer` command line: `mjx-composer demo|list|train|play|export`.
 
-`demo` builds a registered task (`mjx_composer.tasks.registry`: the bundled
-ones, or yours), runs N worlds for T control steps on the default JAX device
-(the CPU unless a GPU build of JAX is installed) with a random policy, shows
-progress, and prints throughput and episode statistics. `list` prints the
-registered tasks, one a line. `train`, `play` and `export` train a
-registered task with Brax's PPO into a run folder, watch the trained policy
-and export it as ONNX (`mjx_composer.training`; `pip install
-'mjx-composer[train]'`).
+`demo` builds a registered task (`mjx_composer.suite.tasks.registry`: the
+bundled ones, or yours), runs N worlds for T control steps on the default
+JAX device (the CPU unless a GPU build of JAX is installed) with a random
+policy, shows progress, and prints throughput and episode statistics.
+`list` prints the registered tasks, one a line. `train`, `play` and
+`export` train a registered task with Brax's PPO into a run folder, watch
+the trained policy and export it as ONNX (`mjx_composer.training`; `pip
+install 'mjx-composer[train]'`).
 
 Compiled programs are kept in JAX's persistent compilation cache
 (`mjx_composer.platform.compilation_cache`), so a second run with the same
@@ -25,7 +25,7 @@ import tqdm
 
 from mjx_composer import environment
 from mjx_composer import platform
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 
 _COMMANDS = ('demo', 'list', 'train', 'play', 'export')
 
@@ -219,7 +219,9 @@ def list_tasks(argv=None):
   """`mjx-composer list`: the registered tasks, one a line."""
   argparse.ArgumentParser(
       prog='mjx-composer list',
-      description='List the registered tasks (mjx_composer.tasks.registry).',
+      description=(
+          'List the registered tasks (mjx_composer.suite.tasks.registry).'
+      ),
   ).parse_args(argv)
   width = max(map(len, registry.names()), default=0)
   for name in registry.names():

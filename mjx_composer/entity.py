@@ -221,7 +221,7 @@ class Entity(abc.ABC):
         raise TypeError(
             f'{type(entity).__name__} is a dm_control composer.Entity: wrap '
             'it to attach it, attach(DmControlEntity(entity)) with '
-            '`from mjx_composer.entities.dm_control_entity import '
+            '`from mjx_composer.suite.entities.dm_control_entity import '
             'DmControlEntity`.'
         )
       raise TypeError(

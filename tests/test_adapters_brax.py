@@ -13,9 +13,9 @@ from brax.envs import wrappers as brax_wrappers
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import train as ppo
 
-from mjx_composer.tasks import reach
 from mjx_composer import environment as environment_lib
 from mjx_composer.adapters import brax as brax_adapter
+from mjx_composer.suite.tasks import reach
 from tests import conftest
 
 _N = 4

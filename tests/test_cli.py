@@ -4,7 +4,7 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer import cli
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 
 
 def test_demo_runs_and_reports(capsys):

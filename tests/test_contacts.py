@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.entities import arenas
-from mjx_composer.entities import props
 from mjx_composer.observation import contact_sensor
 from mjx_composer.observation import contacts
 from mjx_composer.observation.observable import contact as contact_obs
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import props
 
 _DT = 0.01
 _BALL_RADIUS = 0.1

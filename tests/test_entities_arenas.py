@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.entities import arenas
-from mjx_composer.entities import props
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import props
 from mjx_composer.variation import distributions
 
 _LOW, _HIGH = np.array([0.3, 0.4]), np.array([0.6, 0.8])

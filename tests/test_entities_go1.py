@@ -11,8 +11,8 @@ import pytest
 
 from mjx_composer import environment
 from mjx_composer import task
-from mjx_composer.entities import arenas
-from mjx_composer.entities import go1
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import go1
 
 _MESHES = ('trunk', 'hip', 'thigh_mirror', 'calf', 'thigh')
 

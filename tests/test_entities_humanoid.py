@@ -8,8 +8,8 @@ import pytest
 
 from mjx_composer import environment
 from mjx_composer import task
-from mjx_composer.entities import arenas
-from mjx_composer.entities import humanoid
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import humanoid
 
 
 @pytest.fixture(scope='module')

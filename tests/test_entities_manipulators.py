@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.entities.manipulators import base as manipulators
-from mjx_composer.tasks import reach
+from mjx_composer.suite.entities.manipulators import base as manipulators
+from mjx_composer.suite.tasks import reach
 
 
 @pytest.fixture(scope='module')

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.entities import position_detector
-from mjx_composer.entities import props
+from mjx_composer.suite.entities import position_detector
+from mjx_composer.suite.entities import props
 
 _WORLDS = 200
 _CUBE_SIZE = np.array([0.3, 0.3, 0.3])

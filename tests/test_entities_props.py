@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.entities import props
+from mjx_composer.suite.entities import props
 
 _SHAPES = {
     'sphere': (props.Sphere, dict(radius=0.05), [0.05, 0.0, 0.0]),

@@ -4,8 +4,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from mjx_composer.entities import arenas
-from mjx_composer.entities import robots
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import robots
 
 
 @pytest.fixture(scope='module')

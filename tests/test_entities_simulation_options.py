@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from mjx_composer import environment
-from mjx_composer.entities import simulation_options
-from mjx_composer.tasks import push
-from mjx_composer.tasks import reach
+from mjx_composer.suite.entities import simulation_options
+from mjx_composer.suite.tasks import push
+from mjx_composer.suite.tasks import reach
 
 _TASKS = {'reach': reach.Reach, 'push': push.Push}
 

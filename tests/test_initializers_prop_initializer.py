@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.platform import backend
 from mjx_composer import initializers
-from mjx_composer.entities import props
+from mjx_composer.platform import backend
+from mjx_composer.suite.entities import props
 from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
 from mjx_composer.variation import rotations

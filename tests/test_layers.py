@@ -46,10 +46,9 @@ LAYER_OF = {
     'host': 'host',
     'adapters': 'adapters',
     'training': 'training',
-    # Bundled parts: built with the authoring API like a user's own.
-    'entities': 'bundled',
-    'tasks': 'bundled',
-    'locomotion': 'bundled',
+    # Content: robots, props, arenas, tasks and the locomotion kit, built
+    # with the authoring API like a user's own.
+    'suite': 'content',
     # Entry points: may import anything.
     'cli': 'entry',
     '__main__': 'entry',
@@ -68,14 +67,14 @@ ALLOWED = {
     'environment': {'environment', 'runtime'} | _BELOW_AUTHORING,
     'host': {'host', 'environment', 'runtime'} | _BELOW_AUTHORING,
     'adapters': {'adapters', 'environment', 'runtime'} | _BELOW_AUTHORING,
-    'bundled': {'bundled'} | _BELOW_AUTHORING,
+    'content': {'content'} | _BELOW_AUTHORING,
     # Training from the command line: runs Brax through the adapter, renders
     # with host/, builds tasks by name through the registry.
     'training': {
         'training',
         'host',
         'adapters',
-        'bundled',
+        'content',
         'environment',
         'runtime',
     }
@@ -85,8 +84,8 @@ ALLOWED = {
 
 # Modules allowed more than their layer: {module: extra layers}.
 EXCEPTIONS = {
-    # The registry of bundled tasks builds their environments by name.
-    'mjx_composer.tasks.registry': {'environment'},
+    # The registry of the suite's tasks builds their environments by name.
+    'mjx_composer.suite.tasks.registry': {'environment'},
 }
 
 # The one module that may import private modules and read `_impl`.
@@ -242,7 +241,7 @@ def test_a_planted_violation_is_reported(tmp_path):
       '  return data._impl\n'
   )
   (root / 'entity_planted.py').write_text(
-      'from mujoco.mjx._src import math\nfrom . import tasks\n'
+      'from mujoco.mjx._src import math\nfrom .suite import tasks\n'
   )
   problems = package_violations(root)
   print('\n'.join(problems))  # shown with pytest -s
@@ -260,7 +259,7 @@ def test_a_planted_violation_is_reported(tmp_path):
       "mjx_composer.platform.planted:9: reads MJX's private `_impl`; only "
       f'{INTERNALS} may (internals.data_impl, internals.option_impl, ...)',
   ]
-  # Classified as authoring, the relative import of tasks/ is refused too.
+  # Classified as authoring, the relative import of suite/ is refused too.
   LAYER_OF['entity_planted'] = 'authoring'
   try:
     problems = package_violations(root)
@@ -270,4 +269,4 @@ def test_a_planted_violation_is_reported(tmp_path):
       'mjx_composer.entity_planted:1',
       'mjx_composer.entity_planted:2',
   ]
-  assert 'authoring imports mjx_composer.tasks (bundled)' in problems[1]
+  assert 'authoring imports mjx_composer.suite.tasks (content)' in problems[1]

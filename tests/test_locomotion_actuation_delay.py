@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.locomotion import actuation_delay
+from mjx_composer.suite.locomotion import actuation_delay
 from tests import conftest
 
 _WORLDS = 4

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from mjx_composer import physics as physics_lib
-from mjx_composer.locomotion import commands
+from mjx_composer.suite.locomotion import commands
 
 _KEYS = 4096
 

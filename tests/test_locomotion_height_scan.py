@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.locomotion import height_scan
+from mjx_composer.suite.locomotion import height_scan
 from mjx_composer.utils import transformations
 
 _WORLDS = 2

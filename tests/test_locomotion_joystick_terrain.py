@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from mjx_composer import environment
-from mjx_composer.tasks import joystick
-from mjx_composer.tasks import joystick_terrain
-from mjx_composer.tasks import registry
-from mjx_composer.tasks import terrain_part
+from mjx_composer.suite.locomotion.terrain import terrain_part
+from mjx_composer.suite.tasks import joystick
+from mjx_composer.suite.tasks import joystick_terrain
+from mjx_composer.suite.tasks import registry
 from tests import terrain_tasks
 
 _WORLDS = 2

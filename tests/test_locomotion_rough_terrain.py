@@ -8,9 +8,9 @@ import pytest
 
 from mjx_composer import environment
 from mjx_composer import task
-from mjx_composer.entities import arenas
-from mjx_composer.entities import props
-from mjx_composer.locomotion import terrain
+from mjx_composer.suite.entities import arenas
+from mjx_composer.suite.entities import props
+from mjx_composer.suite.locomotion import terrain
 
 _BALL_XY = (0.3, -0.7)
 _RADIUS = 0.05

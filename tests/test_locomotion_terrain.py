@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.entities import props
-from mjx_composer.locomotion import curriculum
-from mjx_composer.locomotion import terrain as terrain_lib
-from mjx_composer.locomotion.terrain import sub_terrains
+from mjx_composer.suite.entities import props
+from mjx_composer.suite.locomotion import curriculum
+from mjx_composer.suite.locomotion import terrain as terrain_lib
+from mjx_composer.suite.locomotion.terrain import sub_terrains
 
 _TILE = 2.0
 _LEVELS = 3

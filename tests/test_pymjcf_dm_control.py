@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.entities.dm_control_entity import DmControlEntity
+from mjx_composer.suite.entities.dm_control_entity import DmControlEntity
 
 _BATCH = 2
 

@@ -1,8 +1,8 @@
 """Every bundled task's and locomotion part's argument refuses bad values.
 
 A property-style sweep over the bundled tasks, the locomotion kit
-(`mjx_composer.locomotion`: every public class), `policy_observable` and the
-contact observation parts. The arguments come from the constructors'
+(`mjx_composer.suite.locomotion`: every public class), `policy_observable`
+and the contact observation parts. The arguments come from the constructors'
 signatures (an entity's from its `_build`), the bad values from each
 argument's kind (read from its default, or given in `_KINDS`): non-finite,
 negative (unless the default is), wrong order or wrong type; for a sequence
@@ -29,21 +29,23 @@ import re
 import mujoco
 import pytest
 
-from mjx_composer import locomotion as locomotion_package
 from mjx_composer import task as task_lib
-from mjx_composer import tasks as tasks_package
-from mjx_composer.locomotion import actuation_delay
-from mjx_composer.locomotion import commands
-from mjx_composer.locomotion import curriculum
-from mjx_composer.locomotion import height_scan
-from mjx_composer.locomotion import terrain
-from mjx_composer.locomotion.terrain import sub_terrains
-from mjx_composer.locomotion.terrain import surface
 from mjx_composer.observation import contact_sensor
 from mjx_composer.observation import observable
 from mjx_composer.observation.observable import contact
-from mjx_composer.tasks import locomotion
-from mjx_composer.tasks import registry
+from mjx_composer.suite import locomotion as locomotion_package
+from mjx_composer.suite import tasks as tasks_package
+from mjx_composer.suite.locomotion import actuation_delay
+from mjx_composer.suite.locomotion import commands
+from mjx_composer.suite.locomotion import curriculum
+from mjx_composer.suite.locomotion import height_scan
+from mjx_composer.suite.locomotion import policy_critic
+from mjx_composer.suite.locomotion import pushes
+from mjx_composer.suite.locomotion import terrain
+from mjx_composer.suite.locomotion.terrain import sub_terrains
+from mjx_composer.suite.locomotion.terrain import surface
+from mjx_composer.suite.locomotion.terrain import terrain_part
+from mjx_composer.suite.tasks import registry
 
 _NAN, _INF = math.nan, math.inf
 
@@ -140,7 +142,7 @@ _REGISTERED = {
     'joystick_terrain': 'TerrainJoystick',
 }
 # Helpers of the bundled tasks that take user arguments too.
-_HELPERS = (locomotion.Pushes, locomotion.policy_observable)
+_HELPERS = (pushes.Pushes, policy_critic.policy_observable)
 # The locomotion kit and the contact observation parts.
 _PARTS = (
     commands.VelocityCommand,
@@ -156,7 +158,7 @@ _PARTS = (
 
 
 def _task_classes():
-  """Every `Task` subclass defined in a module of `mjx_composer.tasks`."""
+  """Every `Task` subclass defined in a module of `mjx_composer.suite.tasks`."""
   classes = {}
   for info in pkgutil.iter_modules(tasks_package.__path__):
     module = importlib.import_module(f'{tasks_package.__name__}.{info.name}')
@@ -249,13 +251,13 @@ def _required(cls):
       name='motor', target='hinge', trntype=mujoco.mjtTrn.mjTRN_JOINT
   )
   return {
-      locomotion.Pushes: lambda: {'interval': 1},
+      pushes.Pushes: lambda: {'interval': 1},
       actuation_delay.ActuationDelay: lambda: {'actuators': [motor]},
       height_scan.HeightScan: lambda: {'frame': body},
       curriculum.TerrainCurriculum: lambda: {'terrain': _terrain()},
       contact_sensor.ContactSensor: lambda: {'rows': ['foot']},
       contact.ContactFeature: lambda: {'kind': 'touching', 'first': 'foot'},
-      locomotion.policy_observable: lambda: {
+      policy_critic.policy_observable: lambda: {
           'obs': observable.Generic(lambda physics: 0.0),
           'n_sub_steps': 1,
       },
@@ -298,10 +300,13 @@ def test_sweep_covers_every_locomotion_part():
         and not key.startswith('_')
     }
   # The height field and its arena base are built by the terrain arenas
-  # (swept above), not by users.
-  missing = (
-      public - set(_PARTS) - {surface.HeightField, surface.HeightFieldArena}
-  )
+  # (swept above), not by users; the terrain tasks' part by those tasks.
+  built_by_parts = {
+      surface.HeightField,
+      surface.HeightFieldArena,
+      terrain_part.TerrainPart,
+  }
+  missing = public - set(_PARTS) - set(_HELPERS) - built_by_parts
   assert not missing, (
       f'Add {sorted(c.__name__ for c in missing)} to _PARTS (with its '
       'required arguments in _required), so that its arguments are swept.'

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from mjx_composer import environment
-from mjx_composer.entities import go1
 from mjx_composer.runtime.state import StepType
-from mjx_composer.tasks import joystick
-from mjx_composer.tasks import registry
+from mjx_composer.suite.entities import go1
+from mjx_composer.suite.tasks import joystick
+from mjx_composer.suite.tasks import registry
 
 _WORLDS = 2
 _STEPS = 6  # The time limit, in control steps.

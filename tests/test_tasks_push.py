@@ -16,8 +16,8 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer import cli
-from mjx_composer.tasks import push
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import push
+from mjx_composer.suite.tasks import registry
 
 _WORLDS = 256
 

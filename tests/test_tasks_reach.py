@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mjx_composer import environment
-from mjx_composer.tasks import reach
+from mjx_composer.suite.tasks import reach
 
 
 @pytest.fixture(scope='module')

@@ -7,7 +7,7 @@ import warnings
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 from tests import conftest
 
 
@@ -34,15 +34,15 @@ def test_bundled_tasks_are_registered_without_importing_them():
   # Listing and describing built nothing: a fresh interpreter that imports
   # the registry has imported no task module.
   code = (
-      'import sys; from mjx_composer.tasks import registry; '
+      'import sys; from mjx_composer.suite.tasks import registry; '
       'registry.names(); '
       'print(sorted(m for m in sys.modules '
-      "if m.startswith('mjx_composer.tasks.')))"
+      "if m.startswith('mjx_composer.suite.tasks.')))"
   )
   out = subprocess.run(
       [sys.executable, '-c', code], capture_output=True, text=True, check=True
   ).stdout
-  assert out.strip().splitlines()[-1] == "['mjx_composer.tasks.registry']"
+  assert out.strip().splitlines()[-1] == "['mjx_composer.suite.tasks.registry']"
 
 
 def test_register_as_decorator_and_as_call(scratch_names):

@@ -12,8 +12,8 @@ import pytest
 
 from mjx_composer import environment
 from mjx_composer.runtime.state import StepType
-from mjx_composer.tasks import registry
-from mjx_composer.tasks import walk
+from mjx_composer.suite.tasks import registry
+from mjx_composer.suite.tasks import walk
 
 _WORLDS = 2
 _STEPS = 6  # The time limit, in control steps.

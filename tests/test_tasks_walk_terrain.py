@@ -13,8 +13,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from mjx_composer.tasks import registry
-from mjx_composer.tasks import walk_terrain
+from mjx_composer.suite.tasks import registry
+from mjx_composer.suite.tasks import walk_terrain
 from mjx_composer.training import config
 from tests import terrain_tasks
 

@@ -18,7 +18,7 @@ import pytest
 
 from mjx_composer import cli
 from mjx_composer.observation import groups as groups_lib
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 from mjx_composer.training import checkpoints
 from mjx_composer.training import config as config_lib
 from mjx_composer.training import export as export_lib

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mjx_composer import environment
-from mjx_composer.tasks import reach
+from mjx_composer.suite.tasks import reach
 from mjx_composer.utils import inverse_kinematics as ik
 from mjx_composer.utils import transformations as tr
 

@@ -26,7 +26,7 @@ import json
 import os
 from typing import Any, Literal, Mapping, Optional
 
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 
 
 @dataclasses.dataclass(frozen=True)
@@ -170,15 +170,16 @@ def register_defaults(task: str, **overrides) -> None:
 
   Raises:
     ValueError: for a task that is not registered (register it first, with
-      `mjx_composer.tasks.registry.register`), or a name that is not a
+      `mjx_composer.suite.tasks.registry.register`), or a name that is not a
       `TrainConfig` field.
   """
   if not isinstance(task, str) or task not in registry.names():
     raise ValueError(
         f'register_defaults: `task` {task!r} is not a registered task, so '
         'no run would use these defaults. Register the task first '
-        f'(mjx_composer.tasks.registry.register({task!r}, make_task)), then '
-        f'its defaults; registered tasks: {", ".join(registry.names())}.'
+        '(mjx_composer.suite.tasks.registry.register('
+        f'{task!r}, make_task)), then its defaults; registered tasks: '
+        f'{", ".join(registry.names())}.'
     )
   _check_keys(overrides, f'register_defaults({task!r}, ...)')
   TASK_DEFAULTS[task] = dict(overrides)

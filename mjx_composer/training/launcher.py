@@ -187,7 +187,7 @@ def _send_task(run_path: str, log_dir: str) -> None:
       function), with the fix.
   """
   # pylint: disable=g-import-not-at-top
-  from mjx_composer.tasks import registry
+  from mjx_composer.suite.tasks import registry
   from mjx_composer.training import run_folder
 
   # pylint: enable=g-import-not-at-top
@@ -232,7 +232,7 @@ def _receive_task(run_path: str) -> None:
   # pylint: disable=g-import-not-at-top
   import io
 
-  from mjx_composer.tasks import registry
+  from mjx_composer.suite.tasks import registry
 
   # pylint: enable=g-import-not-at-top
   path = os.path.join(run_path, LOG_DIR, _TASK_FILE)

@@ -13,7 +13,7 @@ import functools
 
 from mjx_composer import environment as environment_lib
 from mjx_composer.adapters import brax as brax_adapter
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 from mjx_composer.training import config as config_lib
 
 POLICY_GROUP = 'policy'

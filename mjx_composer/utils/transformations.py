@@ -112,3 +112,10 @@ def quat_to_vel(q):
   angle = jnp.where(angle > jnp.pi, angle - 2 * jnp.pi, angle)
   safe = jnp.where(sin_half > 0, sin_half, 1.0)
   return jnp.where(sin_half > 0, xyz * (angle / safe), 0.0)
+
+
+def yaw_quaternion(yaw):
+  """The quaternion (4,) of a rotation by `yaw` about the world's z axis."""
+  return jnp.stack(
+      [jnp.cos(yaw / 2), 0.0 * yaw, 0.0 * yaw, jnp.sin(yaw / 2)]
+  ).astype(jnp.float32)

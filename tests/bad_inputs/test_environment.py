@@ -335,7 +335,7 @@ def test_host_reset_succeeds_when_a_retry_succeeds():
 
 def test_demo_says_what_it_compiles_before_compiling(capsys, monkeypatch):
   from mjx_composer import cli  # pylint: disable=g-import-not-at-top
-  from mjx_composer.tasks import registry  # pylint: disable=g-import-not-at-top
+  from mjx_composer.suite.tasks import registry  # pylint: disable=g-import-not-at-top
 
   before_compiling = []
   make_rollout = cli.make_rollout

@@ -5,7 +5,7 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer import initializers
-from mjx_composer.entities import props
+from mjx_composer.suite.entities import props
 from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
 

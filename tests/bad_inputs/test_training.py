@@ -2,7 +2,7 @@
 
 import pytest
 
-from mjx_composer.tasks import registry
+from mjx_composer.suite.tasks import registry
 from mjx_composer.training import config
 from tests import conftest
 
@@ -13,7 +13,7 @@ def test_register_defaults_refuses_a_task_that_is_not_registered(task):
   with pytest.raises(
       ValueError,
       match=rf'register_defaults: `task` {task!r} is not a registered task.*'
-      r'Register the task first \(mjx_composer.tasks.registry.register\(.*'
+      r'Register the task first \(mjx_composer.suite.tasks.registry.register\(.*'
       r'registered tasks: .*walk',
   ):
     config.register_defaults(task, num_envs=64)

@@ -20,12 +20,12 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
+from mjx_composer import environment
 from mjx_composer.platform import backend
 from mjx_composer.platform import internals
-from mjx_composer import environment
-from mjx_composer.tasks import joystick
-from mjx_composer.tasks import push
-from mjx_composer.tasks import reach
+from mjx_composer.suite.tasks import joystick
+from mjx_composer.suite.tasks import push
+from mjx_composer.suite.tasks import reach
 from tests import conftest
 
 WORLDS = 8

@@ -471,7 +471,7 @@ def test_step_hooks_reading_the_reset_state_are_served(field, stage):
 
 
 def test_bundled_tasks_stages():
-  from mjx_composer.tasks import reach  # pylint: disable=g-import-not-at-top
+  from mjx_composer.suite.tasks import reach  # pylint: disable=g-import-not-at-top
 
   env = composer.Environment(reach.Reach(), time_limit=1.0)
   # Ball pose and velocity sensors, a delayed hand position: velocities.
@@ -479,7 +479,7 @@ def test_bundled_tasks_stages():
 
 
 def test_walk_stages_follow_the_sensors_read():
-  from mjx_composer.tasks import walk  # pylint: disable=g-import-not-at-top
+  from mjx_composer.suite.tasks import walk  # pylint: disable=g-import-not-at-top
 
   # The critic group reads the torso's accelerometer: the full pass.
   assert (

@@ -303,8 +303,8 @@ def test_a_single_substep_keeps_mjx_step():
 
 def test_the_locomotion_tasks_compute_their_sensors_once_per_step():
   # pylint: disable=g-import-not-at-top
-  from mjx_composer.tasks import joystick
-  from mjx_composer.tasks import walk
+  from mjx_composer.suite.tasks import joystick
+  from mjx_composer.suite.tasks import walk
 
   # pylint: enable=g-import-not-at-top
   # Walk shipped (pushes, falls, noise, delay, history, the critic's

@@ -19,8 +19,8 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer.runtime import control_flow
-from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import fused_restart
+from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
 from tests import conftest
@@ -347,11 +347,11 @@ def test_the_separate_step_branches_only_inside_its_reset(
   at steps where some world's episode ends."""
   # pylint: disable=g-import-not-at-top
   if task_name == 'reach':
-    from mjx_composer.tasks import reach
+    from mjx_composer.suite.tasks import reach
 
     task = reach.Reach()
   else:
-    from mjx_composer.tasks import walk
+    from mjx_composer.suite.tasks import walk
 
     task = walk.Walk()
   # pylint: enable=g-import-not-at-top

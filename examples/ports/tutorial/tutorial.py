@@ -29,13 +29,13 @@ from dm_control import mjcf
 
 # Composer high level imports
 import mjx_composer as composer
-from mjx_composer.observation import observable
 from mjx_composer import variation
+from mjx_composer.observation import observable
 
 # Imports for Composer tutorial example
+from mjx_composer.suite.entities import arenas as floors
 from mjx_composer.variation import distributions
 from mjx_composer.variation import noises
-from mjx_composer.entities import arenas as floors
 
 import jax.numpy as jnp
 import numpy as np

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 import mjx_composer as composer
 from mjx_composer import variation
 from mjx_composer.observation import contacts
-from mjx_composer.tasks import locomotion as rewards
+from mjx_composer.utils import rewards
 
 
 class RunThroughCorridor(composer.Task):
