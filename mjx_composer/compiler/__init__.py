@@ -35,8 +35,8 @@ it:
 The derivations follow MuJoCo's `user_objects.cc` (`mjCGeom::Compile`,
 `mjCBody::Compile`, `InertiaFromGeom`), `user_util.cc` (`mjuu_eig3`) and
 `engine_setconst.c`, and are checked field by field against the compiler in
-`tests/test_compiler.py`, which is the reference when the two disagree
-(e.g. the dampratio formula differs from newer sources).
+`tests/compiler/test_compiler.py`, which is the reference when the two
+disagree (e.g. the dampratio formula differs from newer sources).
 
 Float32 on the device against the compiler's float64 agrees to about 1e-6
 relative. Where the answer is not unique the result may differ in a way that

@@ -6,7 +6,8 @@ JAX settings the package's entry points switch on (`compilation_cache`,
 `prng_lowering`, `cpu_linalg`; all three at once: `configure`), and the one
 module that uses JAX's and MJX's private internals (`internals`).
 
-This subpackage imports nothing else of `mjx_composer` (`tests/test_layers.py`).
+This subpackage imports nothing else of `mjx_composer`
+(`tests/package/test_layers.py`).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ table and quaternion math, and MuJoCo Warp's default constraint rows. This
 module is the only one that imports a private module (`jax._src`,
 `mujoco.mjx._src`, `mujoco.mjx.third_party.mujoco_warp._src`) or reads an
 `_impl` field; every other module calls the names below. When JAX, MuJoCo or MuJoCo Warp is
-upgraded, this file is the one to revisit (`tests/test_layers.py` keeps
+upgraded, this file is the one to revisit (`tests/package/test_layers.py` keeps
 private imports out of the rest of the package).
 
 Each name says what private thing it wraps and why the package needs it.

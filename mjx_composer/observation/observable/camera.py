@@ -21,7 +21,8 @@ What differs from an OpenGL image: geoms are those `mjx.ray` intersects
 height fields), in the geom groups MuJoCo shows by default (0, 1 and 2),
 transparent ones (alpha 0) skipped; no textures, materials, shadows, lights
 or skybox. Depth and segmentation are what MuJoCo's own ray casting
-(`mj_ray`) gives for the same rays (`tests/test_observation_camera.py`).
+(`mj_ray`) gives for the same rays
+(`tests/observation/observable/test_camera.py`).
 Each pixel tests every geom, so the cost is `height x width x ngeom` ray-geom
 tests per sample: keep images small (tens of pixels a side) for training.
 """

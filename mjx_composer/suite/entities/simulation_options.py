@@ -34,7 +34,7 @@ MJX_NUMERICS = ('max_contact_points', 'max_geom_pairs')
 # (`docs/performance.md`). MuJoCo's C solver needs 1-6
 # iterations on these models, and the caps move their trajectories by less
 # than 1e-4 in qpos and 5e-3 in qvel over 2 s
-# (`tests/test_entities_simulation_options.py`).
+# (`tests/suite/entities/test_simulation_options.py`).
 SOLVER_CAPS = {'iterations': 4, 'ls_iterations': 8}
 
 

@@ -16,7 +16,7 @@ triangles (each grid cell split along the diagonal from its lower-left to
 its upper-right corner, as MuJoCo's collision and `mj_ray` split it), read
 from this world's `hfield_data` so a per-world terrain is scanned as it is.
 The result equals `mj_ray`'s on the same scene and rays
-(`tests/test_locomotion_height_scan.py`).
+(`tests/suite/locomotion/test_height_scan.py`).
 
 The rays always point down the world's z axis (a height scan measures
 heights); `alignment` says how the grid follows the frame: 'yaw' (rotated by

@@ -46,8 +46,9 @@ one grid cell wide on its lower side: a foot resting on a top is where it
 would be on the box, and the foot of a riser moves out by one cell. A gap
 of one cell between blocks closes (no grid point lies in it). The blocks
 returned are the snapped ones, so a model built from them as box geoms is
-the box version of the same tile (`tests/test_locomotion_terrain.py`
-compares the two in MuJoCo C).
+the box version of the same tile
+(`tests/suite/locomotion/terrain/test_generator.py` compares the two in
+MuJoCo C).
 """
 
 import dataclasses

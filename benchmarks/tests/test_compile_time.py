@@ -1,0 +1,134 @@
+"""benchmarks/compile_time.py without compiling: tasks, programs, ratios."""
+
+import argparse
+
+import jax
+import pytest
+
+import compile_time  # benchmarks/compile_time.py
+
+
+def test_tasks_are_bundled_tasks_or_walk_variants():
+  for name in (
+      'reach',
+      'push',
+      'walk',
+      'joystick',
+      'walk:ours_off',
+      'reach:fixed',
+      'push:fixed',
+  ):
+    assert compile_time.task_name(name) == name
+  assert (
+      compile_time.task_name('walk:only_push+noise') == 'walk:only_push+noise'
+  )
+  for name, message in (
+      ('run', 'unknown task'),
+      ('reach:ours_off', 'unknown task'),
+      ('walk:fixed', 'unknown'),  # walk's variants name their features
+      ('walk:playground', 'unknown task'),  # not ours: nothing to compile
+      ('walk:only_wind', "unknown program 'only_wind'"),
+  ):
+    with pytest.raises(argparse.ArgumentTypeError, match=message):
+      compile_time.task_name(name)
+
+
+def test_a_variants_raw_programs_are_measured_once_under_its_base_task():
+  programs = ['raw_step', 'step']
+  assert compile_time.measured_programs(
+      ['walk', 'walk:ours_off', 'reach'], programs
+  ) == [
+      ('walk', 'raw_step'),
+      ('walk', 'step'),
+      ('walk:ours_off', 'step'),
+      ('reach', 'raw_step'),
+      ('reach', 'step'),
+  ]
+  # Without its base task, a variant measures its own raw programs.
+  assert compile_time.measured_programs(['walk:ours_off'], programs) == [
+      ('walk:ours_off', 'raw_step'),
+      ('walk:ours_off', 'step'),
+  ]
+
+
+def test_a_variant_is_divided_by_its_base_tasks_raw_program():
+  def row(task, program, total_s, hlo):
+    return {
+        'task': task,
+        'program': program,
+        'total_s': total_s,
+        'hlo_instructions': hlo,
+    }
+
+  rows = [
+      row('walk', 'raw_step', 10.0, 1000),
+      row('walk', 'step', 20.0, 2000),
+      row('walk:ours_off', 'step', 11.0, 1100),
+  ]
+  ratios = {r['task']: r for r in compile_time.ratios(rows)}
+  assert ratios['walk']['total_s'] == pytest.approx(2.0)
+  assert ratios['walk:ours_off']['total_s'] == pytest.approx(1.1)
+  assert ratios['walk:ours_off']['hlo_instructions'] == pytest.approx(1.1)
+  assert ratios['walk:ours_off']['program'] == 'step'
+
+
+@pytest.mark.parametrize('task', ['reach', 'walk:ours_off'])
+def test_share_reset_forward_reaches_the_environment(task):
+  """`--share-reset-forward` builds the measured env with that setting."""
+  default = compile_time.make_task_env(task).share_reset_forward
+  for share in (True, False):
+    env = compile_time.make_task_env(task, share_reset_forward=share)
+    assert env.share_reset_forward is share
+  # On a CPU (where the tests run) the default shares the forward pass.
+  assert default is True
+
+
+@pytest.mark.parametrize('task', ['reach', 'walk:ours_off'])
+def test_reset_forward_reaches_the_environment(task):
+  """`--reset-forward` builds the measured env with that setting."""
+  assert (
+      compile_time.make_task_env(task, reset_forward='full').reset_forward_stage
+      == 'full'
+  )
+  observed = compile_time.make_task_env(task, reset_forward='observed')
+  default = compile_time.make_task_env(task)
+  assert observed.reset_forward_stage == default.reset_forward_stage
+  if task == 'reach':  # its observables need positions and velocities
+    assert observed.reset_forward_stage == 'velocity'
+
+
+def test_scope_counts_attribute_every_equation_to_its_named_scopes():
+  import jax  # pylint: disable=g-import-not-at-top
+  import jax.numpy as jnp  # pylint: disable=g-import-not-at-top
+
+  def f(x):
+    with jax.named_scope('outer'):
+      y = jnp.sin(x)
+
+      def body(carry, _):
+        with jax.named_scope('inner'):
+          return carry * 2.0 + 1.0, None
+
+      y, _ = jax.lax.scan(body, y, None, length=3)
+    return y + 1.0
+
+  jaxpr = jax.make_jaxpr(f)(jnp.ones(2))
+  eqns = list(compile_time._flat_eqns(jaxpr.jaxpr))
+  counts = compile_time.scope_counts(eqns)
+  assert sum(counts.values()) == len(eqns)
+  # The scan's body is counted once, under both scopes, not under 'scan'.
+  assert counts['outer/inner'] == 2  # mul, add
+  assert counts['outer'] == 2  # sin, the scan itself
+  assert counts[''] == 1  # the final add
+  assert list(counts.values()) == sorted(counts.values(), reverse=True)
+  assert compile_time.scope_counts(eqns, depth=1)['outer'] == 4
+
+
+def test_a_fixed_task_has_no_per_episode_randomization():
+  """`reach:fixed` is the same model with no per-world model fields."""
+  randomized = compile_time.make_task_env('reach')
+  fixed = compile_time.make_task_env('reach:fixed')
+  key = jax.random.key(0)
+  assert 'body_mass' in jax.eval_shape(randomized.reset, key).model_fields
+  assert not jax.eval_shape(fixed.reset, key).model_fields
+  assert fixed.mj_model.nbody == randomized.mj_model.nbody

@@ -1,0 +1,86 @@
+"""benchmarks/playground_compare.py: program names, envs, ratios, and one
+tiny measurement in a fresh process (raw MJX, one world, on the CPU)."""
+
+import argparse
+import json
+
+import pytest
+
+import playground_compare  # benchmarks/playground_compare.py
+
+
+def test_ours_programs_take_the_shared_suffix():
+  for name in (
+      'ours_on',
+      'ours_on_shared',
+      'ours_off_shared',
+      'only_noise+randomize_shared',
+      'ours_on_chunk512',
+      'ours_off_all_sensors',
+      'only_noise+randomize_all_sensors_shared',
+      'playground',
+      'playground_trained',
+  ):
+    assert playground_compare.program_name(name) == name
+  for name, message in (
+      ('playground_shared', 'unknown program'),
+      ('playground_trained_shared', 'unknown program'),
+      ('raw_shared', 'unknown program'),
+      ('raw_all_sensors', 'unknown program'),
+      ('ours_on_chunk512_shared', 'separate restart'),
+      ('only_wings_shared', 'unknown program'),
+  ):
+    with pytest.raises(argparse.ArgumentTypeError, match=message):
+      playground_compare.program_name(name)
+
+
+def test_a_shared_program_fuses_the_restart_whatever_the_default():
+  envs = playground_compare.env_variants(
+      ['ours_off', 'ours_off_shared'], share_reset_forward=False
+  )
+  assert not envs['ours_off'].share_reset_forward
+  assert envs['ours_off_shared'].share_reset_forward
+  assert envs['ours_off_shared'].task is not envs['ours_off'].task
+
+
+def test_an_all_sensors_program_computes_them_at_every_substep():
+  envs = playground_compare.env_variants(
+      ['ours_off', 'ours_off_all_sensors'], share_reset_forward=False
+  )
+  assert envs['ours_off'].sensors_once_per_step
+  assert not envs['ours_off_all_sensors'].sensors_once_per_step
+  assert not envs['ours_off_all_sensors'].share_reset_forward
+
+
+def test_ratios_divide_ours_by_each_reference_present():
+  row = {
+      'worlds': 4,
+      'ours_off': {'control_steps_per_s': 300.0},
+      'raw': {'control_steps_per_s': 200.0},
+      'playground': {'control_steps_per_s': 250.0},
+  }
+  playground_compare._ratios(row, ['ours_off', 'ours_on'])
+  assert row['ours_off/raw'] == pytest.approx(1.5)
+  assert row['ours_off/playground'] == pytest.approx(1.2)
+  assert 'ours_off/playground_trained' not in row
+  assert not any(k.startswith('ours_on/') for k in row)
+
+
+def test_isolated_measures_each_program_in_its_own_process(tmp_path):
+  out = tmp_path / 'isolated.json'
+  args = argparse.Namespace(
+      worlds=[1],
+      steps=1,
+      repeats=1,
+      share_reset_forward=None,
+      out=str(out),
+  )
+  playground_compare._main_isolated(args, ['raw'])
+  with open(out) as f:
+    payload = json.load(f)
+  assert payload['isolated']
+  assert payload['task'] == 'walk' and payload['sub_steps'] == 5
+  (row,) = payload['results']
+  assert row['worlds'] == 1
+  assert row['raw']['control_steps_per_s'] > 0
+  assert row['raw']['first_call_s'] >= row['raw']['rollout_compile_s'] > 0

@@ -1,0 +1,272 @@
+"""The layer rule of ARCHITECTURE.md: which modules may import which.
+
+Every module of the package is parsed with `ast` (no import runs), and each
+of its imports, at module level or inside a function, is checked:
+
+* against its layer's allowed layers (`ALLOWED`);
+* for private modules (a dotted path with a `_src` part: `jax._src`,
+  `mujoco.mjx._src`, MuJoCo Warp's and warp's `_src`), which only
+  `platform/internals.py` may import;
+* for reads of MJX's private `_impl` fields (`x._impl` on anything but
+  `self`/`cls`), which only `platform/internals.py` may do.
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import pathlib
+
+import mjx_composer
+
+PACKAGE = 'mjx_composer'
+ROOT = pathlib.Path(mjx_composer.__file__).resolve().parent
+
+# The layer of each module: the first matching prefix (a subpackage) or
+# module name, after `PACKAGE.`.
+LAYER_OF = {
+    'platform': 'platform',
+    'utils': 'utils',
+    'model': 'model',
+    # Authoring: composer's API, what users subclass and bind.
+    'arena': 'authoring',
+    'constants': 'authoring',
+    'define': 'authoring',
+    'entity': 'authoring',
+    'initializer': 'authoring',
+    'robot': 'authoring',
+    'task': 'authoring',
+    'physics': 'authoring',
+    'observation': 'authoring',
+    'variation': 'authoring',
+    'initializers': 'authoring',
+    'compiler': 'authoring',
+    'runtime': 'runtime',
+    'environment': 'environment',
+    'host': 'host',
+    'adapters': 'adapters',
+    'training': 'training',
+    # Content: robots, props, arenas, tasks and the locomotion kit, built
+    # with the authoring API like a user's own.
+    'suite': 'content',
+    # Entry points: may import anything.
+    'cli': 'entry',
+    '__main__': 'entry',
+    '': 'entry',  # the package itself (`import mjx_composer`)
+}
+
+_BELOW_AUTHORING = {'authoring', 'model', 'platform', 'utils'}
+
+# The layers each layer may import (its own included).
+ALLOWED = {
+    'platform': {'platform'},
+    'utils': {'utils'},
+    'model': {'model', 'platform', 'utils'},
+    'authoring': _BELOW_AUTHORING,
+    'runtime': {'runtime'} | _BELOW_AUTHORING,
+    'environment': {'environment', 'runtime'} | _BELOW_AUTHORING,
+    'host': {'host', 'environment', 'runtime'} | _BELOW_AUTHORING,
+    'adapters': {'adapters', 'environment', 'runtime'} | _BELOW_AUTHORING,
+    'content': {'content'} | _BELOW_AUTHORING,
+    # Training from the command line: runs Brax through the adapter, renders
+    # with host/, builds tasks by name through the registry.
+    'training': {
+        'training',
+        'host',
+        'adapters',
+        'content',
+        'environment',
+        'runtime',
+    }
+    | _BELOW_AUTHORING,
+    'entry': set(LAYER_OF.values()),
+}
+
+# Modules allowed more than their layer: {module: extra layers}.
+EXCEPTIONS = {
+    # The registry of the suite's tasks builds their environments by name.
+    'mjx_composer.suite.tasks.registry': {'environment'},
+}
+
+# The one module that may import private modules and read `_impl`.
+INTERNALS = 'mjx_composer.platform.internals'
+
+
+def layer_of(module: str) -> str | None:
+  """The layer of a module of the package (None: not classified)."""
+  rest = module[len(PACKAGE) + 1 :] if module != PACKAGE else ''
+  head = rest.split('.')[0]
+  return LAYER_OF.get(head)
+
+
+def module_name(path: pathlib.Path, root: pathlib.Path = ROOT) -> str:
+  parts = list(path.relative_to(root).with_suffix('').parts)
+  if parts[-1] == '__init__':
+    parts = parts[:-1]
+  return '.'.join([PACKAGE] + parts)
+
+
+def package_modules(root: pathlib.Path = ROOT) -> dict[str, pathlib.Path]:
+  return {module_name(p, root): p for p in sorted(root.rglob('*.py'))}
+
+
+@dataclasses.dataclass(frozen=True)
+class Import:
+  line: int
+  # The dotted path imported; `from a import b`: `a.b`, which names module
+  # `a.b` or, where `b` is not a module, `a` (`_target`).
+  name: str
+
+
+def imports(source: str, module: str, is_package: bool = False):
+  """Every import of `source`, module-level or inside functions."""
+  found = []
+  for node in ast.walk(ast.parse(source)):
+    if isinstance(node, ast.Import):
+      found.extend(Import(node.lineno, a.name) for a in node.names)
+    elif isinstance(node, ast.ImportFrom):
+      base = node.module or ''
+      if node.level:  # relative: resolve against the importing package
+        package = module.split('.') if is_package else module.split('.')[:-1]
+        package = package[: len(package) - (node.level - 1)]
+        base = '.'.join(package + ([base] if base else []))
+      found.extend(Import(node.lineno, f'{base}.{a.name}') for a in node.names)
+  return found
+
+
+def _impl_reads(source: str):
+  """Lines that read an `_impl` attribute of something other than self/cls."""
+  lines = []
+  for node in ast.walk(ast.parse(source)):
+    if isinstance(node, ast.Attribute) and node.attr == '_impl':
+      owner = node.value
+      if not (isinstance(owner, ast.Name) and owner.id in ('self', 'cls')):
+        lines.append(node.lineno)
+  return lines
+
+
+def _target(name: str, modules) -> str | None:
+  """The package module an import names (the longest known prefix)."""
+  while name:
+    if name in modules:
+      return name
+    name = name.rpartition('.')[0]
+  return None
+
+
+def violations(
+    module: str, source: str, modules, is_package: bool = False
+) -> list[str]:
+  """What in `source` (the text of `module`) breaks the layer rule."""
+  problems = []
+  layer = layer_of(module)
+  if layer is None:
+    return [
+        f'{module}: in no layer; add it to LAYER_OF in '
+        'tests/package/test_layers.py and to the Layers table of ARCHITECTURE.md'
+    ]
+  allowed = ALLOWED[layer] | EXCEPTIONS.get(module, set())
+  reported = set()
+  for imp in imports(source, module, is_package):
+    if '_src' in imp.name.split('.') and module != INTERNALS:
+      key = (imp.line, 'private')
+      if key not in reported:
+        reported.add(key)
+        problems.append(
+            f'{module}:{imp.line}: imports the private module {imp.name}; '
+            f'only {INTERNALS} may (add a named function there)'
+        )
+      continue
+    if imp.name != PACKAGE and not imp.name.startswith(PACKAGE + '.'):
+      continue
+    target = _target(imp.name, modules)
+    if target is None or target == module:
+      continue
+    target_layer = layer_of(target)
+    if target_layer not in allowed:
+      key = (imp.line, target)
+      if key not in reported:
+        reported.add(key)
+        problems.append(
+            f'{module}:{imp.line}: {layer} imports {target} '
+            f'({target_layer}); {layer} may import {sorted(allowed)}'
+        )
+  if module != INTERNALS:
+    for line in _impl_reads(source):
+      problems.append(
+          f"{module}:{line}: reads MJX's private `_impl`; only {INTERNALS} "
+          'may (internals.data_impl, internals.option_impl, ...)'
+      )
+  return problems
+
+
+def package_violations(root: pathlib.Path = ROOT) -> list[str]:
+  modules = package_modules(root)
+  problems = []
+  for module, path in modules.items():
+    problems += violations(
+        module, path.read_text(), modules, path.name == '__init__.py'
+    )
+  return problems
+
+
+def test_the_package_keeps_the_layer_rule():
+  problems = package_violations()
+  assert not problems, 'Layer rule broken:\n' + '\n'.join(problems)
+
+
+def test_every_layer_is_known():
+  assert set(ALLOWED) == set(LAYER_OF.values())
+  for layer, allowed in ALLOWED.items():
+    assert allowed <= set(ALLOWED), layer
+
+
+def test_a_planted_violation_is_reported(tmp_path):
+  """A copy of the package with bad imports planted: each one is reported."""
+  root = tmp_path / PACKAGE
+  for path in ROOT.rglob('*.py'):
+    copy = root / path.relative_to(ROOT)
+    copy.parent.mkdir(parents=True, exist_ok=True)
+    copy.write_text(path.read_text())
+  assert not package_violations(root)
+  (root / 'platform' / 'planted.py').write_text(
+      'import jax\n'
+      '\n'
+      'from mjx_composer import environment\n'
+      '\n'
+      '\n'
+      'def later(data):\n'
+      '  from jax._src import core  # function-local: found too\n'
+      '  from mjx_composer.runtime import transitions\n'
+      '  return data._impl\n'
+  )
+  (root / 'entity_planted.py').write_text(
+      'from mujoco.mjx._src import math\nfrom .suite import tasks\n'
+  )
+  problems = package_violations(root)
+  print('\n'.join(problems))  # shown with pytest -s
+  assert problems == [
+      'mjx_composer.entity_planted: in no layer; add it to LAYER_OF in '
+      'tests/package/test_layers.py and to the Layers table of ARCHITECTURE.md',
+      'mjx_composer.platform.planted:3: platform imports '
+      'mjx_composer.environment (environment); platform may import '
+      "['platform']",
+      'mjx_composer.platform.planted:7: imports the private module '
+      f'jax._src.core; only {INTERNALS} may (add a named function there)',
+      'mjx_composer.platform.planted:8: platform imports '
+      'mjx_composer.runtime.transitions (runtime); platform may import '
+      "['platform']",
+      "mjx_composer.platform.planted:9: reads MJX's private `_impl`; only "
+      f'{INTERNALS} may (internals.data_impl, internals.option_impl, ...)',
+  ]
+  # Classified as authoring, the relative import of suite/ is refused too.
+  LAYER_OF['entity_planted'] = 'authoring'
+  try:
+    problems = package_violations(root)
+  finally:
+    del LAYER_OF['entity_planted']
+  assert [p.split(': ', 1)[0] for p in problems if 'entity_planted' in p] == [
+      'mjx_composer.entity_planted:1',
+      'mjx_composer.entity_planted:2',
+  ]
+  assert 'authoring imports mjx_composer.suite.tasks (content)' in problems[1]
