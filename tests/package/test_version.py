@@ -7,7 +7,7 @@ import pytest
 
 import mjx_composer
 
-PYPROJECT = pathlib.Path(__file__).resolve().parents[1] / 'pyproject.toml'
+PYPROJECT = pathlib.Path(__file__).resolve().parents[2] / 'pyproject.toml'
 
 
 def test_the_version_is_the_installed_distributions():
