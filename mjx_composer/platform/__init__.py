@@ -3,8 +3,9 @@
 The MJX implementation that runs the physics and MuJoCo Warp's buffers
 (`backend`), a batch of worlds over devices (`sharding`, `partitioner`), the
 JAX settings the package's entry points switch on (`compilation_cache`,
-`prng_lowering`, `cpu_linalg`; all three at once: `configure`), and the one
-module that uses JAX's and MJX's private internals (`internals`).
+`prng_lowering`, `cpu_linalg`; all three at once: `configure`), and the
+modules that use other packages' private internals (`internals`: MJX and
+MuJoCo Warp; `internals_jax`: JAX; `internals_numpy`: NumPy's random module).
 
 This subpackage imports nothing else of `mjx_composer` (`tests/test_layers.py`).
 """

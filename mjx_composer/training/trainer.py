@@ -39,7 +39,7 @@ import tqdm
 
 from mjx_composer import platform
 from mjx_composer.adapters import brax as brax_adapter
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 from mjx_composer.platform import partitioner
 from mjx_composer.training import checkpoints
 from mjx_composer.training import config as config_lib
@@ -354,7 +354,7 @@ def _join_processes(barrier: str) -> None:
   processes wait for each other at the coordination service's barrier (no
   such limit), then run one collective over every device.
   """
-  internals.wait_for_processes(barrier, _START_TIMEOUT_S)
+  internals_jax.wait_for_processes(barrier, _START_TIMEOUT_S)
   ones = jax.numpy.ones((jax.local_device_count(),))
   jax.block_until_ready(
       jax.pmap(lambda x: jax.lax.psum(x, 'i'), axis_name='i')(ones)
