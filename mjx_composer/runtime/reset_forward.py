@@ -51,7 +51,6 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer import bindings
-from mjx_composer.platform import backend
 from mjx_composer.platform import internals
 from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import dirty_forward
@@ -523,13 +522,14 @@ def after_step(transitions) -> StepForward:
   sub-steps (`dirty_forward.dirty_after_substeps`), a binding read among them
   runs `mj_forward` (`dirty_forward.forwarding_read`) and they read what
   only the acceleration stage computes (`reads_acceleration`), unless
-  `transitions.dirty_forward` is 'never'. On MuJoCo Warp, whose forward
-  pass is one kernel sequence, nothing is recomputed (its observations lag
-  the state by one physics step).
+  `transitions.dirty_forward` is 'never'. Where the backend's forward pass
+  is one kernel sequence (`Backend.staged_forward` False: MuJoCo Warp),
+  nothing is recomputed (its observations lag the state by one physics
+  step).
   """
   t = transitions
   model = t.initial.model
-  if backend.is_warp(model):
+  if not t.backend.staged_forward:
     return StepForward()
   state = t.reset_shapes.state
   action = jax.ShapeDtypeStruct(t.action_shape, jnp.float32)

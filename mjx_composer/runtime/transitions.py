@@ -38,7 +38,8 @@ import numpy as np
 
 from mjx_composer import physics as physics_lib
 from mjx_composer.model import kinematics as kinematics_lib
-from mjx_composer.platform import backend
+from mjx_composer.platform import backend as backend_lib
+from mjx_composer.platform import shared_buffers
 from mjx_composer.runtime import control_flow
 from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import episode as episode_lib
@@ -153,6 +154,12 @@ class Transitions:
   substep_sensors: str = 'all'
   dirty_forward: str = 'composer'
 
+  @functools.cached_property
+  def backend(self) -> backend_lib.Backend:
+    """The `Backend` of the MJX implementation the worlds run on, asked for
+    what it supports (found once, from the initial model)."""
+    return backend_lib.of(self.initial.model)
+
   # -- analyses of shapes: what shapes the programs ------------------------
 
   def analyse(self) -> 'Transitions':
@@ -254,7 +261,7 @@ class Transitions:
     'full' on MuJoCo Warp, whose forward pass is one kernel sequence.
     """
     model, data = self.initial.model, self.initial.data
-    if self.reset_forward_mode == 'full' or backend.is_warp(model):
+    if self.reset_forward_mode == 'full' or not self.backend.staged_forward:
       # The full pass restricts nothing: no need to trace what it writes.
       return reset_forward_lib.ResetForward(
           'full', True, frozenset(), frozenset()
@@ -470,8 +477,9 @@ class Transitions:
       carry = attempt(key, start)
       failed = carry.initialization_failed.astype(jnp.int32)
       # A per-world loop condition batches the whole carry: keep Warp's
-      # batch-shared buffers (contacts) out of it (`backend.drop_shared`).
-      return attempts + 1, failures + failed, backend.drop_shared(carry)
+      # batch-shared buffers (contacts) out of it
+      # (`shared_buffers.drop_shared`).
+      return attempts + 1, failures + failed, shared_buffers.drop_shared(carry)
 
     def again(loop):
       attempts, _, carry = loop
@@ -482,13 +490,17 @@ class Transitions:
           ),
       )
 
-    placeholder = backend.drop_shared(jax.tree.map(_zeros_like_shape, shapes))
+    placeholder = shared_buffers.drop_shared(
+        jax.tree.map(_zeros_like_shape, shapes)
+    )
     _, failures, carry = jax.lax.while_loop(
         again,
         body,
         (jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32), placeholder),
     )
-    carry = carry.replace(data=backend.restore_shared(carry.data, start.data))
+    carry = carry.replace(
+        data=shared_buffers.restore_shared(carry.data, start.data)
+    )
     return self._fall_back(carry, start), failures
 
   def _fall_back(self, carry, start):

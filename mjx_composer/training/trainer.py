@@ -39,6 +39,7 @@ import tqdm
 
 from mjx_composer import platform
 from mjx_composer.adapters import brax as brax_adapter
+from mjx_composer.platform import backend
 from mjx_composer.platform import internals_jax
 from mjx_composer.platform import partitioner
 from mjx_composer.training import checkpoints
@@ -112,7 +113,7 @@ def _devices(config, log):
   if devices > 1:
     # MuJoCo Warp's contact buffer belongs to the whole batch; Brax's pmap
     # would split it.
-    if impl == 'warp':
+    if impl is not None and backend.get(impl).batch_shared_data:
       raise ValueError(
           f'impl warp trains on one device; pass --devices 1, or --impl jax '
           f'to train on {devices}.'
