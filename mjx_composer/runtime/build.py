@@ -280,7 +280,7 @@ def _build_on(
   # What the programs' shapes depend on (the reset's shapes and the
   # per-world model fields its hooks write, the reset's stage of the
   # forward pass, sensors once per control step) is found from abstract
-  # traces that read shapes only, once, on first use (`Transitions.analyse`):
+  # traces that read shapes only, once, on first use (`runtime.analysis`):
   # building stays cheap for an environment that is never traced, and the
   # answer is the same whenever they run. A backend that cannot batch
   # every model field needs the per-world fields now, to refuse at build.

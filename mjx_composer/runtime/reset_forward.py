@@ -516,7 +516,7 @@ def after_step(transitions) -> StepForward:
   update, the reward, discount, termination and metrics, and the next
   step's hooks before its physics (scheduled, `before_step`, the first
   `before_substep`). Found from their jaxpr, traced with the shapes of a
-  reset's `State` (`Transitions.reset_shapes`): the position or velocity
+  reset's `State` (`Analysis.reset_shapes`): the position or velocity
   stage where they read them (`choose_after_step`), and the full forward
   pass where, in composer, the physics is dirty after the control step's
   sub-steps (`dirty_forward.dirty_after_substeps`), a binding read among them
@@ -531,7 +531,7 @@ def after_step(transitions) -> StepForward:
   model = t.initial.model
   if not t.backend.staged_forward:
     return StepForward()
-  state = t.reset_shapes.state
+  state = t.analysis.reset_shapes.state
   action = jax.ShapeDtypeStruct(t.action_shape, jnp.float32)
 
   def readers(data, state, key, action):

@@ -121,7 +121,7 @@ def once_per_step(transitions) -> bool:
   sub-steps' physics reads what the sensor stages write (`OUTPUTS`) and
   the after-substep hooks write no data but the integration state
   (`ADVANCED`). Found from the jaxpr of that work, traced with the shapes
-  of a reset's `State` (`Transitions.reset_shapes`).
+  of a reset's `State` (`Analysis.reset_shapes`).
   """
   model = transitions.initial.model
   if (
@@ -131,7 +131,9 @@ def once_per_step(transitions) -> bool:
       or model.opt.disableflags & mjx.DisableBit.SENSOR
   ):
     return False
-  read, written = _between_substeps(transitions, transitions.reset_shapes.state)
+  read, written = _between_substeps(
+      transitions, transitions.analysis.reset_shapes.state
+  )
   return not (read.fields & OUTPUTS or written - set(ADVANCED))
 
 
