@@ -5,7 +5,7 @@
     states = jax.jit(jax.vmap(env.reset))(keys)           # a batch
     states = jax.jit(jax.vmap(env.step))(states, actions)
 
-Construction (host, once): runs the build-time hooks
+Construction (host, once, `runtime.build`): runs the build-time hooks
 (`initialize_episode_mjcf`, then `after_compile`), composes the entity tree
 into one `MjSpec`, compiles it, puts it on the device, resolves every element
 to static indices, and plans the observation updater.
@@ -51,12 +51,9 @@ Warp refuses at build).
 
 from __future__ import annotations
 
-import dataclasses
 import inspect
-import logging
 from typing import Callable
 
-from dm_env import specs
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -65,20 +62,14 @@ import numpy as np
 
 from mjx_composer import physics as physics_lib
 from mjx_composer import task as task_lib
-from mjx_composer.model import element_index
-from mjx_composer.model import model_checks
 from mjx_composer.observation import updater as updater_lib
-from mjx_composer.platform import backend
-from mjx_composer.platform import internals
 from mjx_composer.runtime import arguments
-from mjx_composer.runtime import auto_reset as auto_reset_lib
+from mjx_composer.runtime import build as build_lib
 from mjx_composer.runtime import control_flow
-from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import hooks as hooks_lib
 from mjx_composer.runtime import options as options_lib
 from mjx_composer.runtime import reset_forward as reset_forward_lib
 from mjx_composer.runtime import state as state_lib
-from mjx_composer.runtime import transitions as transitions_lib
 
 COMPOSER_OPTIONS = arguments.COMPOSER_OPTIONS
 ExecutionOptions = options_lib.ExecutionOptions
@@ -94,39 +85,6 @@ class EpisodeInitializationError(RuntimeError):
   Inside the jitted `reset` nothing can raise: initializers record failure in
   `State.metrics['init_failures']` instead (see `initializers`).
   """
-
-
-def _choose_friction_cone(mj_model):
-  """Makes the compiled model's friction cone one MJX can run.
-
-  composer's `Arena` asks for elliptic cones. MJX's JAX solver cannot run
-  them on a model without contacts that has other constraints (a joint
-  limit: it fails with "Indexer must have integer or boolean type"), nor
-  with contacts of dimension 1. Without any contact the cone changes
-  nothing, so such a model gets pyramidal cones (logged); with frictionless
-  contacts the cone matters and the build is refused with the fix. Called
-  for impl='jax' only: MuJoCo Warp keeps the model's cone.
-
-  Raises:
-    NotImplementedError: elliptic cones with a contact of `condim` 1.
-  """
-  if mj_model.opt.cone != mujoco.mjtCone.mjCONE_ELLIPTIC:
-    return
-  dims = internals.contact_dims(mj_model)
-  if not np.size(dims):
-    logging.info(
-        'The model has no contacts: its elliptic friction cone changes '
-        'nothing, and MJX cannot run it without contacts; using pyramidal.'
-    )
-    mj_model.opt.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
-  elif np.any(np.asarray(dims) == 1):
-    raise NotImplementedError(
-        "The model has elliptic friction cones (composer's Arena default) "
-        'and contacts of condim 1 (frictionless), which MJX cannot '
-        'simulate together. Set arena.mjcf_model.option.cone = '
-        'mujoco.mjtCone.mjCONE_PYRAMIDAL, or give the geoms (or pairs) '
-        'condim 3 or more.'
-    )
 
 
 class Environment:
@@ -217,191 +175,30 @@ class Environment:
       random_state = np.random.RandomState(random_state)
     self._random_state = random_state
     self._hooks = hooks_lib.EnvironmentHooks(task)
-
-    # Build-time hooks, then compile once.
-    self._hooks.initialize_episode_mjcf(self._random_state)
-    spec, handles = task.root_entity.compose()
-    self._spec = spec
-    try:
-      self._mj_model = spec.compile()
-    except Exception as e:
-      raise ValueError(f'The composed model failed to compile: {e}') from e
-    model_checks.check_compiled_model(self._mj_model)
-    handle_names = {
-        key: (original, kind, composed.name)
-        for key, (original, kind, composed) in handles.items()
-    }
-    index = element_index.ElementIndex(self._mj_model, handle_names)
-    # This process's first device: MJX's default, `jax.devices()[0]`, is
-    # another process's on every host but the first.
-    device = jax.local_devices()[0]
-    # The fused restart and the chunked reset run on 'jax' only.
-    candidates = backend.resolve_impl(
-        options.impl,
-        device,
-        share_reset_forward=(
-            options.share_reset_forward or options.auto_reset_batch is not None
-        ),
-    )
-    random_state = self._random_state.get_state()
-    for i, candidate in enumerate(candidates):
-      try:
-        self._build_physics(
-            candidate,
-            options,
-            device,
-            index,
+    built = build_lib.build(
+        task,
+        self._hooks,
+        self._random_state,
+        options,
+        build_lib.Arguments(
             time_limit=time_limit,
             n_sub_steps=n_sub_steps,
             strip_singleton_obs_buffer_dim=strip_singleton_obs_buffer_dim,
             delayed_observation_padding=delayed_observation_padding,
             observation_groups=observation_groups,
             max_reset_attempts=max_reset_attempts,
-        )
-        break
-      except backend.WarpUnsupportedError as e:
-        if i + 1 == len(candidates):
-          raise
-        # impl=None: the default tries Warp first on a CUDA GPU. Rebuild on
-        # the next implementation, its build-time hooks drawing from the
-        # same random state as if it had been the only one tried.
-        logging.warning(
-            'impl=None: MuJoCo Warp cannot run this environment, so it runs '
-            'on impl=%r. %s',
-            candidates[i + 1],
-            e,
-        )
-        self._random_state.set_state(random_state)
-
-  def _build_physics(
-      self,
-      impl,
-      options,
-      device,
-      index,
-      *,
-      time_limit,
-      n_sub_steps,
-      strip_singleton_obs_buffer_dim,
-      delayed_observation_padding,
-      observation_groups,
-      max_reset_attempts,
-  ):
-    """Puts the compiled model on `device` with `impl` and plans the steps.
-
-    `options.impl` is the requested implementation (None for the default),
-    which decides whether Warp's buffer sizes may be ignored.
-
-    Runs the `after_compile` hooks on the device model, then builds the
-    episode rules, the observation updater, the transitions and the step
-    program.
-
-    Raises:
-      backend.WarpUnsupportedError: on 'warp', a model feature or per-world
-        field that MuJoCo Warp cannot run.
-    """
-    task = self._task
-    self._impl = impl
-    backend.check_buffer_arguments(
-        impl, options.naconmax, options.njmax, requested=options.impl
-    )
-    backend.check_share_reset_forward(impl, options.share_reset_forward)
-    backend.check_per_world_fields(
-        impl,
-        {
-            name: ('ExecutionOptions(per_world_model_fields=...)',)
-            for name in options.per_world_model_fields
-        },
-    )
-    share_reset_forward = options.share_reset_forward
-    if share_reset_forward is None:
-      share_reset_forward = options.auto_reset_batch is None and (
-          backend.default_share_reset_forward(impl, device)
-      )
-    on_warp = impl == 'warp'
-    self._options = dataclasses.replace(
-        options,
-        impl=impl,
-        share_reset_forward=bool(share_reset_forward),
-        # Ignored where the default builds on 'jax'.
-        naconmax=options.naconmax if on_warp else None,
-        njmax=options.njmax if on_warp else None,
-    )
-    if impl == 'jax':
-      model_checks.check_jax_collisions(self._mj_model)
-      _choose_friction_cone(self._mj_model)
-    mjx_model, data0 = backend.put(
-        self._mj_model,
-        impl,
-        device,
-        naconmax=options.naconmax,
-        njmax=options.njmax,
-    )
-    compiled = self._hooks.after_compile(
-        physics_lib.Physics(mjx_model, data0, index=index), self._random_state
-    )
-    physics = transitions_lib.initial_physics(
-        task, compiled.model, data0, index
-    )
-
-    if n_sub_steps is not None:
-      logging.warning('n_sub_steps is deprecated: set the task timesteps.')
-      n_sub_steps = int(n_sub_steps)
-    else:
-      n_sub_steps = task.physics_steps_per_control_step
-    self._control_timestep = float(self._mj_model.opt.timestep) * n_sub_steps
-    self._episode = episode_lib.EpisodeRules(
-        task,
-        episode_lib.step_limit(time_limit, self._control_timestep),
-        self.reward_spec().shape,
-        self.discount_spec().shape,
-    )
-    if observation_groups is None:
-      observation_groups = task.observation_groups()
-    self._updater = updater_lib.Updater(
-        task.observables,
-        n_sub_steps,
-        strip_singleton_buffer_dim=strip_singleton_obs_buffer_dim,
-        pad_with_initial_value=(
-            delayed_observation_padding == ObservationPadding.INITIAL_VALUE
+            fixed_initial_state=self._fixed_initial_state,
         ),
-        groups=observation_groups or None,
-        physics=physics,
     )
-    self._transitions = transitions_lib.Transitions(
-        initial=physics,
-        hooks=self._hooks,
-        updater=self._updater,
-        episode=self._episode,
-        n_sub_steps=n_sub_steps,
-        max_reset_attempts=int(max_reset_attempts),
-        declared_model_fields=options.per_world_model_fields,
-        reset_forward_mode=options.reset_forward,
-        action_shape=tuple(task.action_spec(physics).shape),
-        fixed_initial_state=self._fixed_initial_state,
-        substep_sensors=options.substep_sensors,
-        dirty_forward=options.dirty_forward,
-    )
-    # `can_fuse_restart` is a fact of the host model: decide here, once.
-    self._fuses = (
-        self._options.share_reset_forward
-        and self._transitions.can_fuse_restart()
-    )
-    self._advance = auto_reset_lib.step_program(
-        self._transitions,
-        auto_reset=options.auto_reset,
-        fuse=self._fuses,
-        chunk=options.auto_reset_batch,
-    )
-    # What the programs' shapes depend on (the reset's shapes and the
-    # per-world model fields its hooks write, the reset's stage of the
-    # forward pass, sensors once per control step) is found from abstract
-    # traces that read shapes only, once, on first use
-    # (`Transitions.analyse` runs them all): building stays cheap for an
-    # environment that is never traced, and the answer is the same whenever
-    # they run. Warp needs the per-world fields now, to refuse at build.
-    if impl == 'warp':
-      backend.check_per_world_fields(impl, self.per_world_model_fields)
+    self._spec = built.spec
+    self._mj_model = built.mj_model
+    self._backend = built.backend
+    self._options = built.options
+    self._control_timestep = built.control_timestep
+    self._episode = built.episode
+    self._updater = built.updater
+    self._transitions = built.transitions
+    self._advance = built.step
 
   # -- properties ----------------------------------------------------------
 
@@ -431,7 +228,7 @@ class Environment:
   @property
   def impl(self) -> str:
     """The MJX implementation running the physics: 'jax' or 'warp'."""
-    return self._impl
+    return self._backend.name
 
   @property
   def mjx_model(self) -> mjx.Model:
@@ -469,7 +266,7 @@ class Environment:
     """Whether restarts run as an extra iteration of the sub-step loop.
 
     As resolved from `ExecutionOptions.share_reset_forward` (None: the
-    device's default, `backend.default_share_reset_forward`).
+    device's default, `Backend.default_share_reset_forward`).
     """
     return self._options.share_reset_forward
 
@@ -504,10 +301,6 @@ class Environment:
     `mjx_composer.runtime.dirty_forward`). Found by tracing the step's
     hooks and readers on first use."""
     return self._transitions.step_forward.stage
-
-  def _fuses_restart(self) -> bool:
-    """Whether `step` runs the restart in the sub-step loop."""
-    return self._fuses
 
   @property
   def random_state(self):
@@ -545,18 +338,10 @@ class Environment:
     return self._updater.observation_spec()
 
   def reward_spec(self):
-    spec = self._task.get_reward_spec()
-    if spec is not None:
-      return spec
-    return specs.Array(shape=(), dtype=np.float32, name='reward')
+    return build_lib.reward_spec(self._task)
 
   def discount_spec(self):
-    spec = self._task.get_discount_spec()
-    if spec is not None:
-      return spec
-    return specs.BoundedArray(
-        shape=(), dtype=np.float32, minimum=0.0, maximum=1.0, name='discount'
-    )
+    return build_lib.discount_spec(self._task)
 
   # -- physics -------------------------------------------------------------
 

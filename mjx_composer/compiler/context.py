@@ -11,7 +11,6 @@ import mujoco
 from mujoco import mjx
 import numpy as np
 
-from mjx_composer.platform import backend
 from mjx_composer.model import kinematics
 from mjx_composer.compiler import inertia
 
@@ -36,11 +35,6 @@ class Host:
   def qpos0_kinematics(self) -> kinematics.ReferenceKinematics:
     """Positions and com-based quantities of the host model at `qpos0`."""
     return kinematics.ReferenceKinematics(self.m)
-
-  @functools.cached_property
-  def jax_model(self) -> mjx.Model:
-    """The host model on the device with `impl='jax'` (`backend.jax_twin`)."""
-    return backend.jax_base(self.m)[0]
 
   def body_name(self, b: int) -> str:
     return mujoco.mj_id2name(self.m, mujoco.mjtObj.mjOBJ_BODY, b)

@@ -8,7 +8,7 @@ the reflected inertia `1 / (moment . M^-1 . moment)`), and the statistics
 (`meaninertia`, `meanmass`, `meansize`, `extent`, `center`) unless the spec
 sets them. Follows `engine_setconst.c`; only the quantities that the plan
 says can change are computed. Runs on MJX's JAX implementation, also for a
-'warp' model (on its JAX twin, `backend.jax_twin`).
+'warp' model (on its JAX twin, `Backend.jax_model`).
 """
 
 from __future__ import annotations
@@ -79,8 +79,7 @@ def update(host, plan, fields, auto_stat):
   # MJX implements crb, full_m and transmission on 'jax' only: on 'warp',
   # compute on the JAX twin of the world's model (public fields out).
   mx = model.replace(**fields.fields)
-  if backend.is_warp(mx):
-    mx = backend.jax_twin(mx, host.jax_model)
+  mx = backend.of(mx).jax_model(mx, host.m)
   # Positions at qpos0 come from the host where the bound attributes
   # cannot move them (e.g. masses, sizes, colours): see `kinematics`.
   d = host.qpos0_kinematics.apply(

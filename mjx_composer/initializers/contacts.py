@@ -104,15 +104,13 @@ def min_distance(
     valid: optional per-group `(n,)` bool masks; masked pairs do not count.
     mj_model: the compiled host model; needed for a 'warp' model, whose
       distances come from MJX's JAX colliders on its JAX twin
-      (`backend.jax_view`).
+      (`Backend.jax_view`).
 
   Returns:
     A scalar: `<= 0` exactly when one of the pairs touches or penetrates.
   """
-  if backend.is_warp(model):
-    if mj_model is None:
-      raise ValueError("min_distance needs mj_model for a 'warp' model.")
-    model, data = backend.jax_view(model, data, mj_model)
+  # On 'warp': MJX's JAX colliders, on the JAX twin.
+  model, data = backend.of(model).jax_view(model, data, mj_model)
   distances = []
   for i, (key, pairs) in enumerate(groups):
     dist = group_distances(model, data, key, pairs)

@@ -330,7 +330,7 @@ class PropPlacer(initializer.Initializer):
 
   def _place_and_settle(self, physics, key, tables, states):
     """Rounds of placing then settling until one settles, per world."""
-    if backend.is_warp(physics.data):
+    if backend.of(physics.data).batch_shared_data:
       raise backend.WarpUnsupportedError(
           "PropPlacer(settle_physics=True) does not run on impl='warp' yet: "
           'its per-world settling loops carry the whole mjx.Data, which '

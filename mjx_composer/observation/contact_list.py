@@ -59,7 +59,7 @@ def contact_list(physics) -> ContactList:
       (module docstring).
   """
   data = physics.data
-  if backend.is_warp(data):
+  if not backend.of(data).jax_data_fields:
     raise ValueError(
         "Contact queries read MJX's per-world contact list, which the "
         "'warp' implementation does not keep (its contacts live in one "

@@ -41,6 +41,7 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer.model import element_index
+from mjx_composer.platform import backend
 from mjx_composer.platform import internals
 
 if TYPE_CHECKING:
@@ -251,7 +252,7 @@ def read_field(model, data, source: str, name: str) -> jax.Array:
   if source == 'model':
     return getattr(model, name)
   if name in ON_DEMAND_FIELDS or name in IMPL_FIELDS:
-    if data.impl == mjx.Impl.WARP:
+    if not backend.of(data).jax_data_fields:
       raise NotImplementedError(
           f'data.{name} cannot be read on MuJoCo Warp '
           "(ExecutionOptions(impl='warp')): MJX keeps it only in its "

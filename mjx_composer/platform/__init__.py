@@ -1,10 +1,14 @@
 """What runs where: physics backends, devices and JAX's settings.
 
-The MJX implementation that runs the physics and MuJoCo Warp's buffers
-(`backend`), a batch of worlds over devices (`sharding`, `partitioner`), the
-JAX settings the package's entry points switch on (`compilation_cache`,
-`prng_lowering`, `cpu_linalg`; all three at once: `configure`), and the one
-module that uses JAX's and MJX's private internals (`internals`).
+The MJX implementation that runs the physics (`impl_choice` chooses it;
+`backend`, what it supports and runs differently; `jax_twin`, what only
+MJX's JAX code computes, for a MuJoCo Warp model; `shared_buffers`, tree
+operations that keep Warp's batch-shared `Data` buffers whole), a batch of
+worlds over devices (`sharding`, `partitioner`), the JAX settings the
+package's entry points switch on (`compilation_cache`, `prng_lowering`,
+`cpu_linalg`; all three at once: `configure`), and the modules that use
+other packages' private internals (`internals`: MJX and MuJoCo Warp;
+`internals_jax`: JAX; `internals_numpy`: NumPy's random module).
 
 This subpackage imports nothing else of `mjx_composer`
 (`tests/package/test_layers.py`).

@@ -52,7 +52,7 @@ import warnings
 
 import jax
 
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 
 # Environment variables.
 CACHE_DIR_ENV = 'MJX_COMPOSER_CACHE_DIR'
@@ -130,8 +130,8 @@ def enable(
         f'(${CACHE_DIR_ENV}, or enable(cache_dir=...)).'
     )
     return None
-  internals.remove_unreadable_cache_entries(_warn_removed)
-  internals.bind_cache_entries_to_keys(_warn_misfiled)
+  internals_jax.remove_unreadable_cache_entries(_warn_removed)
+  internals_jax.bind_cache_entries_to_keys(_warn_misfiled)
   jax.config.update('jax_compilation_cache_dir', path)
   jax.config.update(
       'jax_persistent_cache_min_compile_time_secs', min_compile_time_secs

@@ -32,7 +32,7 @@ import os
 import jax
 import jax.numpy as jnp
 
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 
 SWITCH_ENV = 'MJX_COMPOSER_XLA_CHOLESKY'
 
@@ -65,7 +65,7 @@ def cholesky(a):
   return jax.lax.fori_loop(0, n, column, jnp.zeros_like(a))
 
 
-_cholesky_loops = internals.lower_fun(cholesky, multiple_results=False)
+_cholesky_loops = internals_jax.lower_fun(cholesky, multiple_results=False)
 
 
 def enable(*, enabled: bool | None = None) -> bool:
@@ -85,6 +85,8 @@ def enable(*, enabled: bool | None = None) -> bool:
   if enabled is None:
     value = os.environ.get(SWITCH_ENV, '').strip().lower()
     enabled = value not in _OFF_VALUES
-  rule = _cholesky_loops if enabled else internals.lapack_cholesky_cpu_lowering
-  internals.register_cpu_lowering(internals.cholesky_p, rule)
+  rule = (
+      _cholesky_loops if enabled else internals_jax.lapack_cholesky_cpu_lowering
+  )
+  internals_jax.register_cpu_lowering(internals_jax.cholesky_p, rule)
   return bool(enabled)

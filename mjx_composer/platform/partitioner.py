@@ -30,7 +30,7 @@ from typing import Iterable, Iterator
 
 import jax
 
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 
 PARTITIONER_ENV = 'MJX_COMPOSER_PARTITIONER'
 _CHOICES = ('auto', 'shardy', 'gspmd')
@@ -56,7 +56,7 @@ def name_for(devices: Iterable[jax.Device]) -> str:
         d.platform == 'gpu' for d in devices
     )
     choice = 'gspmd' if several_gpus else 'shardy'
-  if choice == 'gspmd' and internals.shardy_partitioner_state() is None:
+  if choice == 'gspmd' and internals_jax.shardy_partitioner_state() is None:
     return 'shardy'  # This JAX has no other partitioner.
   return choice
 
@@ -73,7 +73,7 @@ def scope(devices: Iterable[jax.Device]) -> Iterator[str]:
     The partitioner's name, 'gspmd' or 'shardy'.
   """
   name = name_for(devices)
-  state = internals.shardy_partitioner_state()
+  state = internals_jax.shardy_partitioner_state()
   if state is None:
     yield name
     return

@@ -26,7 +26,7 @@ import math
 import jax
 import jax.numpy as jnp
 
-from mjx_composer.platform import backend
+from mjx_composer.platform import shared_buffers
 
 
 def trace_once(fn, *args, return_shapes=False):
@@ -51,17 +51,17 @@ def trace_once(fn, *args, return_shapes=False):
 def tree_select(pred, on_true, on_false):
   """`on_true` where `pred`, else `on_false`, leaf by leaf (one world).
 
-  `mjx.Data` is merged by `Data.where` (`backend.select`): MuJoCo Warp's
+  `mjx.Data` is merged by `Data.where` (`shared_buffers.select`): MuJoCo Warp's
   buffers shared by the batch are kept, not selected.
   """
-  return backend.select(pred, on_true, on_false)
+  return shared_buffers.select(pred, on_true, on_false)
 
 
 def _batch_all(axis_size, args, in_batched):
   """A batching rule's arguments, the unbatched ones broadcast to the batch.
 
   Except MuJoCo Warp's `Data` buffers shared by the batch
-  (`backend.shared_leaves`), which stay unbatched.
+  (`shared_buffers.shared_leaves`), which stay unbatched.
   """
   return jax.tree.map(
       lambda x, b, shared: (
@@ -69,13 +69,15 @@ def _batch_all(axis_size, args, in_batched):
       ),
       args,
       tuple(in_batched),
-      backend.shared_leaves(args),
+      shared_buffers.shared_leaves(args),
   )
 
 
 def _out_batched(out):
   """A batching rule's output flags: all batched but Warp's shared buffers."""
-  return jax.tree.map(lambda shared: not shared, backend.shared_leaves(out))
+  return jax.tree.map(
+      lambda shared: not shared, shared_buffers.shared_leaves(out)
+  )
 
 
 def select_reset(done, reset_fn, operands, stepped, chunk=None):

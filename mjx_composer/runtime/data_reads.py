@@ -23,7 +23,7 @@ import dataclasses
 import jax
 import numpy as np
 
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 
 
 def leaf_names(data) -> list[str]:
@@ -63,7 +63,7 @@ def reads(fn, data, *args) -> Reads:
   has no dead-code elimination to call, everything counts as read.
   """
   names = leaf_names(data)
-  if internals.dce_jaxpr is None:
+  if internals_jax.dce_jaxpr is None:
     return Reads(frozenset(names), None)
   closed, (outputs, ignored) = jax.make_jaxpr(fn, return_shape=True)(
       data, *args
@@ -71,7 +71,7 @@ def reads(fn, data, *args) -> Reads:
   used_outputs = [True] * len(jax.tree.leaves(outputs)) + [False] * len(
       jax.tree.leaves(ignored)
   )
-  jaxpr, used_inputs = internals.dce_jaxpr(
+  jaxpr, used_inputs = internals_jax.dce_jaxpr(
       closed.jaxpr, used_outputs, instantiate=False
   )
   used = [n for n, u in zip(names, used_inputs) if u]

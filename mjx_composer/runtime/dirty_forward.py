@@ -78,7 +78,7 @@ def dirty_after_substeps(transitions) -> bool:
   Python there, so they access the same bindings.
   """
   t = transitions
-  state = t.reset_shapes.state
+  state = t.analysis.reset_shapes.state
   n = t.n_sub_steps
   recorded = {}
 

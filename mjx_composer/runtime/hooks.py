@@ -59,7 +59,7 @@ import numpy as np
 from mjx_composer import entity as entity_lib
 from mjx_composer import physics as physics_lib
 from mjx_composer import task as task_lib
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_numpy
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.variation import mjcf_variator
 
@@ -360,7 +360,7 @@ class EnvironmentHooks:
     hook_key = keys_lib.hook_key(key, participant.identity)
     physics.forget_writes()
     refusal = functools.partial(_host_randomness_error, participant, name)
-    with internals.refusing_host_randomness(refusal):
+    with internals_numpy.refusing_host_randomness(refusal):
       if participant.takes_action:
         result = participant.hook(physics, action, hook_key)
       else:

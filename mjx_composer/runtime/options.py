@@ -21,7 +21,7 @@ import dataclasses
 from typing import Literal
 
 from mjx_composer.model import element_index
-from mjx_composer.platform import backend
+from mjx_composer.platform import impl_choice
 from mjx_composer.runtime import episode as episode_lib
 
 AutoReset = Literal['next_step', 'same_step']
@@ -56,8 +56,8 @@ class ExecutionOptions:
       'warp' on a CUDA GPU where MuJoCo Warp is installed (unless
       `share_reset_forward=True`), falling back to 'jax' with a logged
       warning when Warp refuses the environment; 'jax' everywhere else
-      (`backend.default_impls`). On 'warp', a model feature or a per-world
-      model field that MuJoCo Warp cannot run is refused when the
+      (`impl_choice.default_impls`). On 'warp', a model feature or a
+      per-world model field that MuJoCo Warp cannot run is refused when the
       environment is built, with what to do (`backend`); building then
       traces `reset` once to find the per-world fields.
     naconmax: impl='warp' or None (ignored where None builds on 'jax'): the
@@ -167,12 +167,8 @@ class ExecutionOptions:
     _check_choice('reset_forward', self.reset_forward, ('observed', 'full'))
     _check_choice('substep_sensors', self.substep_sensors, ('read', 'all'))
     _check_choice('dirty_forward', self.dirty_forward, ('composer', 'never'))
-    if self.impl not in (None, 'jax', 'warp'):
-      raise ValueError(
-          "ExecutionOptions(impl=...): impl must be 'jax', 'warp' or None, "
-          f'got {self.impl!r}.'
-      )
-    backend.check_buffer_arguments(
+    impl_choice.check_impl(self.impl, 'ExecutionOptions(impl=...)')
+    impl_choice.check_buffer_arguments(
         self.impl, self.naconmax, self.njmax, requested=self.impl
     )
     unknown = set(self.per_world_model_fields) - element_index.MODEL_FIELDS
@@ -210,10 +206,4 @@ def _check_auto_reset_batch(batch, share_reset_forward, impl):
         'reset of the whole batch inside the sub-step loop instead. Set one '
         'of them.'
     )
-  if impl == 'warp':
-    raise ValueError(
-        "ExecutionOptions(auto_reset_batch=...) needs impl='jax': MuJoCo "
-        "Warp's contact buffer is shared by the whole batch, so a subset of "
-        "worlds cannot be gathered and reset on its own. Use impl='jax' (or "
-        'leave auto_reset_batch unset).'
-    )
+  impl_choice.check_auto_reset_batch(impl)

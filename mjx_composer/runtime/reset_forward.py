@@ -51,7 +51,6 @@ from mujoco import mjx
 import numpy as np
 
 from mjx_composer.physics import bindings
-from mjx_composer.platform import backend
 from mjx_composer.platform import internals
 from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import dirty_forward
@@ -517,21 +516,22 @@ def after_step(transitions) -> StepForward:
   update, the reward, discount, termination and metrics, and the next
   step's hooks before its physics (scheduled, `before_step`, the first
   `before_substep`). Found from their jaxpr, traced with the shapes of a
-  reset's `State` (`Transitions.reset_shapes`): the position or velocity
+  reset's `State` (`Analysis.reset_shapes`): the position or velocity
   stage where they read them (`choose_after_step`), and the full forward
   pass where, in composer, the physics is dirty after the control step's
   sub-steps (`dirty_forward.dirty_after_substeps`), a binding read among them
   runs `mj_forward` (`dirty_forward.forwarding_read`) and they read what
   only the acceleration stage computes (`reads_acceleration`), unless
-  `transitions.dirty_forward` is 'never'. On MuJoCo Warp, whose forward
-  pass is one kernel sequence, nothing is recomputed (its observations lag
-  the state by one physics step).
+  `transitions.dirty_forward` is 'never'. Where the backend's forward pass
+  is one kernel sequence (`Backend.staged_forward` False: MuJoCo Warp),
+  nothing is recomputed (its observations lag the state by one physics
+  step).
   """
   t = transitions
   model = t.initial.model
-  if backend.is_warp(model):
+  if not t.backend.staged_forward:
     return StepForward()
-  state = t.reset_shapes.state
+  state = t.analysis.reset_shapes.state
   action = jax.ShapeDtypeStruct(t.action_shape, jnp.float32)
 
   def readers(data, state, key, action):

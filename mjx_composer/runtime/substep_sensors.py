@@ -34,7 +34,6 @@ import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 
-from mjx_composer.platform import backend
 from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import keys as keys_lib
 
@@ -116,22 +115,25 @@ def sensors_of(
 def once_per_step(transitions) -> bool:
   """Whether `transitions`' sub-steps may leave the sensors to the end.
 
-  On MJX's JAX implementation with an integrator of `INTEGRATORS`, more
-  than one sub-step and the sensors enabled, where nothing between two
+  Where the backend runs the forward pass in stages
+  (`Backend.staged_forward`: MJX's JAX implementation), with an integrator
+  of `INTEGRATORS`, more than one sub-step and the sensors enabled, where nothing between two
   sub-steps' physics reads what the sensor stages write (`OUTPUTS`) and
   the after-substep hooks write no data but the integration state
   (`ADVANCED`). Found from the jaxpr of that work, traced with the shapes
-  of a reset's `State` (`Transitions.reset_shapes`).
+  of a reset's `State` (`Analysis.reset_shapes`).
   """
   model = transitions.initial.model
   if (
       transitions.n_sub_steps == 1
-      or backend.is_warp(model)
+      or not transitions.backend.staged_forward
       or int(model.opt.integrator) not in INTEGRATORS
       or model.opt.disableflags & mjx.DisableBit.SENSOR
   ):
     return False
-  read, written = _between_substeps(transitions, transitions.reset_shapes.state)
+  read, written = _between_substeps(
+      transitions, transitions.analysis.reset_shapes.state
+  )
   return not (read.fields & OUTPUTS or written - set(ADVANCED))
 
 

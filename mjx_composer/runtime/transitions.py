@@ -19,18 +19,17 @@ Each expensive piece (the `initialize_episode` hooks, `mjx.step`) is traced
 once and appears once in the lowered program. The auto-reset that shares
 the step's forward pass is `fused_restart`.
 
-What shapes the programs is decided by analyses of shapes, not of values
-(`analyse`): the fields the reset's and the step's hooks make per-world,
-the reset's stage of the forward pass, and whether the sensors are computed once per control
-step. Each runs once, by abstract evaluation, and is independent of which
-program is traced first.
+What shapes the programs (the fields the reset's and the step's hooks make
+per-world, the reset's and the step's stages of the forward pass, whether
+the sensors are computed once per control step) is decided by analyses of
+shapes, not of values, once per environment (`runtime.analysis`); a
+`Transitions` reads their answers (`Transitions.analysis`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -38,9 +37,10 @@ import numpy as np
 
 from mjx_composer import physics as physics_lib
 from mjx_composer.model import kinematics as kinematics_lib
-from mjx_composer.platform import backend
+from mjx_composer.platform import backend as backend_lib
+from mjx_composer.platform import shared_buffers
+from mjx_composer.runtime import analysis as analysis_lib
 from mjx_composer.runtime import control_flow
-from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import fused_restart
 from mjx_composer.runtime import hooks as hooks_lib
@@ -83,30 +83,6 @@ def _named_scope(method):
 # The persistent entry holding a world's first key (`fixed_initial_state`).
 INITIAL_KEY = 'environment/initial_key'
 
-# Where the declared per-world model fields come from, in
-# `per_world_model_fields`.
-DECLARED = 'ExecutionOptions(per_world_model_fields=...)'
-
-
-@dataclasses.dataclass(frozen=True)
-class ResetShapes:
-  """What an abstract trace of a reset finds (`Transitions.reset_shapes`).
-
-  Attributes:
-    carry: the shapes of the initialized `PhysicsCarry`.
-    failures: the shape of the failed attempts' count.
-    state: the shapes of the reset's `State`.
-    writers: `{model field: the initialize_episode hooks that write it}`.
-    step_writers: `{model field: the step hooks that write it}`
-      (`hooks.EnvironmentHooks.step_model_field_writers`).
-  """
-
-  carry: Any
-  failures: Any
-  state: Any
-  writers: dict
-  step_writers: dict = dataclasses.field(default_factory=dict)
-
 
 @dataclasses.dataclass(frozen=True)
 class Transitions:
@@ -121,7 +97,7 @@ class Transitions:
     max_reset_attempts: initialization attempts per reset.
     declared_model_fields: model fields made per-world whatever the hooks
       write (`ExecutionOptions.per_world_model_fields`); those that the
-      hooks write are found (`reset_shapes`).
+      hooks write are found (`Analysis.reset_shapes`).
     reset_forward_mode: 'observed' (a reset runs the stage of the forward
       pass that its readers need, `reset_forward`) or 'full'.
     action_shape: one world's action shape (the readers' analysis traces
@@ -153,87 +129,48 @@ class Transitions:
   substep_sensors: str = 'all'
   dirty_forward: str = 'composer'
 
-  # -- analyses of shapes: what shapes the programs ------------------------
+  @functools.cached_property
+  def backend(self) -> backend_lib.Backend:
+    """The `Backend` of the MJX implementation the worlds run on, asked for
+    what it supports (found once, from the initial model)."""
+    return backend_lib.of(self.initial.model)
 
-  def analyse(self) -> 'Transitions':
-    """Runs every analysis now (each otherwise runs on first use).
-
-    `reset_shapes` (the reset's `initialize_episode` hooks and the step
-    hooks, traced abstractly), `reset_forward` and `sensors_once_per_step` (their readers'
-    jaxprs). They read shapes only, so they answer the same whenever they
-    run; running them at build keeps their traces out of the first trace of
-    `reset` or `step`. Raises what tracing those hooks raises.
-    """
-    for analysis in (
-        'reset_shapes',
-        'reset_forward',
-        'sensors_once_per_step',
-        'step_forward',
-    ):
-      getattr(self, analysis)
-    return self
+  # -- what the analyses of shapes decided (`runtime.analysis`) -------------
 
   @functools.cached_property
-  def reset_shapes(self) -> ResetShapes:
-    """The shapes of a reset (`ResetShapes`), from abstract traces of its
-    `initialize_episode` hooks and of its first state, and of the step
-    hooks on that state: the model fields that step hooks write are
-    per-world from the reset on (traced again with them, where the reset's
-    hooks do not write them too)."""
-    shapes = self._reset_shapes(self.declared_model_fields)
-    step_writers = self.hooks.step_model_field_writers(
-        self.physics(shapes.state),
-        shapes.state.key,
-        jax.ShapeDtypeStruct(self.action_shape, jnp.float32),
-    )
-    if set(step_writers) - set(shapes.carry.model_fields):
-      shapes = self._reset_shapes(
-          tuple(sorted(set(self.declared_model_fields) | set(step_writers)))
-      )
-    return dataclasses.replace(shapes, step_writers=step_writers)
+  def analysis(self) -> analysis_lib.Analysis:
+    """The analyses of shapes that decide what the programs compute, each
+    run once, on first use (`analysis.Analysis`)."""
+    return analysis_lib.Analysis(self)
 
-  @functools.cached_property
+  @property
+  def reset_forward(self) -> reset_forward_lib.ResetForward:
+    """The stage of the forward pass that a reset runs
+    (`Analysis.reset_forward`)."""
+    return self.analysis.reset_forward
+
+  @property
+  def step_forward(self) -> reset_forward_lib.StepForward:
+    """What a control step recomputes after its last physics step
+    (`Analysis.step_forward`)."""
+    return self.analysis.step_forward
+
+  @property
+  def sensors_once_per_step(self) -> bool:
+    """Whether the sub-steps leave the sensors to the control step's end
+    (`Analysis.sensors_once_per_step`)."""
+    return self.analysis.sensors_once_per_step
+
+  @property
   def step_model_fields(self) -> tuple[str, ...]:
     """The model fields per-world whatever the `initialize_episode` hooks
-    write: the declared ones and those the step hooks write."""
-    return tuple(
-        sorted(
-            set(self.declared_model_fields)
-            | set(self.reset_shapes.step_writers)
-        )
-    )
-
-  def _reset_shapes(self, step_fields) -> ResetShapes:
-    """`reset_shapes` with `step_fields` per-world (see `_attempt`)."""
-    writers = {}
-
-    def initialize(key):
-      carry = self._attempt(
-          key, self.start_carry(None, key), writers, step_fields
-      )
-      return carry, carry.initialization_failed.astype(jnp.int32)
-
-    carry, failures = jax.eval_shape(initialize, keys_lib.key_shape())
-
-    def first(carry, failures, key):
-      physics = self.restore(carry)
-      return self.first_state(
-          physics, carry, failures, keys_lib.ResetKeys.split(key)
-      )
-
-    state = jax.eval_shape(first, carry, failures, keys_lib.key_shape())
-    return ResetShapes(carry, failures, state, writers)
+    write (`Analysis.step_model_fields`)."""
+    return self.analysis.step_model_fields
 
   def per_world_model_fields(self) -> dict[str, tuple[str, ...]]:
-    """`{model field: what made it per-world}`: the `initialize_episode`
-    and step hooks that write it, and `DECLARED` for
-    `declared_model_fields`."""
-    fields = dict(self.reset_shapes.writers)
-    for name, labels in self.reset_shapes.step_writers.items():
-      fields[name] = fields.get(name, ()) + labels
-    for name in self.declared_model_fields:
-      fields[name] = fields.get(name, ()) + (DECLARED,)
-    return dict(sorted(fields.items()))
+    """`{model field: what made it per-world}`
+    (`Analysis.per_world_model_fields`)."""
+    return self.analysis.per_world_model_fields()
 
   @functools.cached_property
   def _initial_kinematics(self) -> kinematics_lib.ReferenceKinematics:
@@ -244,89 +181,6 @@ class Transitions:
         mocap_pos=np.asarray(data.mocap_pos),
         mocap_quat=np.asarray(data.mocap_quat),
     )
-
-  @functools.cached_property
-  def reset_forward(self) -> reset_forward_lib.ResetForward:
-    """The stage of the forward pass that a reset runs.
-
-    With `reset_forward_mode='observed'`, the cheapest stage that computes
-    what the FIRST state's readers read (`_read_after_reset`);
-    'full' on MuJoCo Warp, whose forward pass is one kernel sequence.
-    """
-    model, data = self.initial.model, self.initial.data
-    if self.reset_forward_mode == 'full' or backend.is_warp(model):
-      # The full pass restricts nothing: no need to trace what it writes.
-      return reset_forward_lib.ResetForward(
-          'full', True, frozenset(), frozenset()
-      )
-    read = self._read_after_reset()
-    return reset_forward_lib.choose_stage(
-        read.fields,
-        model,
-        data,
-        self.initial.index.mj_model,
-        sensordata=read.sensordata,
-    )
-
-  def _read_after_reset(self) -> data_reads.Reads:
-    """What is read of a reset's `mjx.Data` before any physics.
-
-    Its readers: the observables sampled at reset, the episode's start
-    metrics but `diverged` (whose `qacc` checks the forward pass itself),
-    and the next step's hooks before its physics (scheduled, `before_step`
-    and the first `before_substep`). The data those hooks pass on
-    untouched to the physics is not read by them: `mjx.step` reads only the
-    integration state, which a reset's forward pass does not write.
-    """
-    shapes = self.reset_shapes
-    action = jax.ShapeDtypeStruct(self.action_shape, jnp.float32)
-
-    def readers(data, carry, failures, key, action):
-      physics = self.restore(carry.replace(data=data))
-      reset_keys = keys_lib.ResetKeys.split(key)
-      first = self.first_state(physics, carry, failures, reset_keys)
-      metrics = dict(first.metrics)
-      diverged = metrics.pop('diverged')
-      keys = keys_lib.StepKeys.split(first.key)
-      fields = tuple(first.model_fields)
-      before = self.before_step(first, action, keys)
-      before = self.before_substep(before, action, keys, 0, fields)
-      after = before.carry(fields)
-      pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
-      written = [new for new, old in pairs if new is not old]
-      read = (
-          first.replace(data=None, metrics=metrics),
-          after.replace(data=None),
-          written,
-      )
-      return read, (first.data, diverged)
-
-    return data_reads.reads(
-        readers,
-        shapes.carry.data,
-        shapes.carry,
-        shapes.failures,
-        keys_lib.key_shape(),
-        action,
-    )
-
-  @functools.cached_property
-  def sensors_once_per_step(self) -> bool:
-    """Whether the sub-steps leave the sensors to the control step's end
-    (in `step` and in the fused restart's loop): with
-    `substep_sensors='read'`, where `substep_sensors.once_per_step` finds
-    that nothing between two sub-steps' physics needs them."""
-    if self.substep_sensors == 'all':
-      return False
-    return substep_sensors_lib.once_per_step(self)
-
-  @functools.cached_property
-  def step_forward(self) -> reset_forward_lib.StepForward:
-    """What a control step recomputes after its last physics step, so that
-    its readers see the position and velocity stages of the new state, as
-    after composer's `Physics.step`, and the acceleration stage too where
-    composer's physics is dirty after it (`reset_forward.after_step`)."""
-    return reset_forward_lib.after_step(self)
 
   # -- a world's fields and its `Physics` ----------------------------------
 
@@ -470,8 +324,9 @@ class Transitions:
       carry = attempt(key, start)
       failed = carry.initialization_failed.astype(jnp.int32)
       # A per-world loop condition batches the whole carry: keep Warp's
-      # batch-shared buffers (contacts) out of it (`backend.drop_shared`).
-      return attempts + 1, failures + failed, backend.drop_shared(carry)
+      # batch-shared buffers (contacts) out of it
+      # (`shared_buffers.drop_shared`).
+      return attempts + 1, failures + failed, shared_buffers.drop_shared(carry)
 
     def again(loop):
       attempts, _, carry = loop
@@ -482,13 +337,17 @@ class Transitions:
           ),
       )
 
-    placeholder = backend.drop_shared(jax.tree.map(_zeros_like_shape, shapes))
+    placeholder = shared_buffers.drop_shared(
+        jax.tree.map(_zeros_like_shape, shapes)
+    )
     _, failures, carry = jax.lax.while_loop(
         again,
         body,
         (jnp.zeros((), jnp.int32), jnp.zeros((), jnp.int32), placeholder),
     )
-    carry = carry.replace(data=backend.restore_shared(carry.data, start.data))
+    carry = carry.replace(
+        data=shared_buffers.restore_shared(carry.data, start.data)
+    )
     return self._fall_back(carry, start), failures
 
   def _fall_back(self, carry, start):

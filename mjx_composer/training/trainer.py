@@ -39,7 +39,8 @@ import tqdm
 
 from mjx_composer import platform
 from mjx_composer.adapters import brax as brax_adapter
-from mjx_composer.platform import internals
+from mjx_composer.platform import backend
+from mjx_composer.platform import internals_jax
 from mjx_composer.platform import partitioner
 from mjx_composer.training import checkpoints
 from mjx_composer.training import config as config_lib
@@ -112,7 +113,7 @@ def _devices(config, log):
   if devices > 1:
     # MuJoCo Warp's contact buffer belongs to the whole batch; Brax's pmap
     # would split it.
-    if impl == 'warp':
+    if impl is not None and backend.get(impl).batch_shared_data:
       raise ValueError(
           f'impl warp trains on one device; pass --devices 1, or --impl jax '
           f'to train on {devices}.'
@@ -354,7 +355,7 @@ def _join_processes(barrier: str) -> None:
   processes wait for each other at the coordination service's barrier (no
   such limit), then run one collective over every device.
   """
-  internals.wait_for_processes(barrier, _START_TIMEOUT_S)
+  internals_jax.wait_for_processes(barrier, _START_TIMEOUT_S)
   ones = jax.numpy.ones((jax.local_device_count(),))
   jax.block_until_ready(
       jax.pmap(lambda x: jax.lax.psum(x, 'i'), axis_name='i')(ones)

@@ -8,7 +8,11 @@ of its imports, at module level or inside a function, is checked:
   `mujoco.mjx._src`, MuJoCo Warp's and warp's `_src`), which only
   `platform/internals.py` may import;
 * for reads of MJX's private `_impl` fields (`x._impl` on anything but
-  `self`/`cls`), which only `platform/internals.py` may do.
+  `self`/`cls`), which only the `platform/internals*` modules may do;
+* for branches on the MJX implementation's name outside `platform/`:
+  calls of `is_warp`, comparisons with 'jax' or 'warp', reads of
+  `mjx.Impl.JAX`/`mjx.Impl.WARP`. The rest of the package asks its
+  `platform.backend.Backend` what it supports and has it run what differs.
 """
 
 from __future__ import annotations
@@ -88,8 +92,19 @@ EXCEPTIONS = {
     'mjx_composer.suite.tasks.registry': {'environment'},
 }
 
-# The one module that may import private modules and read `_impl`.
+# The modules that may import private modules and read `_impl`: the JAX,
+# NumPy and MJX/MuJoCo Warp internals, each in its own module.
 INTERNALS = 'mjx_composer.platform.internals'
+INTERNALS_MODULES = frozenset(
+    {
+        INTERNALS,
+        'mjx_composer.platform.internals_jax',
+        'mjx_composer.platform.internals_numpy',
+    }
+)
+
+# The implementations' names, which only `platform/` may branch on.
+IMPL_NAMES = frozenset({'jax', 'warp'})
 
 
 def layer_of(module: str) -> str | None:
@@ -145,6 +160,45 @@ def _impl_reads(source: str):
   return lines
 
 
+def _names_an_impl(node) -> bool:
+  """Whether `node` is the string 'jax' or 'warp', or a collection of one."""
+  if isinstance(node, ast.Constant):
+    return node.value in IMPL_NAMES
+  if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+    return any(_names_an_impl(e) for e in node.elts)
+  return False
+
+
+def backend_branches(source: str) -> list[tuple[int, str]]:
+  """`(line, what)` for each test of the MJX implementation's name.
+
+  Calls of `is_warp`, comparisons with 'jax' or 'warp' (`impl == 'warp'`,
+  `impl in ('jax', 'warp')`), and reads of `Impl.JAX`/`Impl.WARP` (as
+  `mjx.Impl.WARP` or `Impl.WARP`).
+  """
+  found = []
+  for node in ast.walk(ast.parse(source)):
+    if isinstance(node, ast.Call):
+      func = node.func
+      name = (
+          func.attr
+          if isinstance(func, ast.Attribute)
+          else (func.id if isinstance(func, ast.Name) else None)
+      )
+      if name == 'is_warp':
+        found.append((node.lineno, 'calls is_warp'))
+    elif isinstance(node, ast.Compare):
+      if any(_names_an_impl(n) for n in [node.left, *node.comparators]):
+        found.append((node.lineno, "compares with 'jax'/'warp'"))
+    elif isinstance(node, ast.Attribute) and node.attr in ('JAX', 'WARP'):
+      owner = node.value
+      if (isinstance(owner, ast.Attribute) and owner.attr == 'Impl') or (
+          isinstance(owner, ast.Name) and owner.id == 'Impl'
+      ):
+        found.append((node.lineno, f'reads Impl.{node.attr}'))
+  return sorted(set(found))
+
+
 def _target(name: str, modules) -> str | None:
   """The package module an import names (the longest known prefix)."""
   while name:
@@ -168,7 +222,7 @@ def violations(
   allowed = ALLOWED[layer] | EXCEPTIONS.get(module, set())
   reported = set()
   for imp in imports(source, module, is_package):
-    if '_src' in imp.name.split('.') and module != INTERNALS:
+    if '_src' in imp.name.split('.') and module not in INTERNALS_MODULES:
       key = (imp.line, 'private')
       if key not in reported:
         reported.add(key)
@@ -191,11 +245,18 @@ def violations(
             f'{module}:{imp.line}: {layer} imports {target} '
             f'({target_layer}); {layer} may import {sorted(allowed)}'
         )
-  if module != INTERNALS:
+  if module not in INTERNALS_MODULES:
     for line in _impl_reads(source):
       problems.append(
           f"{module}:{line}: reads MJX's private `_impl`; only {INTERNALS} "
           'may (internals.data_impl, internals.option_impl, ...)'
+      )
+  if layer != 'platform':
+    for line, what in backend_branches(source):
+      problems.append(
+          f'{module}:{line}: branches on the MJX implementation ({what}); '
+          'ask the `platform.backend.Backend` for the capability or '
+          "operation instead (backend.of(data), the environment's backend)"
       )
   return problems
 
@@ -270,3 +331,43 @@ def test_a_planted_violation_is_reported(tmp_path):
       'mjx_composer.entity_planted:2',
   ]
   assert 'authoring imports mjx_composer.suite.tasks (content)' in problems[1]
+
+
+def test_a_planted_backend_branch_is_reported():
+  """Each way of asking "is this Warp?" outside `platform/` is reported."""
+  source = (
+      'from mujoco import mjx\n'
+      'from mjx_composer.platform import backend\n'
+      '\n'
+      '\n'
+      'def f(model, data, impl, options):\n'
+      '  if backend.is_warp(model):\n'
+      '    return 1\n'
+      "  if impl == 'warp' or options.impl != 'jax':\n"
+      '    return 2\n'
+      "  if impl in ('jax', 'warp'):\n"
+      '    return 3\n'
+      '  if data.impl == mjx.Impl.WARP:\n'
+      '    return 4\n'
+      '  # Asking the backend is fine.\n'
+      '  if backend.of(data).staged_forward:\n'
+      '    return 5\n'
+      "  return impl == 'full'\n"
+  )
+  assert backend_branches(source) == [
+      (6, 'calls is_warp'),
+      (8, "compares with 'jax'/'warp'"),
+      (10, "compares with 'jax'/'warp'"),
+      (12, 'reads Impl.WARP'),
+  ]
+  modules = {'mjx_composer.runtime.planted': None}
+  problems = violations('mjx_composer.runtime.planted', source, modules)
+  assert [p.split(': ', 1)[0] for p in problems] == [
+      'mjx_composer.runtime.planted:6',
+      'mjx_composer.runtime.planted:8',
+      'mjx_composer.runtime.planted:10',
+      'mjx_composer.runtime.planted:12',
+  ]
+  assert all('branches on the MJX implementation' in p for p in problems)
+  # platform/ is where the implementations are told apart.
+  assert not violations('mjx_composer.platform.planted', source, modules)

@@ -22,7 +22,9 @@ import pytest
 import mjx_composer as composer
 from mjx_composer import environment
 from mjx_composer.platform import backend
+from mjx_composer.platform import impl_choice
 from mjx_composer.platform import internals
+from mjx_composer.platform import shared_buffers
 from mjx_composer.suite.tasks import joystick
 from mjx_composer.suite.tasks import push
 from mjx_composer.suite.tasks import reach
@@ -42,7 +44,7 @@ ATOL = 1e-5
 @pytest.fixture(scope='module')
 def warp_env():
   # max_reset_attempts=2: the reset's retry loop, whose carry must leave
-  # Warp's batch-shared contact buffer out (`backend.drop_shared`).
+  # Warp's batch-shared contact buffer out (`shared_buffers.drop_shared`).
   return environment.Environment(
       reach.Reach(),
       time_limit=0.1,
@@ -178,7 +180,7 @@ def test_warp_keeps_the_contact_buffer_shared_by_the_batch(warp_rollout):
   assert data.qpos.shape[0] == WORLDS
   contact_dist = internals.data_impl(data).contact__dist
   assert jnp.shape(contact_dist) == (backend.naconmax(data),)
-  assert jax.tree.leaves(backend.shared_leaves(data)).count(True) > 10
+  assert jax.tree.leaves(shared_buffers.shared_leaves(data)).count(True) > 10
 
 
 def test_warp_overflow_is_reported_until_the_episode_ends(warp_env, warp_fns):
@@ -281,7 +283,7 @@ def test_unknown_impl_is_refused():
 
 
 def test_warp_not_installed_says_how_to_install(monkeypatch):
-  monkeypatch.setattr(backend, 'warp_installed', lambda: False)
+  monkeypatch.setattr(impl_choice, 'warp_installed', lambda: False)
   with pytest.raises(ImportError, match=r"pip install 'mjx-composer\[warp\]'"):
     conftest.make_swing_env(options=composer.ExecutionOptions(impl='warp'))
 
@@ -302,24 +304,26 @@ class _FakeGpu:
 
 
 def test_default_impls_put_warp_first_on_a_cuda_gpu(monkeypatch):
-  monkeypatch.setattr(backend, 'warp_installed', lambda: True)
+  monkeypatch.setattr(impl_choice, 'warp_installed', lambda: True)
   gpu = _FakeGpu()
-  assert backend.resolve_impl(None, gpu) == ('warp', 'jax')
+  assert impl_choice.resolve_impl(None, gpu) == ('warp', 'jax')
   # The fused restart runs on 'jax' only.
-  assert backend.resolve_impl(None, gpu, share_reset_forward=True) == ('jax',)
+  assert impl_choice.resolve_impl(None, gpu, share_reset_forward=True) == (
+      'jax',
+  )
   # An explicit choice is the only one tried.
-  assert backend.resolve_impl('jax', gpu) == ('jax',)
-  assert backend.resolve_impl('warp', gpu) == ('warp',)
+  assert impl_choice.resolve_impl('jax', gpu) == ('jax',)
+  assert impl_choice.resolve_impl('warp', gpu) == ('warp',)
   cpu = jax.devices('cpu')[0]
-  assert backend.resolve_impl(None, cpu) == ('jax',)
-  monkeypatch.setattr(backend, 'warp_installed', lambda: False)
-  assert backend.resolve_impl(None, gpu) == ('jax',)
+  assert impl_choice.resolve_impl(None, cpu) == ('jax',)
+  monkeypatch.setattr(impl_choice, 'warp_installed', lambda: False)
+  assert impl_choice.resolve_impl(None, gpu) == ('jax',)
 
 
 def _warp_first_everywhere(monkeypatch):
   """impl=None tries 'warp' then 'jax' on this CPU, as on a CUDA GPU."""
   monkeypatch.setattr(
-      backend, 'default_impls', lambda device, share: ('warp', 'jax')
+      impl_choice, 'default_impls', lambda device, share: ('warp', 'jax')
   )
 
 

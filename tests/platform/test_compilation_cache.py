@@ -10,7 +10,7 @@ import pathlib
 import numpy as np
 
 from mjx_composer.platform import compilation_cache
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 from tests import conftest
 
 # Enables the cache (writing every program, however fast it compiled), jits
@@ -231,7 +231,7 @@ def test_swapped_entries_are_compiled_afresh_not_run(tmp_path):
   assert all('compiles again and is written afresh' in w for w in removed)
   # Written afresh under their own keys: the next process loads both.
   for entry in (one, three):
-    header = internals.CACHE_KEY_HEADER + _key(entry).encode() + b'\0'
+    header = internals_jax.CACHE_KEY_HEADER + _key(entry).encode() + b'\0'
     assert entry.read_bytes().startswith(header)
   again = _run_two_programs(tmp_path, folder)
   _assert_results(again)
@@ -252,5 +252,5 @@ def test_entries_written_by_jax_alone_are_compiled_afresh(tmp_path):
   unbound = [w for w in out['warnings'] if 'holds no key' in w]
   for entry in (one, three):
     assert any(entry.name in w for w in unbound), out['warnings']
-  assert one.read_bytes().startswith(internals.CACHE_KEY_HEADER)
-  assert three.read_bytes().startswith(internals.CACHE_KEY_HEADER)
+  assert one.read_bytes().startswith(internals_jax.CACHE_KEY_HEADER)
+  assert three.read_bytes().startswith(internals_jax.CACHE_KEY_HEADER)

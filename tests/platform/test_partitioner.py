@@ -3,7 +3,7 @@
 import jax
 import pytest
 
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 from mjx_composer.platform import partitioner
 
 
@@ -58,7 +58,7 @@ def test_the_scope_sets_jax_partitioner_and_restores_it():
 
 
 def test_a_jax_without_gspmd_keeps_shardy(monkeypatch):
-  monkeypatch.setattr(internals, 'shardy_partitioner_state', lambda: None)
+  monkeypatch.setattr(internals_jax, 'shardy_partitioner_state', lambda: None)
   with partitioner.scope([_FakeDevice('gpu')] * 2) as name:
     assert name == 'shardy'
     assert _shardy_on()

@@ -43,7 +43,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 from mjx_composer.platform import partitioner
 from mjx_composer.platform import sharding
 from mjx_composer import variation
@@ -298,7 +298,7 @@ def _worker_multihost(out, port, process_id):
   # compiled everything (the coordination service's barrier waits as long
   # as that takes; Gloo gives up on a process 30 s late to its first
   # collective).
-  internals.wait_for_processes('test_sharding_gather', 1800.0)
+  internals_jax.wait_for_processes('test_sharding_gather', 1800.0)
   gathered = _flatten(sharding.gather_worlds(states))
   local = sharding.local_worlds(states.observation['tip'])
   rejoined = sharding.gather_worlds(sharding.put_local_worlds(local, mesh))

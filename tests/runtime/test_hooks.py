@@ -18,7 +18,7 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer.model import element_index
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_numpy
 from mjx_composer.runtime import hooks as hooks_lib
 from mjx_composer.runtime import transitions
 from mjx_composer.utils import stable_id as stable_id_lib
@@ -348,7 +348,7 @@ def test_a_draw_through_a_name_bound_before_the_hook_is_refused(
   thread runs, which could have drawn meanwhile. The suite's process runs
   other threads (the test runner's, JAX's), so the test stands in for a
   process that runs none."""
-  monkeypatch.setattr(internals.threading, 'active_count', lambda: 1)
+  monkeypatch.setattr(internals_numpy.threading, 'active_count', lambda: 1)
   with pytest.raises(
       hooks_lib.HostRandomnessError,
       match=r'^_HostDraw\.initialize_episode drew host randomness \(numpy\.'

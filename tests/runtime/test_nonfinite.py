@@ -27,7 +27,7 @@ import pytest
 import mjx_composer as composer
 from mjx_composer import initializers
 from mjx_composer.observation import observable
-from mjx_composer.platform import backend
+from mjx_composer.platform import shared_buffers
 from mjx_composer.runtime import episode
 from tests import conftest
 
@@ -174,7 +174,7 @@ def _at(tree, world):
   return jax.tree.map(
       lambda x, shared: jnp.zeros(0) if shared else x[world],
       tree,
-      backend.shared_leaves(tree),
+      shared_buffers.shared_leaves(tree),
   )
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import mjx_composer as composer
-from mjx_composer.platform import internals
+from mjx_composer.platform import internals_jax
 from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import reset_forward
 from tests import conftest
@@ -299,7 +299,7 @@ def test_without_dead_code_elimination_everything_counts_as_read(
 ):
   m, model, _ = sensor_model
   data = mjx.make_data(model)
-  monkeypatch.setattr(internals, 'dce_jaxpr', None)
+  monkeypatch.setattr(internals_jax, 'dce_jaxpr', None)
   read = data_reads.reads(lambda d: (d.qvel, d.xpos), data)
   assert read.fields == set(data_reads.leaf_names(data))
   assert read.sensordata is None

@@ -243,7 +243,9 @@ def test_sensors_once_per_step_make_the_same_episodes(
       once_env, 12
   ), test_reset_forward.rollout(every_env, 12)
   assert np.asarray(once[10].last()).all()
-  assert once_env._fuses_restart() == share_reset_forward  # pylint: disable=protected-access
+  # The fused restart as asked for (the task's Euler model can fuse it).
+  assert once_env.share_reset_forward == share_reset_forward
+  assert once_env.options.share_reset_forward == share_reset_forward
   assert once_env.reset_forward_stage == (
       'full' if observed == 'acceleration' else 'velocity'
   )
