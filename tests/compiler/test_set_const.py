@@ -17,6 +17,7 @@ from mjx_composer.compiler import set_const
 
 _HUMANOID = (
     pathlib.Path(set_const.__file__).parents[1]
+    / 'suite'
     / 'entities'
     / 'assets'
     / 'humanoid'
