@@ -99,7 +99,33 @@ PrimitiveObservables = FrameSensorObservables
 BallObservables = FrameSensorObservables
 
 
-class Primitive(entity.Entity):
+class _FrameSensedProp(entity.Entity):
+  """An entity of one spec, one geom and four frame sensors of one object.
+
+  Subclasses set `_spec`, `_geom` and `_sensors` (from `_add_frame_sensors`)
+  in `_build`.
+  """
+
+  def _build_observables(self):
+    return FrameSensorObservables(self)
+
+  @property
+  def mjcf_model(self):
+    return self._spec
+
+  @property
+  def geom(self):
+    """The prop's geom (e.g. to bind its friction or colour)."""
+    return self._geom
+
+  @property
+  def frame_sensors(self):
+    """`framepos`, `framequat`, `framelinvel` and `frameangvel`, world
+    frame."""
+    return self._sensors
+
+
+class Primitive(_FrameSensedProp):
   """A prop made of one primitive geom, with position and velocity sensors.
 
   Args:
@@ -137,23 +163,6 @@ class Primitive(entity.Entity):
         ('position', 'orientation', 'linear_velocity', 'angular_velocity'),
     )
     self._spec = spec
-
-  def _build_observables(self):
-    return FrameSensorObservables(self)
-
-  @property
-  def mjcf_model(self):
-    return self._spec
-
-  @property
-  def geom(self):
-    """The prop's geom (e.g. to bind its friction or colour)."""
-    return self._geom
-
-  @property
-  def frame_sensors(self):
-    """The geom's `framepos`, `framequat`, `framelinvel` and `frameangvel`."""
-    return self._sensors
 
   @property
   def position(self):
@@ -213,7 +222,7 @@ class Ellipsoid(Primitive):
     super()._build('ellipsoid', radii, name=name, **geom_kwargs)
 
 
-class Ball(entity.Entity):
+class Ball(_FrameSensedProp):
   """A sphere with frame sensors; attach it with `Arena.add_free_entity`.
 
   Args:
@@ -241,23 +250,6 @@ class Ball(entity.Entity):
         ('pos', 'quat', 'linvel', 'angvel'),
     )
     self._spec = spec
-
-  def _build_observables(self):
-    return FrameSensorObservables(self)
-
-  @property
-  def mjcf_model(self):
-    return self._spec
-
-  @property
-  def geom(self):
-    return self._geom
-
-  @property
-  def frame_sensors(self):
-    """The centre site's `framepos`, `framequat`, `framelinvel`,
-    `frameangvel`."""
-    return self._sensors
 
   @property
   def sensors(self):
