@@ -36,9 +36,11 @@ import pickle
 import socket
 import subprocess
 import sys
+import time
 
 import jax
 import jax.numpy as jnp
+from jax.experimental import multihost_utils
 import numpy as np
 import pytest
 
@@ -272,16 +274,41 @@ def _worker_meshes(out):
     )
 
 
-def _worker_multihost(out, port, process_id):
+def _coordinator_port(out, process_id, timeout_s=600.0):
+  """The coordinator's port: process 0 picks a free one, process 1 reads it.
+
+  Process 0 (which runs the coordination service) picks the port itself,
+  moments before the service binds it, and writes it to a file that process
+  1 waits for: no port picked by the parent seconds before a child binds it.
+  """
+  path = os.path.join(out, 'coordinator_port')
+  if process_id == 0:
+    with socket.socket() as s:
+      s.bind(('localhost', 0))
+      port = s.getsockname()[1]
+    with open(f'{path}.tmp', 'w') as f:
+      f.write(str(port))
+    os.replace(f'{path}.tmp', path)
+    return port
+  deadline = time.monotonic() + timeout_s
+  while not os.path.exists(path):
+    if time.monotonic() > deadline:
+      raise TimeoutError(f'process 0 wrote no port to {path}')
+    time.sleep(0.05)
+  with open(path) as f:
+    return int(f.read())
+
+
+def _worker_multihost(out, process_id):
   """One of 2 processes of 2 devices: 8 worlds over the 4 global devices.
 
   It reads back its own worlds (no communication) while stepping, and
   gathers every world once at the end, when both processes have compiled
   everything: JAX's CPU collectives (gloo) give up when the other process is
-  more than 30 s late.
+  more than 30 s late to their first collective.
   """
   jax.distributed.initialize(
-      coordinator_address=f'localhost:{port}',
+      coordinator_address=f'localhost:{_coordinator_port(out, process_id)}',
       num_processes=2,
       process_id=process_id,
   )
@@ -294,11 +321,14 @@ def _worker_multihost(out, port, process_id):
   report['process_devices'] = [d.process_index for d in mesh.devices.flat]
   report['local_rows'] = len(trajectory[-1]['.step_type'])
   # Every world on every process (an all-gather), and the local rows joined
-  # back into one batch: the first collective, after both processes have
-  # compiled everything (the coordination service's barrier waits as long
-  # as that takes; Gloo gives up on a process 30 s late to its first
-  # collective).
+  # back into one batch. Gloo gives up on a process 30 s late to the first
+  # collective, and compiling the gather can take that long on a busy CPU:
+  # so the processes meet at the coordination service's barrier (which
+  # waits as long as it takes), then connect with a collective that
+  # compiles in a moment; a connected collective waits for the other
+  # process however long its compile takes.
   internals_jax.wait_for_processes('test_sharding_gather', 1800.0)
+  multihost_utils.sync_global_devices('test_sharding_connect')
   gathered = _flatten(sharding.gather_worlds(states))
   local = sharding.local_worlds(states.observation['tip'])
   rejoined = sharding.gather_worlds(sharding.put_local_worlds(local, mesh))
@@ -370,7 +400,7 @@ def _main(argv):
   if mode == 'meshes':
     _worker_meshes(out)
   elif mode == 'multihost':
-    _worker_multihost(out, int(argv[2]), int(argv[3]))
+    _worker_multihost(out, int(argv[2]))
   elif mode == 'brax':
     _worker_brax(out)
   else:
@@ -413,12 +443,6 @@ def _finish(process, timeout=900):
     process.kill()
     output, _ = process.communicate()
   assert process.returncode == 0, output[-6000:]
-
-
-def _free_port():
-  with socket.socket() as s:
-    s.bind(('localhost', 0))
-    return s.getsockname()[1]
 
 
 @pytest.fixture(scope='module')
@@ -597,8 +621,7 @@ def test_sharded_host_environment_steps_the_same_worlds(meshes):
 
 
 def test_two_processes_step_the_same_worlds(meshes, tmp_path):
-  port = _free_port()
-  workers = [_start(2, 'multihost', tmp_path, port, i) for i in (0, 1)]
+  workers = [_start(2, 'multihost', tmp_path, i) for i in (0, 1)]
   for worker in workers:
     _finish(worker)
   results = []
