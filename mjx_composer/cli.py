@@ -333,9 +333,10 @@ def _join_cluster(argv):
       jax.distributed.initialize(*options)
     except (ValueError, RuntimeError) as e:
       raise ValueError(
-          f'--distributed could not join the processes ({e}). Outside SLURM '
-          'and Open MPI, pass --coordinator HOST:PORT --num-processes N '
-          '--process-id I on every host.'
+          f'--distributed could not join the processes ({e}). Pass a '
+          "coordinator address whose port is free on process 0's host; "
+          'outside SLURM and Open MPI, pass --coordinator HOST:PORT '
+          '--num-processes N --process-id I on every host.'
       ) from e
   return rest
 

@@ -111,17 +111,19 @@ def finish(run: run_folder.RunFolder, checkpoint: Checkpoint) -> None:
   run_folder.write_json(
       os.path.join(path_for(run, checkpoint.step), INFO), info
   )
-  found = [read(p) for p in paths(run)]
-  best = max(found, key=lambda c: _ranked(c.eval_return))
+  best = checkpoint
+  for path in paths(run):
+    try:
+      other = read(path)
+    except run_folder.RunFolderError:
+      continue  # unreadable: deleted below
+    if other.eval_return > best.eval_return or math.isnan(best.eval_return):
+      best = other
   keep = {path_for(run, c.step) for c in (best, checkpoint)}
   for name in os.listdir(run.checkpoint_dir):
     path = os.path.join(run.checkpoint_dir, name)
     if path not in keep:
       shutil.rmtree(path, ignore_errors=True)
-
-
-def _ranked(value: float) -> float:
-  return -math.inf if math.isnan(value) else value
 
 
 def paths(run: run_folder.RunFolder) -> list[str]:

@@ -151,17 +151,6 @@ def _restored(run, config, brax_env, lead, log):
   return restored
 
 
-def _eta(rows, num_timesteps) -> str:
-  """The time left at the training rate of `rows` (after their compile)."""
-  if len(rows) < 2 or rows[-1]['step'] >= num_timesteps:
-    return ''
-  steps = rows[-1]['step'] - rows[0]['step']
-  seconds = rows[-1]['train_walltime_s'] - rows[0]['train_walltime_s']
-  if steps <= 0 or seconds <= 0:
-    return ''
-  return f'  ETA {(num_timesteps - rows[-1]["step"]) * seconds / steps:,.0f}s'
-
-
 def train(
     config: config_lib.TrainConfig,
     run: run_folder.RunFolder,
@@ -221,7 +210,6 @@ def train(
       config_lib.to_dict(config) if config.wandb and lead else None,
       os.path.basename(os.path.abspath(run.path)),
   )
-  first_row = len(writer.rows)
   done = {'evaluations': evaluations, 'videos': []}
 
   def keep(step, make_policy, params):
@@ -257,12 +245,14 @@ def train(
               row['eval_return'],
           ),
       )
-    # The first epoch's time holds its compile: the rate starts after it.
-    trained = [r for r in writer.rows[first_row:] if r['step'] > offset]
+    # The rate since the evaluation before, unless that one came before
+    # this process's first epoch, whose time holds its compile.
+    eta, rate = '', row['env_steps_per_s']
+    if step > spe and total < config.num_timesteps and rate > 0:
+      eta = f'  ETA {(config.num_timesteps - total) / rate:,.0f}s'
     log(
         f'step {total:>12,}  return {row["eval_return"]:9.3f} ± '
-        f'{row["eval_return_std"]:.3f}  {row["wall_s"]:8.1f}s'
-        + _eta(trained, config.num_timesteps)
+        f'{row["eval_return_std"]:.3f}  {row["wall_s"]:8.1f}s{eta}'
     )
     index = done['evaluations']
     if step and config.video_every and index % config.video_every == 0:
