@@ -235,6 +235,8 @@ usage: mjx-composer demo [--task NAME] [--worlds N] [--steps T] [--time-limit S]
        mjx-composer list                       (the task names)
        mjx-composer train TASK [--config FILE] [--run-dir DIR] [--SETTING VALUE ...]
        mjx-composer train --resume RUN [--num-timesteps N ...]
+         either on each host: --distributed [--coordinator HOST:PORT
+                              --num-processes N --process-id I]
        mjx-composer play RUN [--worlds N] [--steps T] [--out DIR]
        mjx-composer export RUN --format onnx [--out FILE]
 'train --help' lists the settings and TASK's defaults."""
@@ -245,20 +247,13 @@ def _error(message):
   return 2
 
 
-def _split_task(argv):
-  """`(task or None, rest)`: a leading argument that is not a flag is TASK."""
-  if argv and not argv[0].startswith('-'):
-    return argv[0], argv[1:]
-  return None, list(argv)
-
-
-def resolve_train_config(argv):
+def resolve_train_config(argv, create=True):
   """`(config, run folder, resume)` of `mjx-composer train` arguments.
 
   The settings are resolved in layers: the task's defaults (or, with
   `--resume RUN`, the run's config), then `--config FILE`, then the flags.
-  A new run's folder is created (`--run-dir`, default
-  `runs/<task>_<time>`).
+  A new run's folder is created (`--run-dir`, default `runs/<task>_<time>`)
+  unless `create` is False (processes but the first of a distributed run).
 
   Raises:
     RunFolderError, ValueError: for an unknown task, a bad config file or
@@ -270,32 +265,28 @@ def resolve_train_config(argv):
   from mjx_composer.training import trainer
   # pylint: enable=g-import-not-at-top
 
-  task, rest = _split_task(argv)
+  task = argv[0] if argv and not argv[0].startswith('-') else None
   front = argparse.ArgumentParser(add_help=False)
-  front.add_argument('--config', default=None)
-  front.add_argument('--run-dir', default=None)
-  front.add_argument('--resume', default=None, metavar='RUN')
-  known, rest = front.parse_known_args(rest)
+  for flag in ('--config', '--run-dir', '--resume'):
+    front.add_argument(flag)
+  known, rest = front.parse_known_args(argv[1:] if task else argv)
   if known.resume:
     if known.run_dir:
       raise ValueError('--resume RUN continues RUN: leave out --run-dir.')
     run = run_folder.open_run(known.resume)
-    saved = run.read_config()
+    base = saved = run.read_config()
     if task is not None and task != saved.task:
       raise run_folder.RunFolderError(
           f'The run {known.resume!r} trains task {saved.task!r}, not '
           f'{task!r}: resume it with its own task, or start a new run.'
       )
-    base = saved
   else:
-    if task is None:
-      if any(flag in rest for flag in ('-h', '--help')):
-        task = 'reach'
-      else:
-        raise ValueError(
-            'mjx-composer train TASK: name a task (mjx-composer list), or '
-            'continue a run with --resume RUN.'
-        )
+    if task is None and not {'-h', '--help'} & set(rest):
+      raise ValueError(
+          'mjx-composer train TASK: name a task (mjx-composer list), or '
+          'continue a run with --resume RUN.'
+      )
+    task = task or 'reach'
     registry.entry(task)
     base = config_lib.defaults(task)
   if known.config:
@@ -308,11 +299,46 @@ def resolve_train_config(argv):
     )
   if known.resume:
     trainer.check_resume_changes(saved, config)
-    if config != saved:
+    if config != saved and create:
       run.write_config(config)
     return config, run, True
   path = known.run_dir or run_folder.default_path(task)
+  if not create:
+    return config, run_folder.RunFolder(path), False
   return config, run_folder.create(path, config), False
+
+
+def _join_cluster(argv):
+  """`argv` less `--distributed` and its options, after joining the cluster.
+
+  `--distributed` calls `jax.distributed.initialize` before anything touches
+  JAX's devices: its coordinator, process count and process id from
+  `--coordinator`, `--num-processes` and `--process-id` where given, else
+  as JAX finds them (SLURM, Open MPI, `JAX_COORDINATOR_ADDRESS`, ...).
+  """
+  parser = argparse.ArgumentParser(add_help=False)
+  parser.add_argument('--distributed', action='store_true')
+  parser.add_argument('--coordinator')
+  parser.add_argument('--num-processes', type=int)
+  parser.add_argument('--process-id', type=int)
+  known, rest = parser.parse_known_args(argv)
+  options = (known.coordinator, known.num_processes, known.process_id)
+  if any(x is not None for x in options) and not known.distributed:
+    raise ValueError(
+        '--coordinator, --num-processes and --process-id join a distributed '
+        'run: pass --distributed too.'
+    )
+  if known.distributed:
+    try:
+      jax.distributed.initialize(*options)
+    except (ValueError, RuntimeError) as e:
+      raise ValueError(
+          f'--distributed could not join the processes ({e}). Pass a '
+          "coordinator address whose port is free on process 0's host; "
+          'outside SLURM and Open MPI, pass --coordinator HOST:PORT '
+          '--num-processes N --process-id I on every host.'
+      ) from e
+  return rest
 
 
 def train(argv=None):
@@ -323,18 +349,12 @@ def train(argv=None):
   # pylint: enable=g-import-not-at-top
 
   try:
-    config, run, resume = resolve_train_config(list(argv or []))
+    argv = _join_cluster(list(argv or []))
+    # Process 0 alone writes the run folder.
+    create = not jax.distributed.is_initialized() or jax.process_index() == 0
+    config, run, resume = resolve_train_config(argv, create)
   except (run_folder.RunFolderError, ValueError, KeyError) as e:
     return _error(e.args[0] if e.args else e)
-  if config.processes > 1:
-    # pylint: disable=g-import-not-at-top
-    from mjx_composer.training import launcher
-
-    # pylint: enable=g-import-not-at-top
-    try:
-      return launcher.launch(run.path, resume, config.processes)
-    except ValueError as e:
-      return _error(e)
   try:
     trainer.train(config, run, resume=resume)
   except (run_folder.RunFolderError, ValueError) as e:

@@ -68,6 +68,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer import environment as environment_lib
+from mjx_composer.platform import internals_jax
 
 ObsKey = Union[None, str, Sequence[str]]
 
@@ -120,7 +121,7 @@ def install_jax_compat():
       'mjx_composer.adapters.brax: installed jax.device_put_replicated for '
       'Brax (removed in JAX 0.10, google/brax#671).'
   )
-  jax.device_put_replicated = device_put_replicated
+  internals_jax.install_device_put_replicated(device_put_replicated)
 
 
 # The sharding for the evaluator's environment's states, set by our

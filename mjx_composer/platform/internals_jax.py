@@ -3,11 +3,12 @@
 The package needs a few things that JAX does not export: a lowering rule of
 JAX's Cholesky primitive (`cpu_linalg`), JAX's dead-code elimination of a
 jaxpr (`runtime.data_reads`), JAX's partitioner setting (`partitioner`),
-the barrier of JAX's coordination service (`training`), and the entries of
-JAX's persistent compilation cache (`compilation_cache`). This module, with
+the barrier of JAX's coordination service (`training`), the entries of
+JAX's persistent compilation cache (`compilation_cache`), and it puts back
+`jax.device_put_replicated` for Brax (`adapters.brax`). This module, with
 `internals` (MJX and MuJoCo Warp) and `internals_numpy` (NumPy's random
-module), is the only one that imports a private module (`jax._src`); every
-other module calls the names below. When JAX is upgraded, this file is the
+module), is the only one that imports a private module (`jax._src`) or
+assigns JAX's attributes; every other module calls the names below. When JAX is upgraded, this file is the
 one to revisit (`tests/package/test_layers.py` keeps private imports out of the rest
 of the package).
 
@@ -252,6 +253,17 @@ def wait_for_processes(barrier: str, timeout_s: float) -> None:
   if client is None:
     return
   client.wait_at_barrier(barrier, int(timeout_s * 1000))
+
+
+def install_device_put_replicated(function) -> None:
+  """Sets `jax.device_put_replicated`, which JAX 0.10 removed, to `function`.
+
+  Brax 0.14 replicates its training state with it (`adapters.brax`
+  installs JAX's documented replacement where it is missing).
+  """
+  import jax  # pylint: disable=g-import-not-at-top
+
+  jax.device_put_replicated = function
 
 
 def register_cpu_lowering(primitive, rule) -> None:

@@ -1,38 +1,42 @@
-"""Checkpoints that resume a Brax PPO run exactly where it stopped.
+"""A run's checkpoints: the latest and the best, each resumable by Brax.
 
-A checkpoint holds what Brax's `TrainingState` holds: the step count, the
-normalizer, policy and value parameters, and the optimizer state (Adam's
-moments and count), plus what the networks were built for (task,
-observation sizes, action size). It is a pickle of numpy arrays, written
-through a temporary file, so an interrupted write never leaves half a
-checkpoint.
+A checkpoint is a folder `checkpoints/<step, 12 digits>/` holding
 
-Brax 0.14's `ppo.train` restores the parameters (`restore_params`) but not
-the optimizer state, and saves no optimizer state (`save_checkpoint_path`
-writes the parameters and the network config only). Without changing
-Brax, this module
+* the `(normalizer, policy, value)` parameters that Brax's `ppo.train` hands
+  its public `policy_params_fn` callback after each training epoch, written
+  with orbax in the layout of Brax's own `ppo.checkpoint.save` (so Brax's
+  `ppo.checkpoint.load` reads it too), and
+* `checkpoint.json`: the step, evaluations, steps per evaluation, task,
+  observation sizes, action size and the evaluation return.
 
-* reads the full `TrainingState` in `policy_params_fn`, which `ppo.train`
-  calls from its own frame after each training epoch
-  (`training_state_of_caller`), and
-* restores the optimizer state by handing `ppo.train` an Adam whose `init`
-  returns the saved state (`restoring_optimizer`), checked against the
-  structure and shapes that a fresh Adam's `init` gives.
+`ppo.train(restore_params=checkpoint.params)` starts from them. What Brax's
+public API does not hand out or take back is not saved: Adam's moments and
+count start fresh on resume.
 
-Both depend on Brax's `train` function as of 0.14; a Brax without them
-fails here with an error that says so, not with wrong results.
+Brax calls `policy_params_fn` before it evaluates the same parameters, so
+`save_params` writes the parameters when they come and `finish` writes
+`checkpoint.json` when the evaluation's return has come (`progress_fn`). A
+checkpoint is complete once its `checkpoint.json` exists (written through a
+temporary file; orbax writes the parameters through a temporary folder):
+an interrupted write leaves no checkpoint that `latest` picks up. `finish`
+then keeps two checkpoints, the latest and the best by evaluation return,
+and deletes the rest.
+
+Orbax is called directly, with this process as the only one taking part:
+Brax's `save` and `load` synchronize every `jax.distributed` process
+through a collective, while Brax calls `policy_params_fn` in process 0
+alone after the first epoch, so a run of several processes waited there
+until the collective timed out.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import glob
+import json
+import math
 import os
-import pickle
 import re
-import sys
-import types
+import shutil
 from typing import Any
 
 import jax
@@ -40,103 +44,146 @@ import numpy as np
 
 from mjx_composer.training import run_folder
 
-FORMAT = 1
-_NAME = re.compile(r'step_(\d+)\.pkl$')
+INFO = 'checkpoint.json'
+_NAME = re.compile(r'^\d{12}$')
 
 
 @dataclasses.dataclass
 class Checkpoint:
-  """One saved training state (numpy leaves).
+  """One saved state of a run (`params`: None until loaded).
 
   Attributes:
     step: environment steps trained so far.
     evaluations: evaluations after training so far (Brax's step-0
       evaluation not counted).
-    params: `(normalizer, policy, value)` as `ppo.train` returns them.
-    optimizer_state: the optimizer's state (optax), or None.
+    steps_per_evaluation: environment steps between two evaluations.
     task: the task trained.
     observation_size: `{group: shape}` the networks were built for.
     action_size: the number of actions.
-    steps_per_evaluation: environment steps between two evaluations.
+    eval_return: the evaluation's mean return at `step`.
+    params: `(normalizer, policy, value)` as `ppo.train` hands them out.
   """
 
   step: int
   evaluations: int
-  params: Any
-  optimizer_state: Any
+  steps_per_evaluation: int
   task: str
   observation_size: dict
   action_size: int
-  steps_per_evaluation: int
+  eval_return: float = math.nan
+  params: Any = None
 
 
 def path_for(run: run_folder.RunFolder, step: int) -> str:
-  return os.path.join(run.checkpoint_dir, f'step_{step:012d}.pkl')
+  return os.path.join(run.checkpoint_dir, f'{int(step):012d}')
 
 
-def save(run: run_folder.RunFolder, checkpoint: Checkpoint) -> str:
-  """Writes `checkpoint` into the run's checkpoints; returns its path."""
-  os.makedirs(run.checkpoint_dir, exist_ok=True)
-  path = path_for(run, checkpoint.step)
-  payload = {
-      f.name: jax.device_get(getattr(checkpoint, f.name))
-      for f in dataclasses.fields(checkpoint)
-  }
-  payload['format'] = FORMAT
-  tmp = f'{path}.tmp'
-  with open(tmp, 'wb') as f:
-    pickle.dump(payload, f)
-  os.replace(tmp, path)
-  return path
+def _checkpointer():
+  import orbax.checkpoint as ocp  # pylint: disable=g-import-not-at-top
+
+  alone = ocp.options.MultiprocessingOptions(
+      primary_host=jax.process_index(), active_processes={jax.process_index()}
+  )
+  return ocp.Checkpointer(
+      ocp.PyTreeCheckpointHandler(multiprocessing_options=alone),
+      multiprocessing_options=alone,
+  )
+
+
+def save_params(run: run_folder.RunFolder, step: int, params) -> None:
+  """Writes the parameters of `step` (`finish` completes the checkpoint)."""
+  import orbax.checkpoint as ocp  # pylint: disable=g-import-not-at-top
+
+  path = path_for(run, step)
+  shutil.rmtree(path, ignore_errors=True)
+  normalizer, policy, value = jax.tree.map(np.asarray, params)
+  # Brax's step count makes its halves JAX arrays: as numpy, orbax needs no
+  # sharding to read them back.
+  count = {k: np.asarray(getattr(normalizer.count, k)) for k in ('hi', 'lo')}
+  params = (normalizer.replace(count=count), policy, value)
+  _checkpointer().save(path, args=ocp.args.PyTreeSave(params))
+
+
+def finish(run: run_folder.RunFolder, checkpoint: Checkpoint) -> None:
+  """Completes `checkpoint` (its parameters saved), keeps the latest and best."""
+  info = dataclasses.asdict(checkpoint)
+  del info['params']
+  run_folder.write_json(
+      os.path.join(path_for(run, checkpoint.step), INFO), info
+  )
+  best = checkpoint
+  for path in paths(run):
+    try:
+      other = read(path)
+    except run_folder.RunFolderError:
+      continue  # unreadable: deleted below
+    if other.eval_return > best.eval_return or math.isnan(best.eval_return):
+      best = other
+  keep = {path_for(run, c.step) for c in (best, checkpoint)}
+  for name in os.listdir(run.checkpoint_dir):
+    path = os.path.join(run.checkpoint_dir, name)
+    if path not in keep:
+      shutil.rmtree(path, ignore_errors=True)
 
 
 def paths(run: run_folder.RunFolder) -> list[str]:
-  """The run's checkpoint files, oldest (fewest steps) first."""
-  found = glob.glob(os.path.join(run.checkpoint_dir, 'step_*.pkl'))
-  return sorted(f for f in found if _NAME.search(f))
+  """The run's complete checkpoints, oldest (fewest steps) first."""
+  if not os.path.isdir(run.checkpoint_dir):
+    return []
+  return [
+      os.path.join(run.checkpoint_dir, name)
+      for name in sorted(os.listdir(run.checkpoint_dir))
+      if _NAME.match(name)
+      and os.path.isfile(os.path.join(run.checkpoint_dir, name, INFO))
+  ]
 
 
-def load(path: str) -> Checkpoint:
-  """Reads a checkpoint file.
+def read(path: str, params: bool = False) -> Checkpoint:
+  """The checkpoint at `path`; its parameters too when `params`.
 
   Raises:
-    RunFolderError: for a file that is unreadable, truncated or not a
-      checkpoint of this format.
+    RunFolderError: for a checkpoint that is unreadable or truncated.
   """
   try:
-    with open(path, 'rb') as f:
-      payload = pickle.load(f)
-  except (
-      OSError,
-      EOFError,
-      pickle.UnpicklingError,
-      AttributeError,
-      ImportError,
-      IndexError,
-      TypeError,
-      ValueError,
-  ) as e:
+    with open(os.path.join(path, INFO)) as f:
+      checkpoint = Checkpoint(**json.load(f))
+    if params:
+      checkpoint.params = _restore(path)
+  except Exception as e:  # json, orbax or a file missing: all mean corrupted
     raise run_folder.RunFolderError(
         f'The checkpoint {path!r} is corrupted and cannot be read '
         f'({type(e).__name__}: {e}). Delete it to resume from the one '
         'before, or start a new run.'
     ) from e
-  if not isinstance(payload, dict) or payload.get('format') != FORMAT:
-    raise run_folder.RunFolderError(
-        f'{path!r} is not a checkpoint of this version (format {FORMAT}); '
-        'start a new run.'
-    )
-  payload.pop('format')
-  try:
-    return Checkpoint(**payload)
-  except TypeError as e:
-    raise run_folder.RunFolderError(
-        f'The checkpoint {path!r} is corrupted ({e}); start a new run.'
-    ) from e
+  checkpoint.observation_size = {
+      k: tuple(v) for k, v in checkpoint.observation_size.items()
+  }
+  return checkpoint
+
+
+def _restore(path: str):
+  """The parameters at `path`, numpy arrays, as Brax's `load` gives them."""
+  # pylint: disable=g-import-not-at-top
+  import orbax.checkpoint as ocp
+  from brax.training import types as brax_types
+  from brax.training.acme import running_statistics
+
+  # pylint: enable=g-import-not-at-top
+  checkpointer = _checkpointer()
+  as_numpy = jax.tree.map(
+      lambda _: ocp.RestoreArgs(restore_type=np.ndarray),
+      checkpointer.metadata(path).item_metadata,
+  )
+  normalizer, policy, value = checkpointer.restore(
+      path, args=ocp.args.PyTreeRestore(restore_args=as_numpy)
+  )
+  normalizer['count'] = brax_types.UInt64(**normalizer['count'])
+  normalizer = running_statistics.RunningStatisticsState(**normalizer)
+  return normalizer, policy, value
 
 
 def latest(run: run_folder.RunFolder) -> Checkpoint:
-  """The run's newest checkpoint.
+  """The run's newest checkpoint, its parameters loaded.
 
   Raises:
     RunFolderError: if the run has none (it stopped before its first
@@ -147,9 +194,9 @@ def latest(run: run_folder.RunFolder) -> Checkpoint:
     raise run_folder.RunFolderError(
         f'The run folder {run.path!r} has no checkpoint in '
         f'{run_folder.CHECKPOINTS}/: it stopped before its first evaluation. '
-        'Start a new run.'
+        f'Train it again from step 0 with --resume {run.path}.'
     )
-  return load(found[-1])
+  return read(found[-1], params=True)
 
 
 def check_compatible(
@@ -170,85 +217,3 @@ def check_compatible(
         f'actions, the task gives {observation_size} and {action_size}. '
         'Start a new run (the task changed since the run was trained).'
     )
-
-
-# -- Brax's training state ---------------------------------------------------
-
-
-def training_state_of_caller(depth: int = 2):
-  """The `TrainingState` of the `ppo.train` call `depth` frames up.
-
-  Call it from a `policy_params_fn`: Brax's `ppo.train` calls that from its
-  own frame, whose local `training_state` is the state after the epoch
-  (replicated over devices: the first copy is returned).
-
-  Raises:
-    RuntimeError: if the calling frame has no `training_state` (a Brax
-      version whose `train` differs from 0.14's).
-  """
-  frame = sys._getframe(depth)  # pylint: disable=protected-access
-  state = frame.f_locals.get('training_state')
-  if state is None or not hasattr(state, 'optimizer_state'):
-    raise RuntimeError(
-        'Could not read the optimizer state of ppo.train: this Brax version '
-        "calls policy_params_fn from elsewhere than 0.14's train(). Pin "
-        'brax 0.14, or resume without the optimizer state.'
-    )
-  return jax.tree.map(lambda x: np.asarray(x[0]), state)
-
-
-@contextlib.contextmanager
-def restoring_optimizer(adam_state):
-  """Within: Brax's `ppo.train` starts Adam from `adam_state`.
-
-  Brax builds `optax.adam(learning_rate)` (chained after gradient clipping
-  when `max_grad_norm` is set) and calls its `init` once; this hands
-  `ppo.train` an Adam whose `init` returns `adam_state` after checking it
-  against the fresh state's structure, shapes and dtypes.
-
-  Args:
-    adam_state: Adam's saved state (the optimizer state itself, or its
-      second element when it was chained after clipping); None: no change.
-  """
-  if adam_state is None:
-    yield
-    return
-  from brax.training.agents.ppo import train as ppo_train  # pylint: disable=g-import-not-at-top
-  import optax  # pylint: disable=g-import-not-at-top
-
-  if getattr(ppo_train, 'optax', None) is not optax:
-    raise RuntimeError(
-        'brax.training.agents.ppo.train no longer builds its optimizer with '
-        'optax.adam: the optimizer state cannot be restored with this Brax.'
-    )
-
-  def adam(*args, **kwargs):
-    fresh = optax.adam(*args, **kwargs)
-
-    def init(params):
-      want = fresh.init(params)
-      got = jax.tree.map(np.asarray, adam_state)
-      same = jax.tree.structure(want) == jax.tree.structure(got) and all(
-          np.shape(a) == np.shape(b)
-          for a, b in zip(jax.tree.leaves(want), jax.tree.leaves(got))
-      )
-      if not same:
-        raise run_folder.RunFolderError(
-            "The checkpoint's optimizer state does not fit the networks "
-            '(different layer sizes?): start a new run.'
-        )
-      return jax.tree.map(
-          lambda w, g: jax.numpy.asarray(g, dtype=w.dtype), want, got
-      )
-
-    return optax.GradientTransformation(init, fresh.update)
-
-  proxy = types.SimpleNamespace(
-      **{k: getattr(optax, k) for k in dir(optax) if not k.startswith('__')}
-  )
-  proxy.adam = adam
-  ppo_train.optax = proxy
-  try:
-    yield
-  finally:
-    ppo_train.optax = optax

@@ -77,9 +77,6 @@ class TrainConfig:
   """Random seed of the run."""
   devices: Optional[int] = None
   """Local devices to train on (Brax pmaps over them); None: all."""
-  processes: int = 1
-  """Training processes on this host, one per GPU, joined by
-  jax.distributed (each process launches only its GPU's programs)."""
   impl: Optional[Literal['jax', 'warp']] = None
   """Physics implementation (None: the Environment's default)."""
   video_every: int = 0
@@ -96,6 +93,8 @@ class TrainConfig:
   """Log to Weights & Biases too (needs wandb, and a login)."""
   compilation_cache: bool = True
   """Use JAX's persistent compilation cache."""
+  target_return: Optional[float] = None
+  """Report the time to the first evaluation whose return reaches this."""
 
   def replace(self, **changes) -> TrainConfig:
     """A copy with `changes` (checked as a config file's entries)."""
@@ -283,8 +282,6 @@ def check(config: TrainConfig) -> None:
     )
   if config.devices is not None and config.devices < 1:
     raise ValueError(f'devices must be at least 1, got {config.devices}.')
-  if config.processes < 1:
-    raise ValueError(f'processes must be at least 1, got {config.processes}.')
   if config.critic_obs not in ('policy', 'critic'):
     raise ValueError(
         f"critic_obs must be 'policy' or 'critic', got {config.critic_obs!r}."

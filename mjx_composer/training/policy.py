@@ -3,8 +3,8 @@
 `make_environment` builds the task's `Environment` and its `BraxEnv` as
 training uses them (same-step auto-reset, the task's observation groups);
 `network_factory` is Brax's PPO networks for the config (the policy sees
-the 'policy' group, the critic `config.critic_obs`); `make_policy` turns a
-checkpoint's parameters into `policy(obs, key) -> (action, extras)`.
+the 'policy' group, the critic `config.critic_obs`); `make_inference` is
+Brax's `make_policy` for a checkpoint's networks.
 """
 
 from __future__ import annotations
@@ -59,39 +59,25 @@ def network_factory(config: config_lib.TrainConfig):
   )
 
 
-def make_networks(config: config_lib.TrainConfig, observation_size, actions):
-  """The PPO networks `ppo.train` builds for this config."""
-  from brax.training.acme import running_statistics  # pylint: disable=g-import-not-at-top
-  from brax.training import types as brax_types  # pylint: disable=g-import-not-at-top
-
-  preprocess = (
-      running_statistics.normalize
-      if config.normalize
-      else brax_types.identity_observation_preprocessor
-  )
-  return network_factory(config)(
-      {k: tuple(v) for k, v in observation_size.items()},
-      actions,
-      preprocess_observations_fn=preprocess,
-  )
-
-
 def make_inference(config: config_lib.TrainConfig, checkpoint):
-  """Brax's `make_policy(params, deterministic)` for a checkpoint's networks."""
-  from brax.training.agents.ppo import networks as ppo_networks  # pylint: disable=g-import-not-at-top
+  """Brax's `make_policy(params, deterministic)` for a checkpoint's networks.
 
-  networks = make_networks(
-      config, checkpoint.observation_size, checkpoint.action_size
+  The networks `ppo.train` builds for the config, for the checkpoint's
+  observation and action sizes.
+  """
+  # pylint: disable=g-import-not-at-top
+  from brax.training import types as brax_types
+  from brax.training.acme import running_statistics
+  from brax.training.agents.ppo import networks as ppo_networks
+
+  # pylint: enable=g-import-not-at-top
+  networks = network_factory(config)(
+      checkpoint.observation_size,
+      checkpoint.action_size,
+      preprocess_observations_fn=(
+          running_statistics.normalize
+          if config.normalize
+          else brax_types.identity_observation_preprocessor
+      ),
   )
   return ppo_networks.make_inference_fn(networks)
-
-
-def make_policy(config: config_lib.TrainConfig, checkpoint, deterministic=True):
-  """`policy(obs, key) -> (action, extras)` of a checkpoint's parameters.
-
-  Deterministic: the mode of the action distribution (tanh of its mean);
-  otherwise a sample.
-  """
-  return make_inference(config, checkpoint)(
-      checkpoint.params, deterministic=deterministic
-  )

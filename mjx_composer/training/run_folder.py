@@ -4,7 +4,7 @@
       config.json         the resolved TrainConfig (config.to_dict)
       metrics.csv         one row per evaluation (metrics.MetricsWriter)
       events/             TensorBoard event files (tensorboardX)
-      checkpoints/        step_<STEP>.pkl (checkpoints.Checkpoint)
+      checkpoints/<STEP>/ the latest and the best checkpoint (checkpoints)
       videos/             eval_step_<STEP>.mp4, play_*.mp4 (video.write_mp4)
       summary.json        written when training ends
       policy.onnx         written by `mjx-composer export RUN`
@@ -116,8 +116,9 @@ def create(path: str, config: config_lib.TrainConfig) -> RunFolder:
   run = RunFolder(path)
   if os.path.exists(run.config_path):
     raise RunFolderError(
-        f'{path!r} already holds a run: continue it with --resume {path}, or '
-        'pass another --run-dir.'
+        f'{path!r} already holds a run: continue it with --resume {path} (a '
+        'run without a checkpoint trains again from step 0), or pass another '
+        '--run-dir.'
     )
   for folder in (run.path, run.checkpoint_dir, run.video_dir):
     os.makedirs(folder, exist_ok=True)

@@ -12,7 +12,12 @@ of its imports, at module level or inside a function, is checked:
 * for branches on the MJX implementation's name outside `platform/`:
   calls of `is_warp`, comparisons with 'jax' or 'warp', reads of
   `mjx.Impl.JAX`/`mjx.Impl.WARP`. The rest of the package asks its
-  `platform.backend.Backend` what it supports and has it run what differs.
+  `platform.backend.Backend` what it supports and has it run what differs;
+* for reads of stack frames (`sys._getframe`, `inspect.currentframe`,
+  `.f_locals`, `.f_back`) and assignments to attributes of other packages'
+  modules and classes (`brax_module.name = ...`, `setattr(np.random, ...)`),
+  which only the `platform/internals*` modules may do: the rest of the
+  package uses other libraries through their public APIs.
 """
 
 from __future__ import annotations
@@ -199,6 +204,61 @@ def backend_branches(source: str) -> list[tuple[int, str]]:
   return sorted(set(found))
 
 
+_FRAME_READS = frozenset({'_getframe', 'currentframe', 'f_locals', 'f_back'})
+
+
+def _foreign_names(tree) -> set[str]:
+  """The names that imports of other packages bind (modules, classes, ...)."""
+  names = set()
+  for node in ast.walk(tree):
+    if isinstance(node, ast.Import):
+      for a in node.names:
+        if a.name.split('.')[0] != PACKAGE:
+          names.add(a.asname or a.name.split('.')[0])
+    elif isinstance(node, ast.ImportFrom):
+      if not node.level and (node.module or '').split('.')[0] != PACKAGE:
+        names.update(a.asname or a.name for a in node.names)
+  return names
+
+
+def _base_name(node) -> str | None:
+  """`a` of `a.b.c`; None for anything but a dotted name."""
+  while isinstance(node, ast.Attribute):
+    node = node.value
+  return node.id if isinstance(node, ast.Name) else None
+
+
+def patches(source: str) -> list[tuple[int, str]]:
+  """`(line, what)` for each stack frame read and each attribute of another
+  package's module or class assigned (`=`, `+=`, `setattr`)."""
+  tree = ast.parse(source)
+  foreign = _foreign_names(tree)
+  found = []
+  for node in ast.walk(tree):
+    name = getattr(node, 'attr', getattr(node, 'id', None))
+    if isinstance(node, (ast.Attribute, ast.Name)) and name in _FRAME_READS:
+      found.append((node.lineno, f'reads a stack frame ({name})'))
+    targets = []
+    if isinstance(node, ast.Assign):
+      targets = node.targets
+    elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
+      targets = [node.target]
+    elif (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id == 'setattr'
+        and node.args
+    ):
+      targets = [ast.Attribute(node.args[0], '?', lineno=node.lineno)]
+    for target in targets:
+      base = _base_name(target) if isinstance(target, ast.Attribute) else None
+      if base in foreign:
+        found.append(
+            (node.lineno, f"assigns an attribute of another package's {base}")
+        )
+  return sorted(set(found))
+
+
 def _target(name: str, modules) -> str | None:
   """The package module an import names (the longest known prefix)."""
   while name:
@@ -250,6 +310,13 @@ def violations(
       problems.append(
           f"{module}:{line}: reads MJX's private `_impl`; only {INTERNALS} "
           'may (internals.data_impl, internals.option_impl, ...)'
+      )
+  if module not in INTERNALS_MODULES:
+    for line, what in patches(source):
+      problems.append(
+          f'{module}:{line}: {what}; use the public API (only the '
+          "platform/internals*.py modules may touch other packages' "
+          'internals)'
       )
   if layer != 'platform':
     for line, what in backend_branches(source):
@@ -371,3 +438,46 @@ def test_a_planted_backend_branch_is_reported():
   assert all('branches on the MJX implementation' in p for p in problems)
   # platform/ is where the implementations are told apart.
   assert not violations('mjx_composer.platform.planted', source, modules)
+
+
+def test_a_planted_frame_read_and_monkeypatch_are_reported():
+  """Stack frames read and other packages' attributes assigned: reported."""
+  source = (
+      'import inspect\n'
+      'import sys\n'
+      '\n'
+      'import numpy as np\n'
+      'from brax.training.agents.ppo import train as ppo_train\n'
+      'from mjx_composer.training import config\n'
+      '\n'
+      '\n'
+      'def f(proxy, state):\n'
+      '  frame = sys._getframe(1)\n'
+      "  state = frame.f_locals['training_state']\n"
+      '  caller = inspect.currentframe().f_back\n'
+      '  ppo_train.optax = proxy\n'
+      "  setattr(np.random, 'seed', proxy)\n"
+      '  np.random.calls += 1\n'
+      '  # Our own modules, and objects that are not modules: fine.\n'
+      '  config.DEFAULT = 1\n'
+      '  state.value = 2\n'
+      "  setattr(state, 'name', caller)\n"
+  )
+  assert patches(source) == [
+      (10, 'reads a stack frame (_getframe)'),
+      (11, 'reads a stack frame (f_locals)'),
+      (12, 'reads a stack frame (currentframe)'),
+      (12, 'reads a stack frame (f_back)'),
+      (13, "assigns an attribute of another package's ppo_train"),
+      (14, "assigns an attribute of another package's np"),
+      (15, "assigns an attribute of another package's np"),
+  ]
+  modules = {'mjx_composer.training.planted': None}
+  problems = violations('mjx_composer.training.planted', source, modules)
+  assert [p.split(': ', 1)[0] for p in problems] == [
+      f'mjx_composer.training.planted:{line}'
+      for line in (10, 11, 12, 12, 13, 14, 15)
+  ]
+  assert all('use the public API' in p for p in problems)
+  # The internals modules are where other packages' internals are touched.
+  assert not violations('mjx_composer.platform.internals_jax', source, modules)
