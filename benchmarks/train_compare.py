@@ -90,7 +90,8 @@ Brax 0.14.2 and Playground 0.2.0).
 Playground's full schedule takes about 20 minutes per run on one
 data-centre GPU (`docs/performance.md`).
 
-A CPU smoke run (a few minutes for two environments):
+A CPU smoke run (compiling dominates: ours_off took 14 minutes on a 2-core
+CPU shared with other jobs, Playground's not measured):
 
     python benchmarks/train_compare.py --out runs/cmp_smoke --seeds 0 \\
         --num-timesteps 2000 --num-envs 8 --batch-size 8 \\
@@ -602,8 +603,6 @@ def main(argv=None):
   args = parse_args(argv)
   if args.plot:
     return report(args)
-  if args.render:
-    return render(args)
   if args.resume:
     train_segments.check_something_to_resume(args.out, args.envs, args.seeds)
   os.makedirs(args.out, exist_ok=True)
@@ -623,12 +622,13 @@ def main(argv=None):
   from mjx_composer import platform
   # pylint: enable=g-import-not-at-top
   cache = platform.configure(compilation_cache=args.compilation_cache)
+  if args.render:
+    return render(args)
   config, source = train_setups.hyperparameters(args)
   print(f'Hyper-parameters ({source}): {config}')
   print(
       f'Brax will run {train_segments.brax_env_steps(config):,} env steps per '
-      'run; '
-      f'compilation cache: {cache or "off"}.',
+      f'run; compilation cache: {cache or "off"}.',
       flush=True,
   )
   status = 0

@@ -208,5 +208,7 @@ def test_resume_refuses_an_out_without_the_runs(tmp_path):
 
 def test_render_needs_a_saved_policy(tmp_path, capsys):
   argv = ['--out', str(tmp_path), '--envs', 'ours_off', '--seeds', '0']
-  assert train_compare.main(argv + ['--render']) == 1
+  assert (
+      train_compare.render(train_compare.parse_args(argv + ['--render'])) == 1
+  )
   assert 'no saved policy' in capsys.readouterr().out
