@@ -17,8 +17,9 @@ communication between devices), it times:
             `jax.jit` and `NamedSharding` inputs and outputs instead, so XLA
             partitions one batched program: its loop predicates (MJX's
             solver, auto-reset) become all-reduces across the devices;
-* ppo:      Brax's `ppo.train` on the same task (as `examples/train_ppo.py`:
-            policy group for policy and critic, 64x64 / 256x256 networks),
+* ppo:      Brax's `ppo.train` on the same task (networks as
+            `mjx-composer train reach`'s defaults: the policy group for
+            policy and critic, 64x64 / 256x256 networks),
             `max_devices_per_host=1` against N: Brax `pmap`s the training
             over its devices, each with worlds / N worlds. One unroll of
             `--ppo-unroll` steps per world per training step, no

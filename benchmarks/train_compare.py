@@ -12,36 +12,19 @@ over `--eval-envs` episodes) and Brax's own training and evaluation times.
     python benchmarks/train_compare.py --out runs/compare --gpus 0,1,2,3,4,5
     python benchmarks/train_compare.py --out runs/compare --plot
 
-Environments (`--envs`):
+Environments (`--envs`; `train_setups.py` says how each is built and
+trained): playground (Playground's `HumanoidWalk`, trained as Playground's
+`learning/train_jax_ppo.py` trains it), ours (our walk task as shipped,
+trained as `mjx-composer train walk` trains it), ours_off (ours with its
+additions off: HumanoidWalk's observation, reward and episodes) and
+only_<feature>[+<feature>...] (ours_off with some of ours' additions back
+on, named as in `playground_compare.py`).
 
-* playground: `mujoco_playground.registry.load('HumanoidWalk')` with the
-  config overrides `{'impl': --playground-impl}` (default 'jax', MJX's JAX
-  implementation, like ours; Playground's training script takes `--impl`
-  too), trained the way Playground's `learning/train_jax_ppo.py` does: its
-  PPO config as `ppo.train`'s arguments, Brax's default PPO networks, a
-  second instance as `eval_env`, `wrap_env_fn=wrapper.wrap_for_brax_training`;
-* ours: `--task walk` as `examples/train_ppo.py` builds it
-  (`train_ppo.make_brax_env`, its networks and `ppo.train` arguments),
-  through `mjx_composer.adapters.brax`: the walk task as shipped (policy
-  noise, latency and history, per-episode randomization, pushes, falls end
-  episodes), the policy and critic both seeing the 'policy' group;
-* ours_off: the walk task with those additions off
-  (`walk.PLAYGROUND_EQUIVALENT`, the 'policy' group only: HumanoidWalk's
-  observation, reward and episodes), otherwise as `ours`;
-* only_<feature>[+<feature>...]: ours_off with those of ours' additions
-  switched back on, named as in `playground_compare.py` (noise, delay,
-  history, randomize, push, fall; e.g. only_noise+delay+history+randomize:
-  the shipped task without pushes and fall terminations, so its episodes,
-  and returns, are HumanoidWalk's), otherwise as `ours_off`; with the
-  suffix `_shared` (as in `playground_compare.py`), with
-  `share_reset_forward=True` whatever `--share-reset-forward` says.
-
-Hyper-parameters: `mujoco_playground.config.dm_control_suite_params.
-brax_ppo_config('HumanoidWalk')` read at run time when Playground imports
-(otherwise `train_ppo.TASK_DEFAULTS['walk']`, a copy of it, plus
-`FALLBACK_EXTRA`), the same for every environment. The flags below override
-single entries (for smoke runs). Evaluation follows Playground's script:
-`--eval-envs` 128, stochastic policy (`--deterministic-eval` to change).
+Hyper-parameters: Playground's for `HumanoidWalk`, read at run time
+(`train_setups.hyperparameters`), the same for every environment; the
+flags below override single entries (for smoke runs). Evaluation follows
+Playground's script: `--eval-envs` 128, stochastic policy
+(`--deterministic-eval` to change).
 Brax runs `(num_evals - 1) x max(num_resets_per_eval, 1) x
 ceil(num_timesteps / ((num_evals - 1) x max(num_resets_per_eval, 1) x
 batch_size x unroll_length x num_minibatches))` training steps of
@@ -66,9 +49,10 @@ Outputs, in `--out` (runs of several invocations merge there; a run of an
   `--max-wall-s`) or failed;
 * `results.json` and `results.csv`: every run of `runs/`, regenerated after
   every evaluation;
-* `runs/<env>_seed<seed>_policy.pkl`: the policy of the latest evaluation
-  (for ours, `examples/train_ppo.py --task walk --render-from` renders
-  it).
+* `runs/<env>_seed<seed>_policy.pkl`: the parameters of the latest
+  evaluation, `{'params': (normalizer, policy, value), 'config': what
+  rebuilds the networks}` (numpy leaves; `--resume` starts from them,
+  `--render` draws them).
 
 `--gpus 0,1,...` runs each (env, seed) in its own process pinned to one GPU
 (`CUDA_VISIBLE_DEVICES`), as many at a time as GPUs are listed, with logs in
@@ -80,30 +64,16 @@ two runs at a time.
 would end past that many seconds (for a job's time limit); its status is
 then 'stopped' (a run whose last evaluation is done is 'finished', whatever
 the time). `--resume` continues each (env, seed) whose run in `--out` was
-stopped for the evaluations it has left, in a new process (a segment):
+stopped for the evaluations it has left, in a new process (a segment),
+from its saved parameters; what carries over and what does not, and how
+its time is counted, is in `train_segments.py`.
 
-* the policy, value and observation-normalizer parameters carry over
-  (Brax's `ppo.train(restore_params=..., restore_value_fn=True)`), from
-  `runs/<env>_seed<seed>_policy.pkl`;
-* so does the schedule: the next segment trains the evaluation intervals
-  left, each of the same training steps, so the evaluations fall on the
-  same env steps as in one run (`remaining_schedule`);
-* the optimizer's state does not: Brax restores parameters only, so Adam's
-  moment estimates start again from zero at each segment;
-* the environments' states do not either; with `num_resets_per_eval > 0`
-  (Playground's settings) Brax resets every world after each training step
-  anyway;
-* segment k trains with Brax seed `segment_seed(seed, k)`, so no segment
-  replays another's keys.
-
-Each segment compiles its programs again and evaluates the restored policy
-once before training; the run's rows record that time as
-`resume_overhead_s` (and the compile seconds within it as
-`resume_compile_s`), and the table and plot time a run as if it had trained
-in one process (`train_results.one_process_wall`). The run's
-`segment_starts` keep that evaluation's return beside the one the policy
-earned when it was saved (equal but for the evaluation's own randomness,
-when the restore took).
+`--render` trains nothing: it runs each (env, seed)'s saved policy,
+deterministic, for 200 control steps on 4 worlds of its environment (a
+Playground run's on ours_off, whose 'policy' observation is HumanoidWalk's)
+and writes `runs/<env>_seed<seed>_rollout.mp4` and the mean reward per
+step (needs a headless OpenGL). For a look at the policies; runs of
+`mjx-composer train` have `mjx-composer play`.
 
 `--plot` trains nothing: it reads `runs/` and draws `returns.png` (return
 against wall-clock time: a colour per environment, a thin line per seed,
@@ -114,14 +84,16 @@ at or above it) and its total time. The reference return is the mean over
 seeds of `--reference`'s (default playground) final returns, or
 `--threshold`.
 
-Dependencies: `pip install -e '.[brax]'` and `pip install playground`
-(the runs in `benchmarks/results/` used Brax 0.14.2 and Playground 0.2.0).
+Dependencies: `pip install -e '.[brax]'` (`'.[train]'` for `--render`'s
+MP4) and `pip install playground` (the runs in `benchmarks/results/` used
+Brax 0.14.2 and Playground 0.2.0).
 Playground's full schedule takes about 20 minutes per run on one
 data-centre GPU (`docs/performance.md`).
 
-A CPU smoke run (a few minutes for two environments):
+A CPU smoke run (compiling dominates: ours_off took 14 minutes on a 2-core
+CPU shared with other jobs, Playground's not measured):
 
-    python benchmarks/train_compare.py --out /tmp/cmp --seeds 0 \\
+    python benchmarks/train_compare.py --out runs/cmp_smoke --seeds 0 \\
         --num-timesteps 2000 --num-envs 8 --batch-size 8 \\
         --num-minibatches 2 --unroll-length 5 --num-evals 2 --eval-envs 4 \\
         --num-resets-per-eval 1 --episode-length 50
@@ -129,7 +101,6 @@ A CPU smoke run (a few minutes for two environments):
 
 import argparse
 import json
-import math
 import os
 import pickle
 import subprocess
@@ -137,66 +108,26 @@ import sys
 import time
 import traceback
 
-# examples/train_ppo.py builds ours' environments and PPO arguments.
-sys.path.insert(
-    0,
-    os.path.join(
-        os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 'examples'
-    ),
-)
-import train_ppo  # pylint: disable=g-import-not-at-top,wrong-import-position
-import train_results  # pylint: disable=g-import-not-at-top,wrong-import-position
+import train_results
+import train_segments
+import train_setups
 
-ENVS = ('playground', 'ours', 'ours_off')
-PLAYGROUND_ENV = 'HumanoidWalk'
-# Playground 0.2.0's HumanoidWalk PPO config entries that
-# `train_ppo.TASK_DEFAULTS['walk']` has no flag for.
-FALLBACK_EXTRA = {
-    'episode_length': 1000,
-    'action_repeat': 1,
-    'num_resets_per_eval': 10,
-}
-# walk.Walk's default control timestep, Playground's ctrl_dt (seconds).
-_WALK_CONTROL_TIMESTEP = 0.025
-# train_ppo's flag -> ppo.train's argument, for the entries both have.
-_TRAIN_PPO_NAMES = {
-    'num_timesteps': 'num_timesteps',
-    'num_evals': 'num_evals',
-    'reward_scaling': 'reward_scaling',
-    'normalize': 'normalize_observations',
-    'unroll_length': 'unroll_length',
-    'num_minibatches': 'num_minibatches',
-    'num_updates_per_batch': 'num_updates_per_batch',
-    'discounting': 'discounting',
-    'learning_rate': 'learning_rate',
-    'entropy_cost': 'entropy_cost',
-    'num_envs': 'num_envs',
-    'batch_size': 'batch_size',
-}
-# Command-line overrides of single hyper-parameters (flag dest = ppo name).
-_OVERRIDES = (
-    'num_timesteps',
-    'num_evals',
-    'num_resets_per_eval',
-    'num_envs',
-    'batch_size',
-    'num_minibatches',
-    'unroll_length',
-    'num_updates_per_batch',
-    'episode_length',
-)
+# `--render`'s rollout.
+_RENDER_WORLDS = 4
+_RENDER_STEPS = 200
 
 
 def env_choice(name):
-  """`--envs`' type: one of `ENVS`, or an only_<feature>[+...] variant."""
+  """`--envs`' type: one of `train_setups.ENVS`, or an only_... variant."""
   import playground_compare  # pylint: disable=g-import-not-at-top
 
-  if name in ENVS:
+  if name in train_setups.ENVS:
     return name
   if name.startswith('only_'):
     return playground_compare.program_name(name)
   raise argparse.ArgumentTypeError(
-      f'unknown env {name!r}: {", ".join(ENVS)} or only_<feature>[+...]'
+      f'unknown env {name!r}: {", ".join(train_setups.ENVS)} or '
+      'only_<feature>[+...]'
   )
 
 
@@ -208,10 +139,10 @@ def parse_args(argv=None):
       nargs='+',
       type=env_choice,
       default=['playground', 'ours'],
-      help=f'{", ".join(ENVS)} or only_<feature>[+<feature>...]',
+      help=f'{", ".join(train_setups.ENVS)} or only_<feature>[+<feature>...]',
   )
   parser.add_argument('--seeds', nargs='+', type=int, default=[0, 1, 2])
-  for name in _OVERRIDES:
+  for name in train_setups.OVERRIDES:
     parser.add_argument(
         '--' + name.replace('_', '-'),
         type=int,
@@ -245,15 +176,16 @@ def parse_args(argv=None):
       '--share-reset-forward',
       action=argparse.BooleanOptionalAction,
       default=None,
-      help='ours: ExecutionOptions(share_reset_forward=...); default: on a CPU only',
+      help='ours: ExecutionOptions(share_reset_forward=...); default: on a '
+      'CPU only',
   )
   parser.add_argument(
       '--auto-reset-batch',
       type=int,
       default=None,
       metavar='K',
-      help='ours: ExecutionOptions(auto_reset_batch=K) (worlds that end reset K '
-      "at a time; impl='jax' only); default: the whole batch",
+      help='ours: ExecutionOptions(auto_reset_batch=K) (worlds that end '
+      "reset K at a time; impl='jax' only); default: the whole batch",
   )
   parser.add_argument(
       '--max-wall-s',
@@ -284,7 +216,12 @@ def parse_args(argv=None):
       action='store_true',
       help="continue each (env, seed)'s run stopped earlier in --out (by "
       '--max-wall-s) from its saved parameters, for the evaluations left '
-      '(not the optimizer state: see the module docstring)',
+      '(not the optimizer state: see train_segments.py)',
+  )
+  parser.add_argument(
+      '--render',
+      action='store_true',
+      help="only render each (env, seed)'s saved policy in --out",
   )
   parser.add_argument(
       '--plot', action='store_true', help='only plot and tabulate --out'
@@ -301,175 +238,6 @@ def parse_args(argv=None):
       help='the return to time (default: from --reference)',
   )
   return parser.parse_args(argv)
-
-
-# -- hyper-parameters ----------------------------------------------------------
-
-
-def playground_config():
-  """(Playground's HumanoidWalk PPO config as a dict, version) or (None, why)."""
-  try:
-    # pylint: disable=g-import-not-at-top
-    import importlib.metadata
-    from mujoco_playground.config import dm_control_suite_params
-    # pylint: enable=g-import-not-at-top
-  except Exception as e:  # pylint: disable=broad-except
-    return None, f'mujoco_playground cannot be imported: {e!r}'
-  config = dm_control_suite_params.brax_ppo_config(PLAYGROUND_ENV).to_dict()
-  try:
-    version = importlib.metadata.version('playground')
-  except importlib.metadata.PackageNotFoundError:
-    version = 'unknown'
-  return config, f'playground {version}'
-
-
-def fallback_config():
-  """Playground's config as `train_ppo.TASK_DEFAULTS['walk']` copies it."""
-  walk = train_ppo.TASK_DEFAULTS['walk']
-  config = {ppo: walk[flag] for flag, ppo in _TRAIN_PPO_NAMES.items()}
-  config.update(FALLBACK_EXTRA)
-  return config
-
-
-def hyperparameters(args):
-  """`(config, source)`: the `ppo.train` hyper-parameters every run uses.
-
-  Playground's config (or the fallback), less its network factory (Brax's
-  defaults, as for HumanoidWalk), with the command line's overrides.
-  """
-  config, source = playground_config()
-  if config is None:
-    print(f'Hyper-parameters: train_ppo.TASK_DEFAULTS["walk"] ({source})')
-    config, source = fallback_config(), 'train_ppo.TASK_DEFAULTS["walk"]'
-  else:
-    config.pop('network_factory', None)
-    copy = fallback_config()
-    differ = {
-        k: (config.get(k), v) for k, v in copy.items() if config.get(k) != v
-    }
-    if differ:
-      print(
-          'Warning: train_ppo.TASK_DEFAULTS["walk"] differs from '
-          f'{source} (playground, copy): {differ}'
-      )
-  for name in _OVERRIDES:
-    value = getattr(args, name)
-    if value is not None:
-      config[name] = value
-  return config, source
-
-
-def _env_steps_per_training_step(config):
-  return (
-      config['batch_size']
-      * config['unroll_length']
-      * config['num_minibatches']
-      * config.get('action_repeat', 1)
-  )
-
-
-def interval_steps(config):
-  """Env steps between two evaluations of `ppo.train` under `config`."""
-  per_step = _env_steps_per_training_step(config)
-  resets = max(config.get('num_resets_per_eval', 0), 1)
-  intervals = max(config['num_evals'] - 1, 1)
-  steps_per_epoch = math.ceil(
-      config['num_timesteps'] / (intervals * resets * per_step)
-  )
-  return steps_per_epoch * resets * per_step
-
-
-def brax_env_steps(config):
-  """The env steps `ppo.train` runs for `config` (see the module docstring)."""
-  return max(config['num_evals'] - 1, 1) * interval_steps(config)
-
-
-# -- environments ----------------------------------------------------------------
-
-
-def _playground_setup(config, args):
-  """(env, ppo.train kwargs, policy config) for Playground's HumanoidWalk."""
-  # pylint: disable=g-import-not-at-top
-  from brax.training.agents.ppo import networks as ppo_networks
-  from mujoco_playground import registry
-  from mujoco_playground import wrapper
-  from mjx_composer.adapters import brax as brax_adapter
-  # pylint: enable=g-import-not-at-top
-
-  brax_adapter.install_jax_compat()  # Brax 0.14 on JAX >= 0.10.
-  overrides = {'impl': args.playground_impl}
-  env = registry.load(
-      PLAYGROUND_ENV,
-      config=registry.get_default_config(PLAYGROUND_ENV),
-      config_overrides=overrides,
-  )
-  eval_env = registry.load(
-      PLAYGROUND_ENV,
-      config=registry.get_default_config(PLAYGROUND_ENV),
-      config_overrides=overrides,
-  )
-  kwargs = dict(config)
-  kwargs.update(
-      network_factory=ppo_networks.make_ppo_networks,
-      wrap_env_fn=wrapper.wrap_for_brax_training,
-      eval_env=eval_env,
-  )
-  policy = {
-      'env': 'playground',
-      'observation_size': env.observation_size,
-      'action_size': env.action_size,
-      'normalize': config['normalize_observations'],
-      'network_factory': 'brax ppo_networks.make_ppo_networks defaults',
-  }
-  return env, kwargs, policy
-
-
-def _ours_setup(name, config, args):
-  """(env, ppo.train kwargs, policy config) for ours and its variants.
-
-  `train_ppo`'s walk arguments with Playground's values, built by
-  `train_ppo.make_brax_env` (ours) and trained with `train_ppo.ppo_kwargs`.
-  """
-  # pylint: disable=g-import-not-at-top
-  from mjx_composer.adapters import brax as brax_adapter
-  import playground_compare
-  # pylint: enable=g-import-not-at-top
-
-  targs = train_ppo.parse_args(['--task', 'walk'])
-  for flag, ppo in _TRAIN_PPO_NAMES.items():
-    setattr(targs, flag, config[ppo])
-  targs.time_limit = config['episode_length'] * _WALK_CONTROL_TIMESTEP
-  targs.share_reset_forward = args.share_reset_forward
-  targs.auto_reset_batch = args.auto_reset_batch
-  targs.num_eval_envs = args.eval_envs
-  if name.startswith('only_'):
-    env = playground_compare.env_variants(
-        [name], share_reset_forward=args.share_reset_forward
-    )[name]
-    brax_env = brax_adapter.BraxEnv(env)
-  else:
-    # ours_off: `train_ppo.py --task walk --like-playground`, which also
-    # renders its policies (`--render-from`).
-    targs.like_playground = name == 'ours_off'
-    env, brax_env = train_ppo.make_brax_env(targs)
-  if brax_env.episode_length != config['episode_length']:
-    raise ValueError(
-        f'{name}: episodes of {brax_env.episode_length} steps, Playground '
-        f'{config["episode_length"]}.'
-    )
-  kwargs = train_ppo.ppo_kwargs(targs, brax_env, args.devices)
-  # What train_ppo has no flag for, as Playground trains.
-  for key in ('num_resets_per_eval', 'action_repeat'):
-    kwargs[key] = config[key]
-  different = {
-      k: (kwargs[k], v)
-      for k, v in config.items()
-      if k in kwargs and kwargs[k] != v
-  }
-  if different:
-    raise AssertionError(f'{name} would train with other values: {different}')
-  policy = train_ppo.policy_config(targs, brax_env)
-  return brax_env, kwargs, policy
 
 
 def _device_name():
@@ -493,7 +261,7 @@ def _new_run(env_name, seed, config, source, args):
       'jax': jax.__version__,
       'hyperparameters': config,
       'hyperparameters_from': source,
-      'env_steps_planned': brax_env_steps(config),
+      'env_steps_planned': train_segments.brax_env_steps(config),
       'eval_envs': args.eval_envs,
       'deterministic_eval': args.deterministic_eval,
       'playground_impl': args.playground_impl
@@ -508,149 +276,11 @@ def _new_run(env_name, seed, config, source, args):
   }
 
 
-# -- resuming a stopped run -------------------------------------------------------
-
-# Brax seeds of later segments: far from any seed a user passes.
-_SEGMENT_SEED_STRIDE = 1_000_003
-
-
-def remaining_schedule(config, steps_done):
-  """`(num_timesteps, num_evals)` that train what is left after `steps_done`.
-
-  Args:
-    config: the whole run's `ppo.train` hyper-parameters.
-    steps_done: env steps at the evaluation the run stopped after.
-
-  Returns:
-    The overrides for the next segment, or None when nothing is left.
-
-  Raises:
-    ValueError: `steps_done` is not at an evaluation of `config`'s schedule.
-  """
-  interval = interval_steps(config)
-  intervals = max(config['num_evals'] - 1, 1)
-  done, rest = divmod(int(steps_done), interval)
-  if rest:
-    raise ValueError(
-        f'{steps_done:,} env steps is not at an evaluation of this schedule '
-        f'(every {interval:,}): was the run trained with other settings?'
-    )
-  left = intervals - done
-  if left <= 0:
-    return None
-  return left * interval, left + 1
-
-
-def segment_seed(seed, segment):
-  """Brax's seed for segment `segment` (0 is the first) of seed `seed`."""
-  return seed + _SEGMENT_SEED_STRIDE * segment
-
-
-def continued_row(row, previous_rows, segment, overhead_s, overhead_compile_s):
-  """`row` of a resumed segment, placed after the run's `previous_rows`.
-
-  Steps, wall-clock, compile seconds and Brax's training time continue from
-  the last previous row; `segment`, `resume_overhead_s` (the seconds this
-  segment spent before its first training step: building, compiling and
-  the restored policy's evaluation) and `resume_compile_s` (the compile
-  seconds of those) are recorded with it.
-  """
-  last = previous_rows[-1]
-  out = dict(row)
-  out['step'] = last['step'] + row['step']
-  out['wall_s'] = last['wall_s'] + row['wall_s']
-  out['compile_s'] = last.get('compile_s', 0.0) + row['compile_s']
-  out['train_walltime_s'] = last['train_walltime_s'] + row['train_walltime_s']
-  out['eval_walltime_s'] = last['eval_walltime_s'] + row['eval_walltime_s']
-  out['segment'] = segment
-  out['resume_overhead_s'] = overhead_s
-  out['resume_compile_s'] = overhead_compile_s
-  return out
-
-
-def load_stopped_run(json_path, policy_path):
-  """`(run record, saved params)` of a run to continue, or None.
-
-  None when there is no record, or it has no evaluation after training (a
-  run stopped at its first evaluation trained nothing: start it again).
-
-  Raises:
-    FileNotFoundError: the record has trained evaluations but the
-      parameters file is missing.
-  """
-  if not os.path.exists(json_path):
-    return None
-  with open(json_path) as f:
-    run = json.load(f)
-  if not run.get('rows') or run['rows'][-1]['step'] == 0:
-    return None
-  if not os.path.exists(policy_path):
-    raise FileNotFoundError(
-        f'{json_path} records {run["rows"][-1]["step"]:,} env steps but '
-        f'{policy_path}, their parameters, is missing: bring it with the '
-        'record, or leave out --resume to start the run again.'
-    )
-  with open(policy_path, 'rb') as f:
-    params = pickle.load(f)['params']
-  return run, params
-
-
-def _segment_to_train(run, config, name):
-  """`(segment index, its config)` to continue `run`, or None if done.
-
-  Raises:
-    ValueError: `run` was trained with other hyper-parameters.
-  """
-  if run['hyperparameters'] != config:
-    raise ValueError(
-        f'{name}: --resume with other hyper-parameters than the stored run '
-        f'({run["hyperparameters"]} there, {config} now): pass the same '
-        'overrides, or leave out --resume to start again.'
-    )
-  left = (
-      None
-      if run['status'] == 'finished'
-      else remaining_schedule(config, run['rows'][-1]['step'])
-  )
-  if left is None:
-    return None
-  segment_config = dict(config)
-  segment_config['num_timesteps'], segment_config['num_evals'] = left
-  return run.get('segments', 1), segment_config
-
-
-def _check_something_to_resume(args):
-  """Refuses `--resume` where `--out` holds none of the requested runs.
-
-  A run without a record starts from its first step, so `--resume` over
-  an empty `--out` (say, a job on a fresh machine that did not bring the
-  previous job's runs) would quietly train every run's first segment
-  again.
-
-  Raises:
-    SystemExit: no requested (env, seed) has a record in `--out/runs/`.
-  """
-  wanted = [
-      os.path.join(
-          args.out, 'runs', train_results.run_name(env, seed) + '.json'
-      )
-      for seed in args.seeds
-      for env in args.envs
-  ]
-  if not any(os.path.exists(path) for path in wanted):
-    sys.exit(
-        f'--resume: {os.path.join(args.out, "runs")} holds no record of '
-        f'{", ".join(args.envs)} with seeds {args.seeds}. Bring the earlier '
-        "call's runs (records and *_policy.pkl) into --out (on a device, "
-        'with carry), or leave out --resume to start these runs.'
-    )
-
-
 def train_one(env_name, seed, config, source, args):
   """Trains one (environment, seed); returns its run record.
 
   With `--resume` and a stopped run of it in `--out`, trains what is left
-  of that run instead (`--resume` in the module docstring).
+  of that run instead (`train_segments.py`).
   """
   # pylint: disable=g-import-not-at-top
   import jax
@@ -665,7 +295,11 @@ def train_one(env_name, seed, config, source, args):
   json_path = os.path.join(run_dir, name + '.json')
   csv_path = os.path.join(run_dir, name + '.csv')
   policy_path = os.path.join(run_dir, name + '_policy.pkl')
-  resumed = load_stopped_run(json_path, policy_path) if args.resume else None
+  resumed = (
+      train_segments.load_stopped_run(json_path, policy_path)
+      if args.resume
+      else None
+  )
   restore = None
   if resumed is None:
     for path in (json_path, csv_path, policy_path):
@@ -676,7 +310,7 @@ def train_one(env_name, seed, config, source, args):
   else:
     run, restore = resumed
     run.pop('error', None)
-    todo = _segment_to_train(run, config, name)
+    todo = train_segments.segment_to_train(run, config, name)
     if todo is None:
       print(f'{name}: finished earlier, nothing to resume', flush=True)
       return run
@@ -684,13 +318,10 @@ def train_one(env_name, seed, config, source, args):
   earlier_rows = list(run['rows'])
   earlier_s = run['total_s'] or 0.0
   t0 = time.perf_counter()
-  if env_name == 'playground':
-    env, kwargs, policy_config = _playground_setup(train_config, args)
-  else:
-    env, kwargs, policy_config = _ours_setup(env_name, train_config, args)
+  env, kwargs, policy_config = train_setups.setup(env_name, train_config, args)
   run['build_s'] = time.perf_counter() - t0
   kwargs.update(
-      seed=segment_seed(seed, segment),
+      seed=train_segments.segment_seed(seed, segment),
       num_eval_envs=args.eval_envs,
       deterministic_eval=args.deterministic_eval,
       max_devices_per_host=args.devices,
@@ -703,7 +334,7 @@ def train_one(env_name, seed, config, source, args):
   print(
       f'{name}: training {run["env_steps_planned"]:,} env steps on '
       f'{run["device"]} (segment {segment}: '
-      f'{brax_env_steps(train_config):,} of them; built in '
+      f'{train_segments.brax_env_steps(train_config):,} of them; built in '
       f'{run["build_s"]:.1f}s)',
       flush=True,
   )
@@ -712,10 +343,10 @@ def train_one(env_name, seed, config, source, args):
   start = None
 
   def save_params(unused_step, unused_make_policy, params):
-    train_ppo.save_policy(policy_path, params, policy_config)
+    train_segments.save_params(policy_path, params, policy_config)
 
   def progress(step, metrics):
-    row = train_ppo.eval_row(
+    row = train_results.eval_row(
         step,
         metrics,
         time.perf_counter() - start,
@@ -739,7 +370,7 @@ def train_one(env_name, seed, config, source, args):
         )
         train_results.write_json(json_path, run)
         return
-      row = continued_row(
+      row = train_results.continued_row(
           row,
           earlier_rows,
           segment,
@@ -750,7 +381,7 @@ def train_one(env_name, seed, config, source, args):
       # Every row has the same columns (the run's CSV has one header).
       row.update(segment=0, resume_overhead_s=0.0, resume_compile_s=0.0)
     rows.append(row)
-    train_ppo.append_csv(csv_path, row, header=len(rows) == 1)
+    train_results.append_csv(csv_path, row)
     train_results.write_json(json_path, run)
     train_results.write_merged(args.out)
     print(
@@ -759,15 +390,17 @@ def train_one(env_name, seed, config, source, args):
         f'({row["env_steps_per_s"]:,.0f} env steps/s)',
         flush=True,
     )
-    if train_ppo.next_eval_too_late(
-        segment_rows, args.max_wall_s, brax_env_steps(train_config)
+    if train_segments.next_eval_too_late(
+        segment_rows,
+        args.max_wall_s,
+        train_segments.brax_env_steps(train_config),
     ):
-      raise train_ppo.StopTraining
+      raise train_segments.StopTraining
 
   start = time.perf_counter()
-  clock = train_ppo.CompileClock()
+  clock = train_segments.CompileClock()
   try:
-    # As train_ppo.py: GSPMD where Brax pmaps over several GPUs.
+    # GSPMD where Brax pmaps over several GPUs (as `mjx-composer train`).
     with partitioner.scope(
         jax.local_devices()[: kwargs['max_devices_per_host']]
     ):
@@ -778,7 +411,7 @@ def train_one(env_name, seed, config, source, args):
           **kwargs,
       )
     run['status'] = 'finished'
-  except train_ppo.StopTraining:
+  except train_segments.StopTraining:
     run['status'] = 'stopped'
   except Exception:  # pylint: disable=broad-except
     run['status'] = 'failed'
@@ -791,7 +424,7 @@ def train_one(env_name, seed, config, source, args):
   return run
 
 
-# -- several GPUs ------------------------------------------------------------------
+# -- several GPUs --------------------------------------------------------------
 
 
 def _child_argv(argv, env, seed):
@@ -879,6 +512,57 @@ def run_parallel(args, argv):
   return failed
 
 
+# -- rendering and reporting ---------------------------------------------------
+
+
+def render(args, worlds=_RENDER_WORLDS, steps=_RENDER_STEPS):
+  """The `--render` mode: each (env, seed)'s saved policy as an MP4.
+
+  Returns:
+    1 if a requested run has no saved policy, else 0.
+  """
+  # pylint: disable=g-import-not-at-top
+  from mjx_composer.adapters import brax as brax_adapter
+  from mjx_composer.training import video
+  # pylint: enable=g-import-not-at-top
+
+  missing = 0
+  for seed in args.seeds:
+    for env_name in args.envs:
+      name = train_results.run_name(env_name, seed)
+      path = os.path.join(args.out, 'runs', name + '_policy.pkl')
+      if not os.path.exists(path):
+        print(f'{name}: no saved policy ({path}); train it first.')
+        missing = 1
+        continue
+      with open(path, 'rb') as f:
+        saved = pickle.load(f)
+      with open(os.path.join(args.out, 'runs', name + '.json')) as f:
+        time_limit = train_setups.ours_config(
+            json.load(f)['hyperparameters']
+        ).time_limit
+      ours = 'ours_off' if env_name == 'playground' else env_name
+      env = train_setups.ours_environment(ours, time_limit, args)
+      states, rewards, *_ = video.rollout(
+          brax_adapter.BraxEnv(env),
+          train_setups.saved_policy(saved['config']),
+          saved['params'],
+          worlds,
+          steps,
+          seed=1,
+      )
+      mp4 = video.write_mp4(
+          os.path.join(args.out, 'runs', name + '_rollout.mp4'),
+          video.render_rollout(env, 'walk', states),
+          fps=1.0 / env.control_timestep(),
+      )
+      print(
+          f'{name}: {mp4}; mean reward per step {rewards.mean():.4f} '
+          f'({worlds} worlds x {steps} steps on {ours})'
+      )
+  return missing
+
+
 def report(args):
   """The `--plot` mode: plot, table, summary.json, table.md."""
   runs = train_results.load_runs(args.out)
@@ -888,7 +572,10 @@ def report(args):
   summary = train_results.summarize(runs, args.reference, args.threshold)
   table = train_results.format_table(summary)
   plotted = train_results.plot(
-      args.out, runs, summary, f'Brax PPO, {PLAYGROUND_ENV} hyper-parameters'
+      args.out,
+      runs,
+      summary,
+      f'Brax PPO, {train_setups.PLAYGROUND_ENV} hyper-parameters',
   )
   train_results.write_json(os.path.join(args.out, 'summary.json'), summary)
   with open(os.path.join(args.out, 'table.md'), 'w') as f:
@@ -908,7 +595,7 @@ def report(args):
   return 0
 
 
-# -- main --------------------------------------------------------------------------
+# -- main ----------------------------------------------------------------------
 
 
 def main(argv=None):
@@ -917,7 +604,7 @@ def main(argv=None):
   if args.plot:
     return report(args)
   if args.resume:
-    _check_something_to_resume(args)
+    train_segments.check_something_to_resume(args.out, args.envs, args.seeds)
   os.makedirs(args.out, exist_ok=True)
   if args.gpus:
     failed = run_parallel(args, argv)
@@ -935,11 +622,13 @@ def main(argv=None):
   from mjx_composer import platform
   # pylint: enable=g-import-not-at-top
   cache = platform.configure(compilation_cache=args.compilation_cache)
-  config, source = hyperparameters(args)
+  if args.render:
+    return render(args)
+  config, source = train_setups.hyperparameters(args)
   print(f'Hyper-parameters ({source}): {config}')
   print(
-      f'Brax will run {brax_env_steps(config):,} env steps per run; '
-      f'compilation cache: {cache or "off"}.',
+      f'Brax will run {train_segments.brax_env_steps(config):,} env steps per '
+      f'run; compilation cache: {cache or "off"}.',
       flush=True,
   )
   status = 0

@@ -2,10 +2,11 @@
 
 A run is one (environment, seed) of Brax PPO: a record in
 `OUT/runs/<env>_seed<seed>.json` holding its settings and one row per
-evaluation (see `train_ppo.eval_row`; rows of a resumed run also carry
-`segment` and `resume_overhead_s`, `train_compare.continued_row`). This module reads and
-merges those records, and turns them into what `train_compare.py --plot`
-prints and draws.
+evaluation (`eval_row`; rows of a resumed run also carry `segment`,
+`resume_overhead_s` and `resume_compile_s`, `continued_row`), and the same
+rows in `OUT/runs/<env>_seed<seed>.csv`. This module writes the rows,
+reads and merges the records, and turns them into what
+`train_compare.py --plot` prints and draws.
 
 Times are read on the clock of one process (`one_process_wall`). A run
 continued with `--resume` pays, in each segment after the first, a resume
@@ -25,6 +26,20 @@ import os
 
 import numpy as np
 
+# An evaluation's row (`eval_row`), in the runs' CSV files.
+ROW_FIELDS = (
+    'step',
+    'wall_s',
+    'compile_s',
+    'train_walltime_s',
+    'env_steps_per_s',
+    'train_sps',
+    'eval_walltime_s',
+    'eval_return',
+    'eval_return_std',
+    'eval_episode_length',
+)
+# The merged `results.csv`'s columns.
 CSV_FIELDS = (
     'env',
     'seed',
@@ -60,6 +75,67 @@ def write_json(path, data):
   with open(tmp, 'w') as f:
     json.dump(data, f, indent=1, default=str)
   os.replace(tmp, path)
+
+
+def eval_row(step, metrics, wall_s, compile_s=0.0, previous=None):
+  """One evaluation's row from Brax's `progress_fn(step, metrics)`.
+
+  `mjx_composer.training.metrics.eval_row`'s columns (step, wall_s: the
+  caller's clock, seconds since the start of `ppo.train`;
+  train_walltime_s: Brax's training time, without evaluating or the resets
+  between epochs, its first update compiling; env_steps_per_s: the env
+  steps since `previous`, the row before, over the training time since
+  then, 0 for the first row; eval_return, eval_return_std and
+  eval_episode_length over the evaluation episodes) and three more:
+  compile_s (seconds of wall_s spent lowering and compiling, a
+  `train_segments.CompileClock`'s), train_sps (Brax's 'training/sps',
+  which is NOT the training throughput: Brax times one training epoch but
+  counts `num_resets_per_eval` epochs' steps in it, so it overstates the
+  rate by that factor, 2 or 10 with Playground's settings) and
+  eval_walltime_s (Brax's total time spent evaluating so far, this
+  evaluation included). In `ROW_FIELDS`' order.
+  """
+  from mjx_composer.training import metrics as metrics_lib  # pylint: disable=g-import-not-at-top
+
+  row = metrics_lib.eval_row(step, metrics, wall_s, previous=previous)
+  row.update(
+      compile_s=float(compile_s),
+      train_sps=float(metrics.get('training/sps', 0.0)),
+      eval_walltime_s=float(metrics.get('eval/walltime', 0.0)),
+  )
+  return {name: row[name] for name in ROW_FIELDS}
+
+
+def continued_row(row, previous_rows, segment, overhead_s, overhead_compile_s):
+  """`row` of a resumed segment, placed after the run's `previous_rows`.
+
+  Steps, wall-clock, compile seconds and Brax's training time continue from
+  the last previous row; `segment`, `resume_overhead_s` (the seconds this
+  segment spent before its first training step: building, compiling and
+  the restored policy's evaluation) and `resume_compile_s` (the compile
+  seconds of those) are recorded with it.
+  """
+  last = previous_rows[-1]
+  out = dict(row)
+  out['step'] = last['step'] + row['step']
+  out['wall_s'] = last['wall_s'] + row['wall_s']
+  out['compile_s'] = last.get('compile_s', 0.0) + row['compile_s']
+  out['train_walltime_s'] = last['train_walltime_s'] + row['train_walltime_s']
+  out['eval_walltime_s'] = last['eval_walltime_s'] + row['eval_walltime_s']
+  out['segment'] = segment
+  out['resume_overhead_s'] = overhead_s
+  out['resume_compile_s'] = overhead_compile_s
+  return out
+
+
+def append_csv(path, row):
+  """Appends `row` (a dict) to the CSV at `path`, with a header if new."""
+  header = not os.path.exists(path)
+  with open(path, 'a', newline='') as f:
+    writer = csv.DictWriter(f, fieldnames=list(row))
+    if header:
+      writer.writeheader()
+    writer.writerow(row)
 
 
 def load_runs(out):
@@ -102,7 +178,7 @@ def one_process_wall(rows):
   first evaluation, which one process pays too, stay.
 
   The second part is the segment's compile seconds up to its first row
-  (`compile_s` counts on, `train_compare.continued_row`) less those of the
+  (`compile_s` counts on, `continued_row`) less those of the
   overhead (`resume_compile_s`). Rows written before the overhead's own
   compile seconds were recorded lack `resume_compile_s`; for them the
   larger of the overhead and the segment's compile seconds is left out,
@@ -344,8 +420,8 @@ def plot(out, runs, summary, title):
   """Draws `out/returns.png` titled `title`; False without matplotlib.
 
   Every run's curve, and each environment's mean over the seeds of its
-  `final_return_mean` (`summarize`). Times are `one_process_wall`'s (the x label says so where a run was
-  segmented).
+  `final_return_mean` (`summarize`). Times are `one_process_wall`'s (the
+  x label says so where a run was segmented).
   """
   try:
     # pylint: disable=g-import-not-at-top

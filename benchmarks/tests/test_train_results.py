@@ -2,10 +2,18 @@
 
 import json
 import os
+import shutil
 
 import pytest
 
 import train_results  # benchmarks/train_results.py
+
+# The comparison's records in the repository (docs/performance.md).
+_STORED = os.path.join(
+    os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+    'results',
+    'train_compare_walk_full_schedule',
+)
 
 
 def _run(env, seed, points, status='finished', total_s=None):
@@ -285,3 +293,103 @@ def test_the_training_rate_leaves_out_each_segments_first_interval():
   assert train_results.training_rate(rows) == 300 / 3.0
   assert train_results.training_rate(rows[:3]) == 100.0
   assert train_results.training_rate(rows[:2]) is None
+
+
+def test_env_steps_per_s_counts_each_step_once():
+  def metrics(walltime, brax_sps):
+    return {
+        'training/walltime': walltime,
+        'training/sps': brax_sps,
+        'eval/episode_reward': 1.0,
+        'eval/episode_reward_std': 0.0,
+        'eval/avg_episode_length': 1000.0,
+    }
+
+  first = train_results.eval_row(0, metrics(0.0, 0.0), 10.0)
+  assert first['env_steps_per_s'] == 0.0
+  # Two epochs of 1,000 steps in 4 s of training, 2 s each: Brax reports
+  # 2 x 1,000 / 2 s = 1,000/s for the last epoch; the rate is 500/s.
+  second = train_results.eval_row(
+      2000, metrics(4.0, 1000.0), 20.0, previous=first
+  )
+  assert second['env_steps_per_s'] == 500.0
+  assert second['train_sps'] == 1000.0
+  third = train_results.eval_row(
+      4000, metrics(9.0, 800.0), 30.0, previous=second
+  )
+  assert third['env_steps_per_s'] == 400.0
+  # The runs' rate leaves out the first interval (compiling).
+  assert train_results.training_rate([first, second, third]) == 400.0
+  assert train_results.training_rate([first, second]) is None
+
+
+def test_a_continued_row_follows_the_earlier_ones():
+  earlier = [
+      dict(
+          step=100,
+          wall_s=50.0,
+          compile_s=20.0,
+          train_walltime_s=30.0,
+          eval_walltime_s=10.0,
+      )
+  ]
+  row = dict(
+      step=40,
+      wall_s=15.0,
+      compile_s=5.0,
+      train_walltime_s=6.0,
+      eval_walltime_s=2.0,
+      eval_return=3.0,
+  )
+  out = train_results.continued_row(row, earlier, 1, 4.0, 3.0)
+  assert out == dict(
+      step=140,
+      wall_s=65.0,
+      compile_s=25.0,
+      train_walltime_s=36.0,
+      eval_walltime_s=12.0,
+      eval_return=3.0,
+      segment=1,
+      resume_overhead_s=4.0,
+      resume_compile_s=3.0,
+  )
+
+
+def test_rows_keep_the_columns_of_the_stored_runs(tmp_path):
+  metrics = {
+      'training/walltime': 4.0,
+      'training/sps': 10.0,
+      'eval/walltime': 2.0,
+      'eval/episode_reward': 3.0,
+      'eval/episode_reward_std': 0.5,
+      'eval/avg_episode_length': 1000.0,
+  }
+  row = train_results.eval_row(40, metrics, 12.0, compile_s=7.0)
+  row.update(segment=0, resume_overhead_s=0.0, resume_compile_s=0.0)
+  path = str(tmp_path / 'run.csv')
+  train_results.append_csv(path, row)
+  train_results.append_csv(path, dict(row, step=80))
+  with open(path) as f:
+    lines = f.read().splitlines()
+  stored = os.path.join(_STORED, 'runs', 'ours_off_seed0.csv')
+  with open(stored) as f:
+    header = f.readline().strip()
+  # The stored runs predate `resume_compile_s`; their columns come first,
+  # in the same order.
+  assert lines[0] == header + ',resume_compile_s'
+  assert len(lines) == 3 and lines[2].startswith('80,12.0,7.0,4.0,')
+
+
+def test_the_stored_comparison_reads_back_to_its_table(tmp_path):
+  """`train_compare.py --plot` on the stored runs gives their table again."""
+  import train_compare  # pylint: disable=g-import-not-at-top
+
+  out = tmp_path / 'compare'
+  shutil.copytree(os.path.join(_STORED, 'runs'), out / 'runs')
+  assert train_compare.main(['--out', str(out), '--plot']) == 0
+  for name in ('table.md', 'summary.json'):
+    with open(out / name) as f, open(os.path.join(_STORED, name)) as g:
+      if name.endswith('.json'):
+        assert json.load(f) == json.load(g)
+      else:
+        assert f.read() == g.read()

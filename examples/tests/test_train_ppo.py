@@ -1,135 +1,109 @@
-"""examples/train_ppo.py's rollout metrics, on a small composed task."""
+"""examples/train_ppo.py: a tiny run of a small task, loaded back by Brax.
 
-import argparse
-import json
+The task is the tests' pendulum swing, registered as 'swing' for this
+module (it compiles in seconds where a bundled robot takes minutes); the
+script trains it for two updates of four worlds.
+"""
+
+import contextlib
+import io
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import mjx_composer as composer
-from mjx_composer.adapters import brax as brax_adapter
+from brax.training.agents.ppo import checkpoint
+from mjx_composer.observation import groups as groups_lib
+from mjx_composer.suite.tasks import registry
 from tests import conftest
 
 import train_ppo  # examples/train_ppo.py
 
-_WORLDS = 3
-_STEPS = 7  # episodes of 5 control steps: the rollout crosses an auto-reset
-_SEED = 4
+# 4 worlds x 5 steps x 2 minibatches: 40 env steps per update; two updates
+# between the two evaluations.
+_TINY = [
+    '--num-timesteps', '80', '--num-envs', '4', '--batch-size', '4',
+    '--num-minibatches', '2', '--unroll-length', '5', '--num-evals', '2',
+    '--num-eval-envs', '2',
+]  # fmt: skip
+
+
+class _Swing(conftest.SwingTask):
+  """The swing task with the 'policy' group that training reads."""
+
+  def observation_groups(self):
+    return {'policy': groups_lib.ObservationGroup(keys=['tip'], flatten=True)}
+
+
+@pytest.fixture(scope='module', autouse=True)
+def swing():
+  registry.register('swing', _Swing, description='The tests pendulum.')
+  yield
+  registry.unregister('swing')
 
 
 @pytest.fixture(scope='module')
-def brax_env():
-  env = conftest.make_swing_env(
-      time_limit=0.05,
-      options=composer.ExecutionOptions(auto_reset='same_step'),
-  )
-  return brax_adapter.BraxEnv(env, obs_key='tip')
+def trained(tmp_path_factory, swing):
+  """`(config, make_policy, params, checkpoint path, printed lines)`."""
+  del swing
+  out = str(tmp_path_factory.mktemp('ppo'))
+  config, folder = train_ppo.parse_args(['swing', '--out', out] + _TINY)
+  assert folder == out
+  printed = io.StringIO()
+  with contextlib.redirect_stdout(printed):
+    make_policy, params, path = train_ppo.train(config, folder)
+  return config, make_policy, params, path, printed.getvalue().splitlines()
 
 
-@pytest.fixture(scope='module')
-def fns(brax_env):
-  return {'reset': jax.jit(brax_env.reset), 'step': jax.jit(brax_env.step)}
+def test_each_evaluation_is_printed(trained):
+  lines = trained[4]
+  evaluations = [line.split()[1] for line in lines if line.startswith('step')]
+  assert evaluations == ['0', '80']
+  assert lines[-1].startswith('Trained in') and lines[-1].endswith(trained[3])
 
 
-@pytest.fixture(scope='module')
-def written(brax_env, tmp_path_factory):
-  """`write_rollout_metrics`' payload and its file, computed once.
-
-  It holds `rollout_metrics` of the policy and of zero actions, which the
-  tests below check against a step-by-step reference (each rollout is a
-  program of its own to compile).
-  """
-  out = tmp_path_factory.mktemp('rollout_metrics')
-  args = argparse.Namespace(
-      metrics_worlds=_WORLDS, render_steps=_STEPS, seed=_SEED - 1
-  )
-  payload = train_ppo.write_rollout_metrics(
-      brax_env, _constant_policy(0.5), args, str(out)
-  )
-  with open(out / 'rollout_metrics.json') as f:
-    return payload, json.load(f)
+def test_the_checkpoint_is_at_the_trained_step(trained):
+  config, _, _, path, _ = trained
+  assert (config.num_envs, config.batch_size) == (4, 4)
+  # Brax trains whole updates of 40 steps: 80 steps, two updates.
+  assert path.endswith('/000000000080')
+  saved = checkpoint.load_config(path)
+  sizes = {k: list(v) for k, v in saved.observation_size.items()}
+  assert sizes == {'policy': [3]}  # the tip's position
+  assert saved.action_size == 1
+  kwargs = saved.network_factory_kwargs
+  assert (kwargs.policy_obs_key, kwargs.value_obs_key) == ('policy', 'policy')
+  assert tuple(kwargs.policy_hidden_layer_sizes) == config.policy_layers
+  assert tuple(kwargs.value_hidden_layer_sizes) == config.value_layers
 
 
-def _constant_policy(value):
-  def policy(obs, unused_key):
-    return jnp.full(obs.shape[:-1] + (1,), value), {}
-
-  return policy
-
-
-def _step_by_step(fns, action):
-  """The per-step means of a Python loop over jitted steps (the reference)."""
-  reset_key, _ = jax.random.split(jax.random.PRNGKey(_SEED))
-  state = fns['reset'](jax.random.split(reset_key, _WORLDS))
-  per_step = []
-  for _ in range(_STEPS):
-    state = fns['step'](state, jnp.full((_WORLDS, 1), action))
-    metrics = brax_adapter.composer_state(state).metrics
-    row = {
-        name: np.mean(value)
-        for name, value in metrics.items()
-        if np.issubdtype(value.dtype, np.floating)
-    }
-    row['reward'] = np.mean(state.reward)
-    per_step.append(row)
-  return {name: np.mean([r[name] for r in per_step]) for name in per_step[0]}
+def test_brax_loads_the_trained_parameters(trained):
+  _, _, params, path, _ = trained
+  loaded = checkpoint.load(path)
+  got, want = jax.tree.leaves(loaded), jax.tree.leaves(params)
+  assert len(got) == len(want)
+  for a, b in zip(got, want):
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_rollout_metrics_average_every_world_and_step(written, fns):
-  got = written[0]['policy']  # rollout_metrics of the constant policy
-  want = _step_by_step(fns, 0.5)
-  assert set(got) == set(want)
-  assert {'reward', 'episode_return', 'diverged'} <= set(got)
-  for name in want:
-    np.testing.assert_allclose(got[name], want[name], rtol=1e-5, atol=1e-7)
+def test_brax_policy_from_the_checkpoint_acts_as_the_trained_one(trained):
+  _, make_policy, params, path, _ = trained
+  loaded = checkpoint.load_policy(path)  # Brax's default network factory
+  trained_policy = make_policy(params, deterministic=True)
+  obs = {'policy': jnp.linspace(-1.0, 1.0, 21).reshape(7, 3)}
+  key = jax.random.PRNGKey(0)
+  got, want = loaded(obs, key)[0], trained_policy(obs, key)[0]
+  assert got.shape == (7, 1)
+  np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
+  # The policy depends on its observation (trained networks, not zeros).
+  assert np.ptp(np.asarray(got)) > 0
 
 
-def test_zero_actions_baseline(written, fns):
-  zero = written[0]['zero_actions']  # rollout_metrics with policy None
-  want = _step_by_step(fns, 0.0)
-  for name in want:
-    np.testing.assert_allclose(zero[name], want[name], rtol=1e-5, atol=1e-7)
-
-
-def test_write_rollout_metrics_compares_policy_and_zero_actions(written):
-  payload, from_file = written
-  assert from_file == payload
-  assert (from_file['worlds'], from_file['steps'], from_file['seed']) == (
-      _WORLDS,
-      _STEPS,
-      _SEED,
-  )
-  # The policy's actions reach the worlds: the reward differs.
-  assert from_file['policy']['reward'] != from_file['zero_actions']['reward']
-
-
-def test_auto_reset_batch_reaches_the_environment():
-  args = train_ppo.parse_args(['--task', 'reach', '--auto-reset-batch', '4'])
-  env, brax_env = train_ppo.make_brax_env(args)
-  # Batched resets need the separate restart, also on a CPU (whose default
-  # shares the sub-step loop).
-  assert env.auto_reset_batch == 4 and not env.share_reset_forward
-  assert brax_env.environment is env
-  default_env, _ = train_ppo.make_brax_env(train_ppo.parse_args([]))
-  assert default_env.auto_reset_batch is None
-
-
-def test_like_playground_builds_train_compares_ours_off():
-  args = train_ppo.parse_args(['--task', 'walk', '--like-playground'])
-  env, brax_env = train_ppo.make_brax_env(args)
-  # HumanoidWalk's observation alone, none of the shipped task's additions.
-  assert set(brax_env.observation_size) == {'policy'}
-  # HumanoidWalk's 67 values: no history stacked onto them.
-  assert brax_env.observation_size['policy'] == (67,)
-  default_env, default_brax = train_ppo.make_brax_env(
-      train_ppo.parse_args(['--task', 'walk'])
-  )
-  assert 'critic' in default_brax.observation_size
-  assert env.time_limit == default_env.time_limit
-
-
-def test_like_playground_is_for_the_walk_task_only():
+def test_settings_brax_cannot_split_are_refused_early(swing, capsys):
+  del swing
   with pytest.raises(SystemExit):
-    train_ppo.parse_args(['--task', 'reach', '--like-playground'])
+    train_ppo.parse_args(['swing', '--num-envs', '3', '--batch-size', '4'])
+  assert 'multiple of num_envs' in capsys.readouterr().err
+  with pytest.raises(SystemExit):
+    train_ppo.parse_args(['no_such_task'])
