@@ -120,7 +120,11 @@ def test_a_saved_policy_acts_as_the_one_trained(env, tmp_path):
         policy_layers=list(walk.policy_layers),
         value_layers=list(walk.value_layers),
     )
-    networks = policy.make_networks(walk, {'policy': (5,)}, 2)
+    networks = policy.network_factory(walk)(
+        {'policy': (5,)},
+        2,
+        preprocess_observations_fn=running_statistics.normalize,
+    )
     spec = {'policy': jnp.zeros((5,))}
   config['normalize'] = walk.normalize  # True, as Playground's
   key = jax.random.PRNGKey(3)
