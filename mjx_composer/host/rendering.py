@@ -420,26 +420,12 @@ def render(
 ) -> np.ndarray:
   """Renders chosen worlds of a `State` on the host.
 
-  One call makes and closes a `WorldRenderer`; to draw many frames (a
-  video), keep one instead.
-
-  Args:
-    env: the `Environment` (or a `BraxEnv`) the state belongs to.
-    state: a `State`, batched over worlds (leading axis) or for one world;
-      or a Brax state made by `BraxEnv`.
-    worlds: an index or indices into the batch; None for every world.
-    height, width: image size in pixels.
-    camera: None (the model's free camera), a camera name or id, a
-      `mujoco.MjvCamera`, or a dict of `free_camera` arguments.
-    markers: optional positions to draw as spheres, per world of the batch:
-      shape `(num_worlds, 3)` or `(num_worlds, K, 3)` (without the world axis
-      for an unbatched state), e.g. `state.task_state['target']`.
-    marker_radius, marker_rgba: the spheres' size and colour.
-    scene_option: an optional `mujoco.MjvOption` (e.g. to show sites).
-
-  Returns:
-    uint8 images `(len(worlds), height, width, 3)`; `(height, width, 3)` if
-    `worlds` is an int or the state is for one world and `worlds` is None.
+  One call makes and closes a `WorldRenderer` (`env`, the size, `camera`,
+  the markers' look and `scene_option` are its arguments) and returns its
+  `render(state, worlds, markers=markers)`: uint8 images
+  `(len(worlds), height, width, 3)`, or `(height, width, 3)` if `worlds` is
+  an int or the state is for one world and `worlds` is None. To draw many
+  frames (a video), keep one `WorldRenderer` instead.
   """
   with WorldRenderer(
       env,

@@ -166,17 +166,18 @@ def play(
     start = time.perf_counter()
     if not result:
       log(
-          f'Compiling the rollout of {worlds} worlds x {steps} steps of '
-          f'{config.task!r} (one program for the {", ".join(MODES)} runs; '
-          'minutes on a CPU, seconds when the compilation cache has it)...'
+          f'Building the rollout program of {worlds} worlds x {steps} steps '
+          f'of {config.task!r}, one for the {", ".join(MODES)} runs: tracing '
+          "the environment's step (tens of seconds on a CPU), then compiling "
+          'it (minutes) or loading it from the compilation cache...'
       )
     states, rewards, dones, metrics, _ = jax.device_get(
         run_program(checkpoint.params, key, video.mode_index(mode))
     )
     seconds = time.perf_counter() - start
     log(
-        f'{"Compiled and ran" if not result else "Ran"} the {mode} rollout '
-        f'in {seconds:.1f}s.'
+        f'{"Built the program and ran" if not result else "Ran"} the {mode} '
+        f'rollout in {seconds:.1f}s.'
     )
     stats = episode_statistics(rewards, dones, metrics)
     stats['step'] = checkpoint.step

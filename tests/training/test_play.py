@@ -117,7 +117,8 @@ def test_the_three_runs_are_one_compiled_program(played):
 
 def test_play_says_what_it_compiles_and_how_rendering_goes(played):
   _, printed, _ = played
-  assert 'Compiling the rollout of 2 worlds x 6 steps' in printed
+  assert 'Building the rollout program of 2 worlds x 6 steps' in printed
+  assert 'Built the program and ran the deterministic rollout' in printed
   for mode in ('deterministic', 'sampled'):
     assert f'rendering {mode}' in printed
   assert '7/7' in printed  # frames done / total
