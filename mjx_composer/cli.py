@@ -363,7 +363,7 @@ def train(argv=None):
 
 
 def play(argv=None):
-  """`mjx-composer play RUN`: videos and episode statistics of a policy."""
+  """`mjx-composer play RUN`: videos, episode statistics and metrics."""
   # pylint: disable=g-import-not-at-top
   from mjx_composer.training import play as play_lib
   from mjx_composer.training import run_folder
@@ -372,9 +372,11 @@ def play(argv=None):
   parser = argparse.ArgumentParser(
       prog='mjx-composer play',
       description=(
-          "Run a trained run's newest policy, deterministic and sampled, "
-          'write a video of each (the worlds tiled) and print episode '
-          'statistics.'
+          "Run a trained run's newest policy, deterministic and sampled, and "
+          'zero actions as a baseline, from the same reset; write a video '
+          'of each policy run (the worlds tiled), print episode statistics '
+          "and the task's metrics (mean per world and step) and write them "
+          'to play_step_<STEP>.json.'
       ),
   )
   parser.add_argument('run', help='the run folder')
@@ -384,8 +386,21 @@ def play(argv=None):
   )
   parser.add_argument('--out', default=None, help='default: RUN/videos')
   parser.add_argument('--seed', type=int, default=1)
-  parser.add_argument('--no-video', action='store_true', help='statistics only')
+  parser.add_argument(
+      '--no-video',
+      action='store_true',
+      help='statistics and metrics only: no rendering, no OpenGL needed',
+  )
+  parser.add_argument(
+      '--no-compilation-cache',
+      action='store_true',
+      help="don't read or write JAX's persistent compilation cache",
+  )
   args = parser.parse_args(argv)
+  cache_dir = platform.configure(
+      compilation_cache=False if args.no_compilation_cache else None
+  )
+  print(f'Compilation cache: {cache_dir or "off"}.', flush=True)
   try:
     result = play_lib.play(
         args.run,
@@ -394,6 +409,7 @@ def play(argv=None):
         out=args.out,
         seed=args.seed,
         render=not args.no_video,
+        verbose=True,
     )
   except (run_folder.RunFolderError, ValueError) as e:
     return _error(e)
@@ -408,6 +424,13 @@ def play(argv=None):
           f'{stats["mean_length"]:.1f} steps'
       )
     print(line + (f'; video {stats["video"]}' if 'video' in stats else ''))
+  print('Metrics (mean per world and step):')
+  print(f'{"metric":<24}' + ''.join(f'{mode:>15}' for mode in result))
+  for name in next(iter(result.values()))['metrics']:
+    print(
+        f'{name:<24}'
+        + ''.join(f'{s["metrics"][name]:>15.4g}' for s in result.values())
+    )
   return 0
 
 

@@ -9,7 +9,13 @@ episode) are written into a host copy of the compiled `MjModel`, the world's
 `qpos`/`qvel`/`act`/`ctrl`/mocap poses into a host `MjData`, and
 `mj_forward` derives the rest, so what you see is the world the device
 simulates. Task state that has no geometry (a sampled target, say) can be
-drawn as `markers`.
+drawn as `markers`. `render` makes an OpenGL context for each call; to draw
+many frames (a video), keep one `WorldRenderer`, which reuses its context,
+model and data and writes a world's model fields only when they change:
+
+    with rendering.WorldRenderer(env, height=120, width=160) as renderer:
+      for states in trajectory:
+        frames.append(renderer.render(states))
 
 Rendering is offscreen OpenGL. With no display (servers, CI) and `MUJOCO_GL`
 unset, the first render picks a headless backend, EGL then OSMesa, by trying
@@ -113,14 +119,35 @@ def _use_backend(backend: str):
   gl_context.GLContext = module.GLContext
 
 
+def shadow_map_size(model: mujoco.MjModel, height: int, width: int) -> int:
+  """The side of the shadow map `make_renderer` draws `height x width` with.
+
+  The model's (`visual/quality/shadowsize`, MuJoCo's default 4096) or, if
+  smaller, the power of two at least four times the image's longer side
+  (1024 at least). Software OpenGL (llvmpipe, OSMesa: what a server
+  without a GPU renders with) draws a 4096-pixel shadow map per light for
+  every image; for a 120 x 160 image, a 1024-pixel one cuts the time per
+  image about three times and changes the mean pixel by less than a tenth
+  of a level out of 255.
+  """
+  side = max(1024, 1 << (4 * max(height, width) - 1).bit_length())
+  return min(int(model.vis.quality.shadowsize), side)
+
+
 def make_renderer(
     model: mujoco.MjModel, height: int = 240, width: int = 320
 ) -> mujoco.Renderer:
-  """A `mujoco.Renderer` on a headless backend; close it when done."""
+  """A `mujoco.Renderer` on a headless backend; close it when done.
+
+  Its shadow maps are `shadow_map_size` (the model keeps its own setting).
+  """
   gl_backend()
   vis = model.vis.global_
   vis.offwidth = max(vis.offwidth, width)
   vis.offheight = max(vis.offheight, height)
+  quality = model.vis.quality
+  shadowsize = quality.shadowsize
+  quality.shadowsize = shadow_map_size(model, height, width)
   try:
     return mujoco.Renderer(model, height, width)
   except Exception as e:  # pylint: disable=broad-except
@@ -129,6 +156,8 @@ def make_renderer(
         f'(MUJOCO_GL={os.environ.get("MUJOCO_GL", "")!r}): {e}.'
         f' {_INSTALL_HINT}'
     ) from e
+  finally:
+    quality.shadowsize = shadowsize
 
 
 def free_camera(
@@ -175,6 +204,14 @@ def _world_indices(num_worlds, worlds):
   return [w % limit for w in worlds]
 
 
+def _same(a, b) -> bool:
+  """Whether two host values (arrays, or structs of arrays) are equal."""
+  leaves_a, leaves_b = jax.tree.leaves(a), jax.tree.leaves(b)
+  return len(leaves_a) == len(leaves_b) and all(
+      np.array_equal(x, y) for x, y in zip(leaves_a, leaves_b)
+  )
+
+
 def _set_model_field(model: mujoco.MjModel, name: str, value):
   """Writes one mjx.Model field's value for one world into a host MjModel."""
   if name in ('opt', 'stat'):
@@ -203,6 +240,171 @@ def _set_model_field(model: mujoco.MjModel, name: str, value):
     )
 
 
+_DATA_FIELDS = ('qpos', 'qvel', 'act', 'ctrl', 'mocap_pos', 'mocap_quat')
+
+
+def host_fields(state) -> dict:
+  """What drawing a `State` reads, copied to the host as numpy arrays.
+
+  The data fields that `mj_forward` derives the rest from, the time and the
+  per-world model fields, with the state's leading axes (worlds, or time
+  and worlds). Fetch once and index it (`jax.tree.map(lambda x: x[t], ...)`)
+  rather than copying a whole `State` per frame.
+  """
+  state = _composer_state(state)
+  fields = {name: getattr(state.data, name) for name in _DATA_FIELDS}
+  fields['time'] = state.data.time
+  fields['model_fields'] = state.model_fields
+  return jax.tree.map(np.asarray, jax.device_get(fields))
+
+
+class WorldRenderer:
+  """Draws worlds of one environment's states with one reused renderer.
+
+  Holds a host copy of the compiled `MjModel`, an `MjData` and a
+  `mujoco.Renderer` for its whole life, so drawing many frames (a video)
+  creates no OpenGL context, model or data per frame: each world's
+  per-world model fields are written into the model only where they differ
+  from what it holds, its pose into the data, and `mj_forward` derives the
+  rest. Close it when done (or use it as a context manager).
+
+  A renderer uploads height fields to the GPU when it is made, so with
+  per-world terrain each world gets a renderer of its own, made again only
+  when its profile changes.
+  """
+
+  def __init__(
+      self,
+      env,
+      height: int = 240,
+      width: int = 320,
+      *,
+      camera: Any = None,
+      marker_radius: float = 0.03,
+      marker_rgba=(0.9, 0.1, 0.1, 0.8),
+      scene_option: mujoco.MjvOption | None = None,
+  ):
+    """Makes the renderer.
+
+    Args:
+      env: the `Environment` (or a `BraxEnv`) whose states it draws.
+      height, width: image size in pixels.
+      camera: None (the model's free camera), a camera name or id, a
+        `mujoco.MjvCamera`, or a dict of `free_camera` arguments.
+      marker_radius, marker_rgba: the size and colour of `markers`' spheres.
+      scene_option: an optional `mujoco.MjvOption` (e.g. to show sites).
+    """
+    env = _environment(env)
+    # Per-world fields are written into a copy: the environment's host model
+    # must keep its defaults.
+    self.model = env.mj_model.__copy__()
+    self.data = mujoco.MjData(self.model)
+    if isinstance(camera, dict):
+      camera = free_camera(self.model, **camera)
+    elif camera is None:
+      camera = free_camera(self.model)
+    self._camera = camera
+    self._scene_option = scene_option
+    self._marker = (
+        np.array([marker_radius, 0.0, 0.0]),
+        np.asarray(marker_rgba, np.float32),
+    )
+    self._size = (height, width)
+    self._written = {}  # field name -> the value the model holds
+    self._renderer = make_renderer(self.model, height, width)
+    self._terrain = {}  # world -> (its renderer, the profile it uploaded)
+
+  def close(self):
+    """Frees the OpenGL contexts."""
+    # Close now: EGL's atexit teardown would otherwise run before the
+    # renderer's finalizer and print errors at interpreter exit.
+    for renderer, _ in self._terrain.values():
+      renderer.close()
+    self._terrain = {}
+    if self._renderer is not None:
+      self._renderer.close()
+      self._renderer = None
+
+  def __enter__(self):
+    return self
+
+  def __exit__(self, *unused_exc):
+    self.close()
+
+  def _write_model_fields(self, model_fields):
+    for name, value in model_fields.items():
+      if name not in self._written or not _same(self._written[name], value):
+        _set_model_field(self.model, name, value)
+        self._written[name] = jax.tree.map(np.copy, value)
+
+  def _renderer_for(self, world, model_fields):
+    if 'hfield_data' not in model_fields:
+      return self._renderer
+    profile = model_fields['hfield_data']
+    renderer, uploaded = self._terrain.get(world, (None, None))
+    if renderer is None or not np.array_equal(uploaded, profile):
+      if renderer is not None:
+        renderer.close()
+      renderer = make_renderer(self.model, *self._size)
+      self._terrain[world] = (renderer, np.copy(profile))
+    return renderer
+
+  def render(self, state, worlds=None, *, markers=None, out=None):
+    """Draws chosen worlds of a `State` (or of `host_fields` of one).
+
+    Args:
+      state: a `State` batched over worlds (leading axis) or for one world,
+        a Brax state made by `BraxEnv`, or `host_fields` of either.
+      worlds: an index or indices into the batch; None for every world.
+      markers: optional positions to draw as spheres, per world of the
+        batch: shape `(num_worlds, 3)` or `(num_worlds, K, 3)` (without the
+        world axis for an unbatched state), e.g.
+        `state.task_state['target']`.
+      out: optional uint8 array `(len(worlds), height, width, 3)` to draw
+        into (saves an allocation per call).
+
+    Returns:
+      uint8 images `(len(worlds), height, width, 3)`; `(height, width, 3)`
+      if `worlds` is an int or the state is for one world and `worlds` is
+      None.
+    """
+    if self._renderer is None:
+      raise RuntimeError('This WorldRenderer is closed; make a new one.')
+    host = state if isinstance(state, dict) else host_fields(state)
+    batched = np.ndim(host['time']) == 1
+    num_worlds = np.shape(host['time'])[0] if batched else None
+    single = isinstance(worlds, (int, np.integer)) or (
+        worlds is None and not batched
+    )
+    indices = _world_indices(num_worlds, worlds)
+    if markers is not None:
+      markers = np.asarray(markers, np.float64)
+      if not batched:
+        markers = markers[None]
+      markers = markers.reshape(markers.shape[0], -1, 3)
+    if out is None:
+      out = np.empty((len(indices),) + self._size + (3,), np.uint8)
+    for i, world in enumerate(indices):
+      pick = (lambda x, w=world: x[w]) if batched else (lambda x: x)
+      model_fields = jax.tree.map(pick, host['model_fields'])
+      self._write_model_fields(model_fields)
+      renderer = self._renderer_for(world, model_fields)
+      for name in _DATA_FIELDS:
+        target = getattr(self.data, name)
+        if target.size:
+          target[...] = pick(host[name]).reshape(target.shape)
+      self.data.time = float(pick(host['time']))
+      mujoco.mj_forward(self.model, self.data)
+      renderer.update_scene(
+          self.data, camera=self._camera, scene_option=self._scene_option
+      )
+      if markers is not None:
+        for position in markers[world if batched else 0]:
+          _add_sphere(renderer.scene, position, *self._marker)
+      renderer.render(out=out[i])
+    return out[0] if single else out
+
+
 def render(
     env,
     state,
@@ -218,105 +420,39 @@ def render(
 ) -> np.ndarray:
   """Renders chosen worlds of a `State` on the host.
 
-  Args:
-    env: the `Environment` (or a `BraxEnv`) the state belongs to.
-    state: a `State`, batched over worlds (leading axis) or for one world;
-      or a Brax state made by `BraxEnv`.
-    worlds: an index or indices into the batch; None for every world.
-    height, width: image size in pixels.
-    camera: None (the model's free camera), a camera name or id, a
-      `mujoco.MjvCamera`, or a dict of `free_camera` arguments.
-    markers: optional positions to draw as spheres, per world of the batch:
-      shape `(num_worlds, 3)` or `(num_worlds, K, 3)` (without the world axis
-      for an unbatched state), e.g. `state.task_state['target']`.
-    marker_radius, marker_rgba: the spheres' size and colour.
-    scene_option: an optional `mujoco.MjvOption` (e.g. to show sites).
-
-  Returns:
-    uint8 images `(len(worlds), height, width, 3)`; `(height, width, 3)` if
-    `worlds` is an int or the state is for one world and `worlds` is None.
+  One call makes and closes a `WorldRenderer` (`env`, the size, `camera`,
+  the markers' look and `scene_option` are its arguments) and returns its
+  `render(state, worlds, markers=markers)`: uint8 images
+  `(len(worlds), height, width, 3)`, or `(height, width, 3)` if `worlds` is
+  an int or the state is for one world and `worlds` is None. To draw many
+  frames (a video), keep one `WorldRenderer` instead.
   """
-  env = _environment(env)
-  state = _composer_state(state)
-  host = jax.device_get(
-      {
-          'qpos': state.data.qpos,
-          'qvel': state.data.qvel,
-          'act': state.data.act,
-          'ctrl': state.data.ctrl,
-          'mocap_pos': state.data.mocap_pos,
-          'mocap_quat': state.data.mocap_quat,
-          'time': state.data.time,
-          'model_fields': state.model_fields,
-      }
-  )
-  batched = np.ndim(host['time']) == 1
-  num_worlds = np.shape(host['time'])[0] if batched else None
-  single = isinstance(worlds, (int, np.integer)) or (
-      worlds is None and not batched
-  )
-  indices = _world_indices(num_worlds, worlds)
-  if markers is not None:
-    markers = np.asarray(markers, np.float64)
-    if not batched:
-      markers = markers[None]
-    markers = markers.reshape(markers.shape[0], -1, 3)
-
-  model = _copy_model(env.mj_model)
-  data = mujoco.MjData(model)
-  if isinstance(camera, dict):
-    camera = free_camera(model, **camera)
-  elif camera is None:
-    camera = free_camera(model)
-  images = []
-  # A renderer uploads height fields to the GPU when it is made: with
-  # per-world terrain, each world gets a renderer made after its profile is
-  # written.
-  per_world_terrain = 'hfield_data' in host['model_fields']
-  renderer = make_renderer(model, height, width)
-  try:
-    for world in indices:
-      pick = (lambda x, w=world: np.asarray(x)[w]) if batched else np.asarray
-      for name, value in host['model_fields'].items():
-        _set_model_field(model, name, jax.tree.map(pick, value))
-      if per_world_terrain:
-        renderer.close()
-        renderer = make_renderer(model, height, width)
-      for name in ('qpos', 'qvel', 'act', 'ctrl', 'mocap_pos', 'mocap_quat'):
-        target = getattr(data, name)
-        if target.size:
-          target[...] = pick(host[name]).reshape(target.shape)
-      data.time = float(pick(host['time']))
-      mujoco.mj_forward(model, data)
-      renderer.update_scene(data, camera=camera, scene_option=scene_option)
-      if markers is not None:
-        for position in markers[world if batched else 0]:
-          _add_sphere(renderer.scene, position, marker_radius, marker_rgba)
-      images.append(renderer.render().copy())
-  finally:
-    # Close now: EGL's atexit teardown would otherwise run before the
-    # renderer's finalizer and print errors at interpreter exit.
-    renderer.close()
-  images = np.stack(images)
-  return images[0] if single else images
+  with WorldRenderer(
+      env,
+      height,
+      width,
+      camera=camera,
+      marker_radius=marker_radius,
+      marker_rgba=marker_rgba,
+      scene_option=scene_option,
+  ) as renderer:
+    return renderer.render(state, worlds, markers=markers)
 
 
-def _copy_model(model: mujoco.MjModel) -> mujoco.MjModel:
-  # Per-world fields are written into a copy: the environment's host model
-  # must keep its defaults.
-  return model.__copy__()
+_IDENTITY = np.eye(3).reshape(-1)
 
 
-def _add_sphere(scene: mujoco.MjvScene, position, radius, rgba):
+def _add_sphere(scene: mujoco.MjvScene, position, size, rgba):
+  """Appends a sphere (`size`: `[radius, 0, 0]`) to the scene's geoms."""
   if scene.ngeom >= scene.maxgeom:
     return
   mujoco.mjv_initGeom(
       scene.geoms[scene.ngeom],
       type=mujoco.mjtGeom.mjGEOM_SPHERE,
-      size=np.array([radius, 0.0, 0.0]),
+      size=size,
       pos=np.asarray(position, np.float64),
-      mat=np.eye(3).reshape(-1),
-      rgba=np.asarray(rgba, np.float32),
+      mat=_IDENTITY,
+      rgba=rgba,
   )
   scene.ngeom += 1
 

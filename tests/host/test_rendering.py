@@ -138,6 +138,43 @@ def test_markers_are_drawn(env, states):
   assert np.mean(yellow[:, 2]) < np.mean(yellow[:, 0]) / 2
 
 
+def test_one_renderer_draws_what_fresh_renders_draw(env, states):
+  """A `WorldRenderer` kept across frames and worlds (each world's colour
+  written only when it changes) draws what a fresh renderer draws."""
+  fresh = rendering.render(env, states, height=32, width=32, camera=_TOP_VIEW)
+  order = [0, 1, 1, 5, 2, 0, 4, 3, 3]
+  host = rendering.host_fields(states)
+  out = np.zeros((1, 32, 32, 3), np.uint8)
+  with rendering.WorldRenderer(env, 32, 32, camera=_TOP_VIEW) as renderer:
+    for world in order:
+      image = renderer.render(states, world)
+      np.testing.assert_array_equal(image, fresh[world])
+      drawn = renderer.render(host, [world], out=out)
+      assert drawn is out
+      np.testing.assert_array_equal(out[0], fresh[world])
+    np.testing.assert_array_equal(
+        renderer.render(states, [4, 1, 4]), fresh[[4, 1, 4]]
+    )
+  with pytest.raises(RuntimeError, match='closed'):
+    renderer.render(states, 0)
+
+
+def test_shadow_maps_are_sized_to_the_image():
+  model = mujoco.MjModel.from_xml_string(
+      '<mujoco><worldbody><light pos="0 0 3" castshadow="true"/>'
+      '<geom size=".1"/></worldbody></mujoco>'
+  )
+  assert model.vis.quality.shadowsize == 4096  # MuJoCo's default
+  assert rendering.shadow_map_size(model, 120, 160) == 1024
+  assert rendering.shadow_map_size(model, 240, 320) == 2048
+  assert rendering.shadow_map_size(model, 1080, 1920) == 4096  # the model's
+  model.vis.quality.shadowsize = 512
+  assert rendering.shadow_map_size(model, 240, 320) == 512
+  model.vis.quality.shadowsize = 4096
+  rendering.make_renderer(model, 24, 32).close()
+  assert model.vis.quality.shadowsize == 4096  # the model keeps its own
+
+
 def test_grid_png_and_gif(env, states, tmp_path):
   from PIL import Image  # pylint: disable=g-import-not-at-top
 

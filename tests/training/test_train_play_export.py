@@ -236,25 +236,6 @@ def test_the_time_to_the_target_return_is_reported(trained):
   )
 
 
-def test_play_writes_videos_and_episode_statistics(trained, tmp_path, capsys):
-  path = trained['path']
-  out = str(tmp_path)
-  assert (
-      cli.main(['play', path, '--worlds', '2', '--steps', '6', '--out', out])
-      == 0
-  )
-  printed = capsys.readouterr().out
-  for mode in ('deterministic', 'sampled'):
-    # 6 steps of 5-step episodes: each of the 2 worlds ends one episode.
-    assert f'{mode:<14} step 160: 2 episodes ended' in printed
-    assert 'mean length 5.0 steps' in printed
-    frames = video.read_mp4(
-        os.path.join(out, f'play_{mode}_step_{160:012d}.mp4')
-    )
-    assert frames.shape[0] == 7 and frames.dtype == np.uint8
-    assert frames.std() > 0  # a picture, not a blank frame
-
-
 def test_export_matches_the_jax_policy_in_onnxruntime(trained, tmp_path):
   import onnxruntime  # pylint: disable=g-import-not-at-top
 
