@@ -1,6 +1,7 @@
 """Setup shared by the benchmarks in this folder.
 
-Building the bundled tasks' environments, the raw MJX baseline on the same
+Building the registered tasks' environments (`TASKS`, from
+`mjx_composer.suite.tasks.registry`), the raw MJX baseline on the same
 compiled model, timing jitted calls, common command-line flags and writing
 results as JSON. The benchmark scripts import it as `common` (Python puts
 the script's folder, `benchmarks/`, on `sys.path`), so they run from a
@@ -24,48 +25,13 @@ import jax
 import jax.numpy as jnp
 from mujoco import mjx
 
-TASKS = (
-    'reach',
-    'push',
-    'walk',
-    'walk_terrain',
-    'joystick',
-    'joystick_terrain',
-)
+from mjx_composer.suite.tasks import registry
+
+# The registered tasks (the bundled ones: `registry.names()`).
+TASKS = registry.names()
 
 
 # -- environments ------------------------------------------------------------
-
-
-def make_task(name='reach', **task_kwargs):
-  """A bundled task by name, with `task_kwargs` passed to its constructor."""
-  # pylint: disable=g-import-not-at-top
-  if name == 'reach':
-    from mjx_composer.suite.tasks import reach
-
-    return reach.Reach(**task_kwargs)
-  if name == 'push':
-    from mjx_composer.suite.tasks import push
-
-    return push.Push(**task_kwargs)
-  if name == 'walk':
-    from mjx_composer.suite.tasks import walk
-
-    return walk.Walk(**task_kwargs)
-  if name == 'walk_terrain':
-    from mjx_composer.suite.tasks import walk_terrain
-
-    return walk_terrain.TerrainWalk(**task_kwargs)
-  if name == 'joystick':
-    from mjx_composer.suite.tasks import joystick
-
-    return joystick.Joystick(**task_kwargs)
-  if name == 'joystick_terrain':
-    from mjx_composer.suite.tasks import joystick_terrain
-
-    return joystick_terrain.TerrainJoystick(**task_kwargs)
-  # pylint: enable=g-import-not-at-top
-  raise ValueError(f'Unknown task {name!r}; choose from {TASKS}.')
 
 
 def make_env(
@@ -88,7 +54,7 @@ def make_env(
   """A bundled task's `Environment`, as the benchmarks build it.
 
   Args:
-    name: one of `TASKS`.
+    name: a registered task (`TASKS`).
     time_limit: episode length in seconds.
     episode_steps: if given, the episode length in control steps instead.
     observables: False disables every observable (no observation groups).
@@ -103,8 +69,9 @@ def make_env(
       passed to the `Environment` when given. The benchmarks measure MJX's
       JAX implementation unless they say otherwise: `impl` is 'jax' by
       default, not the `Environment`'s default (Warp on a CUDA GPU).
-    **task_kwargs: passed to the task's constructor (e.g. `randomize=False`
-      for reach, `placement='ring'` for push).
+    **task_kwargs: passed to the task's factory, over its registered
+      kwargs (e.g. `randomize=False` for reach, `placement='ring'` for
+      push).
 
   Returns:
     The `mjx_composer.Environment`, with the task's observation groups
@@ -112,7 +79,7 @@ def make_env(
   """
   from mjx_composer import environment  # pylint: disable=g-import-not-at-top
 
-  task = make_task(name, **task_kwargs)
+  task = registry.make_task(name, **task_kwargs)
   if not observables:
     for obs in task.observables.values():
       obs.enabled = False

@@ -32,8 +32,9 @@ The composed programs are `vmap(env.step)` in a `jax.lax.scan`
 (`common.env_rollout`) with same-step auto-reset and the tasks' defaults
 otherwise (noise, observation delay and history, per-episode
 randomization, pushes, falls ending episodes): worlds that fall reset
-inside the call, raw's never do. Episodes last the registered tasks'
-20 s (joystick) and 25 s (walk).
+inside the call, raw's never do. Episodes last as long as the tasks train
+on (their registry entries' `time_limit`: 20 s for the Go1, 25 s for the
+humanoid).
 
 For each: control and physics steps per second (median of `--repeats`
 calls), the first calls (trace, lowering and XLA compile of the batched
@@ -61,12 +62,11 @@ import mujoco
 import numpy as np
 
 from mjx_composer.platform import cpu_linalg
+from mjx_composer.suite.tasks import registry
 
 import common  # benchmarks/common.py
 import playground_compare  # benchmarks/playground_compare.py: measure
 
-# Episode lengths, seconds: joystick.EPISODE_SECONDS and the registry's walk.
-EPISODE_SECONDS = {'joystick': 20.0, 'walk': 25.0}
 # TerrainJoystick's arguments of joystick_terrain_off.
 PARTS_OFF = dict(
     kinds=('flat',),
@@ -75,6 +75,8 @@ PARTS_OFF = dict(
     actuation_delay=(0, 0),
     height_scan=False,
 )
+# The composed programs: the registered task each builds, and the arguments
+# its factory gets over the registered ones.
 TASKS = {
     'joystick': ('joystick', {}),
     'joystick_terrain': ('joystick_terrain', {}),
@@ -107,7 +109,7 @@ def make_envs(names, share_reset_forward=None):
       task, kwargs = TASKS[name]
       envs[name] = common.make_env(
           task,
-          time_limit=EPISODE_SECONDS[task.split('_')[0]],
+          time_limit=registry.entry(task).training['time_limit'],
           share_reset_forward=share_reset_forward,
           **kwargs,
       )

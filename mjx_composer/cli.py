@@ -9,6 +9,12 @@ policy, shows progress, and prints throughput and episode statistics.
 the trained policy and export it as ONNX (`mjx_composer.training`; `pip
 install 'mjx-composer[train]'`).
 
+Every command takes `--import MODULE` (repeatable): modules that register
+your own tasks, imported (the current directory on the path) before the
+command runs; `train` records them in the run folder, so that `play`,
+`export` and `train --resume` import them again. `main` returns the exit
+status; a command that fails prints one line, `error: ...`, on stderr.
+
 Compiled programs are kept in JAX's persistent compilation cache
 (`mjx_composer.platform.compilation_cache`), so a second run with the same
 options skips most of the compilation; `--no-compilation-cache` or
@@ -16,6 +22,7 @@ options skips most of the compilation; `--no-compilation-cache` or
 """
 
 import argparse
+import os
 import sys
 import time
 
@@ -30,8 +37,14 @@ from mjx_composer.suite.tasks import registry
 _COMMANDS = ('demo', 'list', 'train', 'play', 'export')
 
 
-def make_rollout(env, num_worlds, chunk):
-  """A jitted function running `chunk` steps of a random policy."""
+def make_rollout(env, num_worlds, chunk, metrics=()):
+  """A jitted function running `chunk` steps of a random policy.
+
+  `rollout(states, key, totals) -> (states, key, totals)` adds up, over the
+  episodes that end, their returns, lengths, initialization failures and
+  the final values of the `State.metrics` entries named in `metrics`
+  (`totals['metrics'][name]`), and counts diverged worlds.
+  """
   spec = env.action_spec()
   low, high = jnp.asarray(spec.minimum), jnp.asarray(spec.maximum)
   step = jax.vmap(env.step)
@@ -44,14 +57,23 @@ def make_rollout(env, num_worlds, chunk):
     )
     states = step(states, actions)
     ended = states.last()
+    missing = sorted(set(metrics) - set(states.metrics))
+    if missing:
+      raise ValueError(
+          f'The task reports no metrics {missing} (its registry entry names '
+          f'them); it reports {sorted(states.metrics)}.'
+      )
     totals = {
         'episodes': totals['episodes'] + jnp.sum(ended),
         'return': totals['return']
         + jnp.sum(jnp.where(ended, states.metrics['episode_return'], 0.0)),
         'length': totals['length']
         + jnp.sum(jnp.where(ended, states.metrics['episode_length'], 0)),
-        'distance': totals['distance']
-        + jnp.sum(jnp.where(ended, states.metrics.get('distance', 0.0), 0.0)),
+        'metrics': {
+            name: totals['metrics'][name]
+            + jnp.sum(jnp.where(ended, _per_world(states.metrics, name), 0.0))
+            for name in metrics
+        },
         'diverged': totals['diverged'] + jnp.sum(states.metrics['diverged']),
         'init_failures': totals['init_failures']
         + jnp.sum(jnp.where(ended, states.metrics['init_failures'], 0.0)),
@@ -68,6 +90,60 @@ def make_rollout(env, num_worlds, chunk):
   return rollout
 
 
+def _per_world(metrics, name):
+  value = metrics[name]
+  if value.ndim != 1:
+    raise ValueError(
+        f'The metric {name!r} has shape {value.shape[1:]} per world; the '
+        'demo averages metrics of one value per world.'
+    )
+  return value
+
+
+def _add_import_flag(parser):
+  parser.add_argument(
+      '--import',
+      dest='imports',
+      action='append',
+      default=[],
+      metavar='MODULE',
+      help='a module that registers tasks, imported first (repeatable)',
+  )
+
+
+def _import_modules(modules):
+  """Imports `modules` (`--import`), with the current directory on the path.
+
+  An installed `mjx-composer` script, unlike `python -m`, starts without the
+  current directory on `sys.path`; a module beside the user is found there
+  (after the installed packages).
+  """
+  modules = tuple(modules)
+  if modules and '' not in sys.path and os.getcwd() not in sys.path:
+    sys.path.append(os.getcwd())
+  registry.import_modules(modules)
+  return modules
+
+
+def _import_flagged(argv):
+  """Imports the modules of `argv`'s `--import` flags; returns their names."""
+  parser = argparse.ArgumentParser(add_help=False)
+  _add_import_flag(parser)
+  return _import_modules(parser.parse_known_args(argv)[0].imports)
+
+
+def _import_recorded(run_path, extra=()):
+  """Imports the modules a run recorded (`TrainConfig.imports`) and `extra`.
+
+  Raises:
+    RunFolderError: for a path that is not a readable run folder.
+  """
+  from mjx_composer.training import run_folder  # pylint: disable=g-import-not-at-top
+
+  recorded = run_folder.open_run(run_path).read_config().imports
+  _import_modules(dict.fromkeys((*recorded, *extra)))
+
+
 def demo_parser():
   """The `mjx-composer demo` argument parser."""
   parser = argparse.ArgumentParser(
@@ -76,7 +152,12 @@ def demo_parser():
           'Run a bundled composed task for N worlds and T control steps.'
       ),
   )
-  parser.add_argument('--task', default='reach', choices=registry.names())
+  parser.add_argument(
+      '--task',
+      default='reach',
+      help=f'a registered task: {", ".join(registry.names())}',
+  )
+  _add_import_flag(parser)
   parser.add_argument('--worlds', type=int, default=64)
   parser.add_argument(
       '--steps', type=int, default=200, help='control steps per world'
@@ -111,10 +192,12 @@ def demo_parser():
 
 def demo(argv=None):
   """`mjx-composer demo`: runs a registered task with a random policy."""
+  _import_flagged(argv)
   parser = demo_parser()
   args = parser.parse_args(argv)
   if args.worlds < 1 or args.steps < 1 or args.chunk < 1:
     parser.error('--worlds, --steps and --chunk must be positive.')
+  metrics = registry.entry(args.task).metrics
   cache_dir = platform.configure(
       compilation_cache=False if args.no_compilation_cache else None
   )
@@ -146,12 +229,12 @@ def demo(argv=None):
   key = jax.random.key(args.seed)
   key, reset_key = jax.random.split(key)
   reset = jax.jit(jax.vmap(env.reset))
-  rollout = make_rollout(env, args.worlds, chunk)
+  rollout = make_rollout(env, args.worlds, chunk, tuple(metrics))
   totals = {
       'episodes': jnp.zeros((), jnp.int32),
       'return': jnp.zeros(()),
       'length': jnp.zeros((), jnp.int32),
-      'distance': jnp.zeros(()),
+      'metrics': {name: jnp.zeros(()) for name in metrics},
       'diverged': jnp.zeros(()),
       'init_failures': jnp.zeros(()),
   }
@@ -191,19 +274,18 @@ def demo(argv=None):
       f'{steps * env.n_sub_steps / elapsed:,.0f} physics steps/s.'
   )
   episodes = int(totals['episodes'])
-  distance = registry.entry(args.task).distance
   if episodes:
     print(
         f'Episodes finished: {episodes:,}; mean return '
         f'{float(totals["return"]) / episodes:.3f}, mean length '
-        f'{int(totals["length"]) / episodes:.1f} steps'
-        + (
-            f', mean final {distance} '
-            f'{float(totals["distance"]) / episodes:.3f} m.'
-            if distance
-            else '.'
-        )
+        f'{int(totals["length"]) / episodes:.1f} steps.'
     )
+    if metrics:
+      print("Metrics at the episodes' ends, mean:")
+      width = max(map(len, metrics))
+      for name, description in metrics.items():
+        mean = float(totals['metrics'][name]) / episodes
+        print(f'  {name:<{width}}  {mean:9.3f}  {description}')
   else:
     print('No episode finished: raise --steps or lower --time-limit.')
   print(f'Diverged worlds: {int(totals["diverged"])}.')
@@ -217,12 +299,14 @@ def demo(argv=None):
 
 def list_tasks(argv=None):
   """`mjx-composer list`: the registered tasks, one a line."""
-  argparse.ArgumentParser(
+  parser = argparse.ArgumentParser(
       prog='mjx-composer list',
       description=(
           'List the registered tasks (mjx_composer.suite.tasks.registry).'
       ),
-  ).parse_args(argv)
+  )
+  _add_import_flag(parser)
+  _import_modules(parser.parse_args(argv).imports)
   width = max(map(len, registry.names()), default=0)
   for name in registry.names():
     print(f'{name:<{width}}  {registry.describe(name)}'.rstrip())
@@ -239,11 +323,13 @@ usage: mjx-composer demo [--task NAME] [--worlds N] [--steps T] [--time-limit S]
                               --num-processes N --process-id I]
        mjx-composer play RUN [--worlds N] [--steps T] [--out DIR]
        mjx-composer export RUN --format onnx [--out FILE]
-'train --help' lists the settings and TASK's defaults."""
+'train --help' lists the settings and TASK's defaults. Every command takes
+--import MODULE (repeatable): a module that registers your own tasks."""
 
 
 def _error(message):
-  print(f'error: {message}', file=sys.stderr)
+  """Prints `error: message` on one line on stderr; returns the exit status."""
+  print(f'error: {" ".join(str(message).split())}', file=sys.stderr)
   return 2
 
 
@@ -269,12 +355,14 @@ def resolve_train_config(argv, create=True):
   front = argparse.ArgumentParser(add_help=False)
   for flag in ('--config', '--run-dir', '--resume'):
     front.add_argument(flag)
+  _add_import_flag(front)
   known, rest = front.parse_known_args(argv[1:] if task else argv)
   if known.resume:
     if known.run_dir:
       raise ValueError('--resume RUN continues RUN: leave out --run-dir.')
     run = run_folder.open_run(known.resume)
     base = saved = run.read_config()
+    imports = _import_modules(dict.fromkeys((*saved.imports, *known.imports)))
     if task is not None and task != saved.task:
       raise run_folder.RunFolderError(
           f'The run {known.resume!r} trains task {saved.task!r}, not '
@@ -287,8 +375,9 @@ def resolve_train_config(argv, create=True):
           'continue a run with --resume RUN.'
       )
     task = task or 'reach'
-    registry.entry(task)
+    imports = _import_modules(dict.fromkeys(known.imports))
     base = config_lib.defaults(task)
+  base = base.replace(imports=imports)
   if known.config:
     base = base.replace(**config_lib.load_file(known.config))
   config = config_lib.parse_flags(rest, base)
@@ -297,8 +386,10 @@ def resolve_train_config(argv, create=True):
         f'The task is the first argument ({base.task!r}); --task '
         f'{config.task!r} contradicts it.'
     )
+  _import_modules(config.imports)  # any given as --imports A B
   if known.resume:
-    trainer.check_resume_changes(saved, config)
+    # Modules imported anew are recorded; they change nothing trained.
+    trainer.check_resume_changes(saved, config.replace(imports=saved.imports))
     if config != saved and create:
       run.write_config(config)
     return config, run, True
@@ -396,12 +487,14 @@ def play(argv=None):
       action='store_true',
       help="don't read or write JAX's persistent compilation cache",
   )
+  _add_import_flag(parser)
   args = parser.parse_args(argv)
   cache_dir = platform.configure(
       compilation_cache=False if args.no_compilation_cache else None
   )
   print(f'Compilation cache: {cache_dir or "off"}.', flush=True)
   try:
+    _import_recorded(args.run, args.imports)
     result = play_lib.play(
         args.run,
         worlds=args.worlds,
@@ -452,8 +545,10 @@ def export(argv=None):
   parser.add_argument('run', help='the run folder')
   parser.add_argument('--format', choices=('onnx',), default='onnx')
   parser.add_argument('--out', default=None, help='default: RUN/policy.onnx')
+  _add_import_flag(parser)
   args = parser.parse_args(argv)
   try:
+    _import_recorded(args.run, args.imports)
     path, meta = export_lib.export_onnx(args.run, args.out)
   except (run_folder.RunFolderError, ValueError) as e:
     return _error(e)
@@ -467,7 +562,33 @@ def export(argv=None):
   return 0
 
 
+# The modules of the `train` extra (`pip install 'mjx-composer[train]'`).
+_TRAIN_EXTRA = frozenset(
+    ('brax', 'tyro', 'yaml', 'tensorboardX', 'imageio', 'imageio_ffmpeg')
+    + ('onnx', 'onnxruntime')
+)
+
+
+def _missing_extra(error):
+  """The `train` extra's module whose absence raised `error`, or None."""
+  while error is not None:
+    if isinstance(error, ModuleNotFoundError):
+      root = (error.name or '').partition('.')[0]
+      if root in _TRAIN_EXTRA:
+        return root
+    error = error.__cause__ or error.__context__
+  return None
+
+
 def main(argv=None):
+  """Runs `mjx-composer COMMAND ...`; returns the exit status.
+
+  A command's error (an unknown task, a module of `--import` that cannot
+  be imported, a missing optional dependency, a bad setting or run folder)
+  is one line on stderr, `error: ...`, and exit status 2. The installed
+  `mjx-composer` script exits with the status `main` returns; call it as
+  `sys.exit(cli.main([...]))` from a script.
+  """
   argv = list(sys.argv[1:] if argv is None else argv)
   if not argv or argv[0] not in _COMMANDS:
     print(_USAGE)
@@ -479,7 +600,20 @@ def main(argv=None):
       'play': play,
       'export': export,
   }[argv[0]]
-  return command(argv[1:])
+  try:
+    return command(argv[1:])
+  except (registry.UnknownTaskError, registry.TaskModuleError) as e:
+    return _error(e)
+  except ImportError as e:
+    missing = _missing_extra(e)
+    if missing is None:
+      raise
+    return _error(
+        f'mjx-composer {argv[0]} needs {missing}, which is not installed: '
+        "pip install 'mjx-composer[train]'."
+    )
+  except ValueError as e:
+    return _error(e)
 
 
 if __name__ == '__main__':

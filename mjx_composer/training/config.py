@@ -5,10 +5,10 @@ hyper-parameters, the networks, the environment, logging). A run's config is
 resolved in layers, each overriding the one before:
 
 1. the dataclass defaults (small settings that train the reach task);
-2. the task's defaults (`TASK_DEFAULTS`; `register_defaults` for your own
-   tasks): walk and joystick use MuJoCo Playground's PPO settings for
-   HumanoidWalk (`dm_control_suite_params`) and Go1JoystickFlatTerrain /
-   RoughTerrain (`locomotion_params`);
+2. the task's defaults, registered with it (`registry.register(...,
+   training=...)`, read by `defaults`): walk and joystick use MuJoCo
+   Playground's PPO settings for HumanoidWalk (`dm_control_suite_params`)
+   and Go1JoystickFlatTerrain / RoughTerrain (`locomotion_params`);
 3. a config file (`--config FILE`: JSON or YAML, a mapping of field names to
    values);
 4. command-line flags (`--learning-rate 1e-3`, `--policy-layers 64 64`,
@@ -35,6 +35,9 @@ class TrainConfig:
 
   task: str = 'reach'
   """Registered task name (`mjx-composer list`)."""
+  imports: tuple[str, ...] = ()
+  """Modules imported before the task is built, which register it (given
+  as --import MODULE; recorded, so play, export and --resume import them)."""
   num_timesteps: int = 10_000_000
   """Environment steps to train for (all worlds together)."""
   num_envs: int = 2048
@@ -101,92 +104,36 @@ class TrainConfig:
     return from_dict({**to_dict(self), **changes})
 
 
-# The base defaults are reach's; these override them per task. walk: MuJoCo
-# Playground's PPO config for HumanoidWalk (dm_control_suite_params);
-# joystick: its config for Go1JoystickFlatTerrain / RoughTerrain
-# (locomotion_params), whose critic sees the privileged state.
-TASK_DEFAULTS: dict[str, dict[str, Any]] = {
-    'walk': dict(
-        num_timesteps=60_000_000,
-        num_evals=10,
-        reward_scaling=10.0,
-        normalize=True,
-        time_limit=25.0,
-        unroll_length=30,
-        num_minibatches=32,
-        num_updates_per_batch=16,
-        discounting=0.995,
-        learning_rate=1e-3,
-        entropy_cost=1e-2,
-        num_envs=2048,
-        batch_size=1024,
-        init_noise_std=1.0,
-        policy_layers=(32, 32, 32, 32),
-        value_layers=(256, 256, 256, 256, 256),
-        video_steps=200,
-    ),
-    'joystick': dict(
-        num_timesteps=200_000_000,
-        num_evals=10,
-        reward_scaling=1.0,
-        normalize=True,
-        time_limit=20.0,
-        unroll_length=20,
-        num_minibatches=32,
-        num_updates_per_batch=4,
-        discounting=0.97,
-        learning_rate=3e-4,
-        entropy_cost=1e-2,
-        num_envs=8192,
-        batch_size=256,
-        max_grad_norm=1.0,
-        init_noise_std=1.0,
-        policy_layers=(512, 256, 128),
-        value_layers=(512, 256, 128),
-        critic_obs='critic',
-        video_steps=200,
-    ),
-}
-TASK_DEFAULTS['joystick_rough'] = dict(TASK_DEFAULTS['joystick'])
-# The Go1 on generated terrain: the joystick's settings (its critic sees the
-# clean height scan and the privileged state).
-TASK_DEFAULTS['joystick_terrain'] = dict(TASK_DEFAULTS['joystick'])
-# The humanoid on generated terrain: the walk's settings.
-TASK_DEFAULTS['walk_terrain'] = dict(TASK_DEFAULTS['walk'])
-
-
 def field_names() -> tuple[str, ...]:
   """`TrainConfig`'s field names, in declaration order."""
   return tuple(f.name for f in dataclasses.fields(TrainConfig))
 
 
-def register_defaults(task: str, **overrides) -> None:
-  """Sets a task's training defaults (e.g. for a task you registered).
+def defaults(task: str) -> TrainConfig:
+  """The config of `task` before any file or flag: its registered defaults.
 
-  Args:
-    task: the task's registered name.
-    **overrides: `TrainConfig` fields and their values for this task.
+  `TrainConfig`'s defaults overridden by the task's registry entry's
+  `training` (`registry.register(..., training=...)`).
 
   Raises:
-    ValueError: for a task that is not registered (register it first, with
-      `mjx_composer.suite.tasks.registry.register`), or a name that is not a
-      `TrainConfig` field.
+    UnknownTaskError: for a task that is not registered.
+    ValueError: for training defaults that are not `TrainConfig` fields or
+      values of the wrong kind, naming the task and the setting.
   """
-  if not isinstance(task, str) or task not in registry.names():
+  training = registry.entry(task).training
+  where = f'The training defaults of task {task!r} (registry.register)'
+  if 'task' in training or 'imports' in training:
     raise ValueError(
-        f'register_defaults: `task` {task!r} is not a registered task, so '
-        'no run would use these defaults. Register the task first '
-        '(mjx_composer.suite.tasks.registry.register('
-        f'{task!r}, make_task)), then its defaults; registered tasks: '
-        f'{", ".join(registry.names())}.'
+        f'{where}: leave out task and imports, which the run sets; got '
+        f'{sorted(set(training) & {"task", "imports"})}.'
     )
-  _check_keys(overrides, f'register_defaults({task!r}, ...)')
-  TASK_DEFAULTS[task] = dict(overrides)
-
-
-def defaults(task: str) -> TrainConfig:
-  """The config of `task` before any file or flag: its `TASK_DEFAULTS`."""
-  return from_dict({**TASK_DEFAULTS.get(task, {}), 'task': task})
+  try:
+    return from_dict({**training, 'task': task}, where=where)
+  except ValueError as e:
+    message = str(e)
+    raise ValueError(
+        message if message.startswith(where) else f'{where}: {message}'
+    ) from e
 
 
 def _check_keys(values: Mapping[str, Any], where: str) -> None:
@@ -210,7 +157,12 @@ def _convert(name: str, value, default):
     return value
   if isinstance(default, float) and isinstance(value, int):
     return float(value)
-  if isinstance(default, tuple):
+  if name == 'imports':
+    if not isinstance(value, tuple) or not all(
+        isinstance(v, str) and v for v in value
+    ):
+      raise ValueError(f'{name} must be a list of module names, got {value!r}.')
+  elif isinstance(default, tuple):
     if not isinstance(value, tuple) or not all(
         isinstance(v, int) and not isinstance(v, bool) for v in value
     ):
@@ -345,7 +297,8 @@ def parse_flags(
       prog=prog,
       description=(
           'Train a registered task with Brax PPO. Usage: mjx-composer train '
-          'TASK [--config FILE] [--run-dir DIR | --resume RUN] [settings]; '
+          'TASK [--import MODULE ...] [--config FILE] [--run-dir DIR | '
+          '--resume RUN] [settings]; '
           "settings' defaults below are TASK's."
       ),
   )

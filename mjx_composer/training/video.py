@@ -24,16 +24,11 @@ import numpy as np
 
 from mjx_composer.adapters import brax as brax_adapter
 from mjx_composer.host import rendering
+from mjx_composer.suite.tasks import registry
 
-# Cameras that follow the robot (MuJoCo's 'trackcom' mode); other tasks get
-# `FREE_CAMERA`, looking at the workspace.
-CAMERAS = {
-    'walk': 'humanoid/side',
-    'joystick': 'go1/tracking',
-    'joystick_rough': 'go1/tracking',
-    'joystick_terrain': 'go1/tracking',
-    'walk_terrain': 'humanoid/side',
-}
+# The camera of tasks whose registry entry names none, looking at the
+# workspace (a task's own camera, e.g. one following its robot in MuJoCo's
+# 'trackcom' mode, is its entry's `camera`).
 FREE_CAMERA = dict(
     distance=2.2, elevation=-25.0, azimuth=135.0, lookat=[0.0, 0.0, 0.25]
 )
@@ -162,7 +157,8 @@ def render_rollout(
 
   Args:
     env: the `Environment`.
-    task: the task's registered name (picks `CAMERAS[task]`).
+    task: the task's registered name (its entry's `camera`, else
+      `FREE_CAMERA`).
     states: `rollout`'s states (time axis first, then worlds).
     size: (height, width) of each world's image.
     camera: overrides the task's camera.
@@ -174,7 +170,7 @@ def render_rollout(
     even (as H.264 needs).
   """
   if camera is None:
-    camera = CAMERAS.get(task, FREE_CAMERA)
+    camera = registry.entry(task).camera or FREE_CAMERA
   fields = rendering.host_fields(states)
   steps, worlds = np.shape(fields['time'])
   columns = int(math.ceil(math.sqrt(worlds)))

@@ -235,6 +235,7 @@ def test_the_curriculum_moves_levels_after_an_episode(run):
 
 def test_registered_with_walks_training_defaults():
   assert 'walk_terrain' in registry.names()
-  assert config.TASK_DEFAULTS['walk_terrain'] == config.TASK_DEFAULTS['walk']
+  walk = config.defaults('walk')
+  assert config.defaults('walk_terrain') == walk.replace(task='walk_terrain')
   with pytest.raises(TypeError, match='height_scan'):
     walk_terrain.TerrainWalk(height_scan='yes')
