@@ -357,11 +357,11 @@ def test_settings_come_from_defaults_file_and_flags(tmp_path):
       '--policy-layers', '4',
   ])  # fmt: skip
   assert not resume
-  walk = config_lib.TASK_DEFAULTS['walk']
+  walk = registry.entry('walk').training
   assert config.learning_rate == 0.01  # the file over the task's default
   assert config.policy_layers == (4,)  # the flag over the file
   assert config.discounting == walk['discounting']  # the task's default
-  assert config.value_layers == walk['value_layers']
+  assert config.value_layers == tuple(walk['value_layers'])
   assert run.read_config() == config
   joystick = cli.resolve_train_config(
       ['joystick', '--run-dir', str(tmp_path / 'joystick')]
