@@ -27,7 +27,6 @@ from mjx_composer import cli
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.suite.tasks import registry
 from mjx_composer.training import checkpoints
-from mjx_composer.training import config as config_lib
 from mjx_composer.training import export as export_lib
 from mjx_composer.training import metrics as metrics_lib
 from mjx_composer.training import policy as policy_lib
