@@ -11,6 +11,7 @@ and evaluation programs, play's two rollouts): `--durations` reports it per
 task.
 """
 
+import json
 import os
 
 import jax
@@ -54,15 +55,20 @@ def test_trains_plays_with_its_camera_and_exports(
   checkpoint = checkpoints.latest(run)
   assert checkpoint.step == 8
 
-  # Play, its renders recorded: what they drew, and from where.
+  # Play, its renderers recorded: from where they drew, and what.
   renders = []
-  render = rendering.render
 
-  def recording_render(env, state, *args, **kwargs):
-    renders.append((env, state, kwargs))
-    return render(env, state, *args, **kwargs)
+  class RecordingRenderer(rendering.WorldRenderer):
 
-  monkeypatch.setattr(rendering, 'render', recording_render)
+    def __init__(self, env, height, width, **kwargs):
+      super().__init__(env, height, width, **kwargs)
+      self._record = (env, dict(height=height, width=width, **kwargs))
+
+    def render(self, state, *args, **kwargs):
+      renders.append((self._record[0], state, self._record[1]))
+      return super().render(state, *args, **kwargs)
+
+  monkeypatch.setattr(rendering, 'WorldRenderer', RecordingRenderer)
   out = str(tmp_path / 'videos')
   argv = ['play', path, '--worlds', '1', '--steps', '2', '--out', out]
   assert cli.main(argv) == 0
@@ -73,7 +79,9 @@ def test_trains_plays_with_its_camera_and_exports(
   assert played.shape[0] == 3  # the reset and 2 steps
   env, state, kwargs = renders[0]  # the deterministic video's first frame
   entry = registry.entry(task)
-  assert set(entry.metrics) <= set(state.metrics), sorted(state.metrics)
+  with open(os.path.join(out, f'play_step_{checkpoint.step:012d}.json')) as f:
+    reported = json.load(f)['modes']['deterministic']['metrics']
+  assert set(entry.metrics) <= set(reported), sorted(reported)
   if entry.camera is None:
     own = video.FREE_CAMERA
     other = dict(own, azimuth=own['azimuth'] + 90.0)
@@ -104,7 +112,9 @@ def test_trains_plays_with_its_camera_and_exports(
       .normal(size=(3, meta['observation_size']))
       .astype(np.float32)
   )
-  policy = policy_lib.make_policy(config, checkpoint, deterministic=True)
+  policy = policy_lib.make_inference(config, checkpoint)(
+      checkpoint.params, deterministic=True
+  )
   want = np.asarray(policy({'policy': obs}, jax.random.PRNGKey(0))[0])
   session = onnxruntime.InferenceSession(onnx_path)
   got = session.run(['action'], {'obs': obs})[0]
