@@ -147,6 +147,11 @@ def rollout(
   return jax.device_get(run(params, jax.random.PRNGKey(seed), mode))
 
 
+def task_camera(task: str):
+  """The camera videos of `task` are drawn from: its entry's, else `FREE_CAMERA`."""
+  return registry.entry(task).camera or FREE_CAMERA
+
+
 def render_rollout(
     env, task, states, size=(120, 160), camera=None, progress=None
 ):
@@ -170,7 +175,7 @@ def render_rollout(
     even (as H.264 needs).
   """
   if camera is None:
-    camera = registry.entry(task).camera or FREE_CAMERA
+    camera = task_camera(task)
   fields = rendering.host_fields(states)
   steps, worlds = np.shape(fields['time'])
   columns = int(math.ceil(math.sqrt(worlds)))
