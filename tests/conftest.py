@@ -1,6 +1,7 @@
 """Shared fixtures: small composed scenes compiled once per test session."""
 
 import collections
+import gc
 import json
 import os
 import shutil
@@ -54,6 +55,19 @@ def _optimized_compiles(request):
     yield
   finally:
     jax.config.update('jax_disable_most_optimizations', before)
+
+
+@pytest.fixture(scope='module', autouse=True)
+def _free_compiled_programs():
+  """Drops JAX's in-memory caches after each test module.
+
+  Without it an xdist worker holds every program and trace of every module
+  it ran: about 6 GB a worker by the end of a run. Programs that later
+  modules build again load from the persistent cache (above).
+  """
+  yield
+  jax.clear_caches()
+  gc.collect()
 
 
 # -- the cache's use, reported at the end of the run -------------------------
