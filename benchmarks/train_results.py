@@ -80,7 +80,7 @@ def write_json(path, data):
 def eval_row(step, metrics, wall_s, compile_s=0.0, previous=None):
   """One evaluation's row from Brax's `progress_fn(step, metrics)`.
 
-  `mjx_composer.training.metrics.eval_row`'s columns (step, wall_s: the
+  `mjx_composer.training.trainer.eval_row`'s columns (step, wall_s: the
   caller's clock, seconds since the start of `ppo.train`;
   train_walltime_s: Brax's training time, without evaluating or the resets
   between epochs, its first update compiling; env_steps_per_s: the env
@@ -95,9 +95,9 @@ def eval_row(step, metrics, wall_s, compile_s=0.0, previous=None):
   eval_walltime_s (Brax's total time spent evaluating so far, this
   evaluation included). In `ROW_FIELDS`' order.
   """
-  from mjx_composer.training import metrics as metrics_lib  # pylint: disable=g-import-not-at-top
+  from mjx_composer.training import trainer  # pylint: disable=g-import-not-at-top
 
-  row = metrics_lib.eval_row(step, metrics, wall_s, previous=previous)
+  row = trainer.eval_row(step, metrics, wall_s, previous=previous)
   row.update(
       compile_s=float(compile_s),
       train_sps=float(metrics.get('training/sps', 0.0)),

@@ -48,21 +48,9 @@ FALLBACK_EXTRA = {
 }
 # walk.Walk's default control timestep, Playground's ctrl_dt (seconds).
 _WALK_CONTROL_TIMESTEP = 0.025
-# `TrainConfig`'s field -> ppo.train's argument, for the entries both have.
-CONFIG_NAMES = {
-    'num_timesteps': 'num_timesteps',
-    'num_evals': 'num_evals',
-    'reward_scaling': 'reward_scaling',
-    'normalize': 'normalize_observations',
-    'unroll_length': 'unroll_length',
-    'num_minibatches': 'num_minibatches',
-    'num_updates_per_batch': 'num_updates_per_batch',
-    'discounting': 'discounting',
-    'learning_rate': 'learning_rate',
-    'entropy_cost': 'entropy_cost',
-    'num_envs': 'num_envs',
-    'batch_size': 'batch_size',
-}
+# `config.ppo_kwargs` entries that Playground's HumanoidWalk config leaves
+# to Brax's defaults (the rest are its hyper-parameters).
+NOT_PLAYGROUND = ('num_eval_envs', 'max_grad_norm', 'seed')
 # Command-line overrides of single hyper-parameters (flag dest = ppo name).
 OVERRIDES = (
     'num_timesteps',
@@ -100,10 +88,10 @@ def fallback_config():
   """Playground's config as `config.defaults('walk')` copies it."""
   from mjx_composer.training import config as config_lib  # pylint: disable=g-import-not-at-top
 
-  walk = config_lib.defaults('walk')
-  config = {ppo: getattr(walk, field) for field, ppo in CONFIG_NAMES.items()}
-  config.update(FALLBACK_EXTRA)
-  return config
+  config = config_lib.ppo_kwargs(config_lib.defaults('walk'))
+  for name in NOT_PLAYGROUND:
+    del config[name]
+  return {**config, **FALLBACK_EXTRA}
 
 
 def hyperparameters(args):
@@ -186,7 +174,11 @@ def ours_config(config):
 
   return config_lib.defaults('walk').replace(
       time_limit=config['episode_length'] * _WALK_CONTROL_TIMESTEP,
-      **{field: config[ppo] for field, ppo in CONFIG_NAMES.items()},
+      **{
+          field: config[ppo]
+          for field, ppo in config_lib.PPO_ARGUMENTS.items()
+          if ppo in config
+      },
   )
 
 
@@ -225,6 +217,7 @@ def _ours_setup(name, config, args):
   """
   # pylint: disable=g-import-not-at-top
   from mjx_composer.adapters import brax as brax_adapter
+  from mjx_composer.training import config as config_lib
   from mjx_composer.training import policy
   # pylint: enable=g-import-not-at-top
 
@@ -237,14 +230,11 @@ def _ours_setup(name, config, args):
         f'{name}: episodes of {brax_env.episode_length} steps, Playground '
         f'{config["episode_length"]}.'
     )
-  kwargs = {
-      ppo: getattr(train_config, field) for field, ppo in CONFIG_NAMES.items()
-  }
+  kwargs = config_lib.ppo_kwargs(train_config)
   kwargs.update(
       # What TrainConfig has no field for, as Playground trains.
       num_resets_per_eval=config['num_resets_per_eval'],
       action_repeat=config['action_repeat'],
-      max_grad_norm=train_config.max_grad_norm,
       network_factory=policy.network_factory(train_config),
       **brax_adapter.training_kwargs(brax_env),
   )

@@ -8,7 +8,8 @@ MuJoCo Playground's training scripts: the task's environment from the
 registry, made a Brax `Env` by `mjx_composer.adapters.brax`
 (`mjx_composer.training.policy.make_environment`); the task's training
 settings (`mjx_composer.training.config.defaults(task)`: Playground's PPO
-settings for walk and joystick); Brax's PPO networks for them
+settings for walk and joystick, as `ppo.train`'s arguments by
+`config.ppo_kwargs`); Brax's PPO networks for them
 (`training.policy.network_factory`: the policy sees the 'policy'
 observation group, the critic the config's `critic_obs`); and Brax's
 `ppo.train`, unchanged, on one device. Each evaluation is printed; the
@@ -93,22 +94,8 @@ def train(config, out):
 
   make_policy, params, _ = ppo.train(
       environment=brax_env,
-      num_timesteps=config.num_timesteps,
-      num_evals=config.num_evals,
-      num_envs=config.num_envs,
-      batch_size=config.batch_size,
-      num_minibatches=config.num_minibatches,
-      unroll_length=config.unroll_length,
-      num_updates_per_batch=config.num_updates_per_batch,
-      learning_rate=config.learning_rate,
-      entropy_cost=config.entropy_cost,
-      discounting=config.discounting,
-      reward_scaling=config.reward_scaling,
-      max_grad_norm=config.max_grad_norm,
-      normalize_observations=config.normalize,
-      num_eval_envs=config.num_eval_envs,
+      **config_lib.ppo_kwargs(config),  # the task's hyper-parameters
       deterministic_eval=True,
-      seed=config.seed,
       max_devices_per_host=1,
       network_factory=network_factory,
       progress_fn=progress,

@@ -319,9 +319,10 @@ usage: mjx-composer demo [--task NAME] [--worlds N] [--steps T] [--time-limit S]
        mjx-composer list                       (the task names)
        mjx-composer train TASK [--config FILE] [--run-dir DIR] [--SETTING VALUE ...]
        mjx-composer train --resume RUN [--num-timesteps N ...]
-         either on each host: --distributed [--coordinator HOST:PORT
-                              --num-processes N --process-id I]
-       mjx-composer play RUN [--worlds N] [--steps T] [--out DIR]
+         on each host of a cluster: --distributed [--coordinator HOST:PORT
+                                    --num-processes N --process-id I]
+       mjx-composer play RUN [--worlds N] [--steps T] [--seed K] [--out DIR]
+                             [--no-video] [--no-compilation-cache]
        mjx-composer export RUN --format onnx [--out FILE]
 'train --help' lists the settings and TASK's defaults. Every command takes
 --import MODULE (repeatable): a module that registers your own tasks."""
@@ -336,19 +337,13 @@ def _error(message):
 def resolve_train_config(argv, create=True):
   """`(config, run folder, resume)` of `mjx-composer train` arguments.
 
-  The settings are resolved in layers: the task's defaults (or, with
-  `--resume RUN`, the run's config), then `--config FILE`, then the flags.
-  A new run's folder is created (`--run-dir`, default `runs/<task>_<time>`)
-  unless `create` is False (processes but the first of a distributed run).
-
-  Raises:
-    RunFolderError, ValueError: for an unknown task, a bad config file or
-      setting, or a run folder that cannot be created or resumed.
+  The task's defaults (or `--resume RUN`'s config), then `--config FILE`,
+  then the flags; a new run's folder is created (`--run-dir`, default
+  `runs/<task>_<time>`) unless `create` is False.
   """
   # pylint: disable=g-import-not-at-top
   from mjx_composer.training import config as config_lib
   from mjx_composer.training import run_folder
-  from mjx_composer.training import trainer
   # pylint: enable=g-import-not-at-top
 
   task = argv[0] if argv and not argv[0].startswith('-') else None
@@ -389,123 +384,98 @@ def resolve_train_config(argv, create=True):
   _import_modules(config.imports)  # any given as --imports A B
   if known.resume:
     # Modules imported anew are recorded; they change nothing trained.
-    trainer.check_resume_changes(saved, config.replace(imports=saved.imports))
+    old, new = config_lib.to_dict(saved), config_lib.to_dict(config)
+    fixed = old.keys() - config_lib.RESUMABLE - {'imports'}
+    if changed := sorted(k for k in fixed if old[k] != new[k]):
+      raise run_folder.RunFolderError(
+          f'A resumed run keeps its settings; {changed} differ from the run '
+          f"folder's config. Only {sorted(config_lib.RESUMABLE)} may change."
+      )
     if config != saved and create:
       run.write_config(config)
     return config, run, True
-  path = known.run_dir or run_folder.default_path(task)
+  path = known.run_dir or f'runs/{task}_{time.strftime("%Y%m%d_%H%M%S")}'
   if not create:
     return config, run_folder.RunFolder(path), False
   return config, run_folder.create(path, config), False
 
 
-def _join_cluster(argv):
-  """`argv` less `--distributed` and its options, after joining the cluster.
+def train(argv=None):
+  """`mjx-composer train`: trains a registered task into a run folder.
 
   `--distributed` calls `jax.distributed.initialize` before anything touches
-  JAX's devices: its coordinator, process count and process id from
-  `--coordinator`, `--num-processes` and `--process-id` where given, else
-  as JAX finds them (SLURM, Open MPI, `JAX_COORDINATOR_ADDRESS`, ...).
+  JAX's devices, with `--coordinator`, `--num-processes` and `--process-id`
+  where given, else as JAX finds them (SLURM, Open MPI, environment).
   """
+  from mjx_composer.training import trainer  # pylint: disable=g-import-not-at-top
+
   parser = argparse.ArgumentParser(add_help=False)
   parser.add_argument('--distributed', action='store_true')
   parser.add_argument('--coordinator')
   parser.add_argument('--num-processes', type=int)
   parser.add_argument('--process-id', type=int)
-  known, rest = parser.parse_known_args(argv)
-  options = (known.coordinator, known.num_processes, known.process_id)
-  if any(x is not None for x in options) and not known.distributed:
+  cluster, argv = parser.parse_known_args(argv or [])
+  options = (cluster.coordinator, cluster.num_processes, cluster.process_id)
+  if not cluster.distributed and options != (None, None, None):
     raise ValueError(
         '--coordinator, --num-processes and --process-id join a distributed '
         'run: pass --distributed too.'
     )
-  if known.distributed:
-    try:
+  try:
+    if cluster.distributed:
       jax.distributed.initialize(*options)
-    except (ValueError, RuntimeError) as e:
-      raise ValueError(
-          f'--distributed could not join the processes ({e}). Pass a '
-          "coordinator address whose port is free on process 0's host; "
-          'outside SLURM and Open MPI, pass --coordinator HOST:PORT '
-          '--num-processes N --process-id I on every host.'
-      ) from e
-  return rest
-
-
-def train(argv=None):
-  """`mjx-composer train`: trains a registered task into a run folder."""
-  # pylint: disable=g-import-not-at-top
-  from mjx_composer.training import run_folder
-  from mjx_composer.training import trainer
-  # pylint: enable=g-import-not-at-top
-
-  try:
-    argv = _join_cluster(list(argv or []))
-    # Process 0 alone writes the run folder.
-    create = not jax.distributed.is_initialized() or jax.process_index() == 0
-    config, run, resume = resolve_train_config(argv, create)
-  except (run_folder.RunFolderError, ValueError, KeyError) as e:
-    return _error(e.args[0] if e.args else e)
-  try:
-    trainer.train(config, run, resume=resume)
-  except (run_folder.RunFolderError, ValueError) as e:
-    return _error(e)
+  except (ValueError, RuntimeError) as e:
+    raise ValueError(
+        f'--distributed could not join the processes ({e}). Pass a '
+        "coordinator address whose port is free on process 0's host; "
+        'outside SLURM and Open MPI, pass --coordinator HOST:PORT '
+        '--num-processes N --process-id I on every host.'
+    ) from e
+  # Process 0 alone writes the run folder.
+  create = not jax.distributed.is_initialized() or jax.process_index() == 0
+  trainer.train(*resolve_train_config(argv, create))
   return 0
+
+
+def _run_parser(command, description, out_help):
+  """The parser of `play` and `export`: a run folder, --out, --import."""
+  parser = argparse.ArgumentParser(f'mjx-composer {command}', None, description)
+  parser.add_argument('run', help='the run folder')
+  parser.add_argument('--out', help=out_help)
+  _add_import_flag(parser)
+  return parser
 
 
 def play(argv=None):
   """`mjx-composer play RUN`: videos, episode statistics and metrics."""
-  # pylint: disable=g-import-not-at-top
-  from mjx_composer.training import play as play_lib
-  from mjx_composer.training import run_folder
-  # pylint: enable=g-import-not-at-top
+  from mjx_composer.training import video  # pylint: disable=g-import-not-at-top
 
-  parser = argparse.ArgumentParser(
-      prog='mjx-composer play',
-      description=(
-          "Run a trained run's newest policy, deterministic and sampled, and "
-          'zero actions as a baseline, from the same reset; write a video '
-          'of each policy run (the worlds tiled), print episode statistics '
-          "and the task's metrics (mean per world and step) and write them "
-          'to play_step_<STEP>.json.'
-      ),
+  parser = _run_parser(
+      'play',
+      "Run a run's newest policy, deterministic and sampled, and zero "
+      'actions as a baseline, from the same reset; write a video of each '
+      "policy run (the worlds tiled); print the episode statistics and task's "
+      'metrics (mean per world and step), also written to '
+      'play_step_<STEP>.json.',
+      'default: RUN/videos',
   )
-  parser.add_argument('run', help='the run folder')
   parser.add_argument('--worlds', type=int, default=4)
-  parser.add_argument(
-      '--steps', type=int, default=None, help='default: one episode'
-  )
-  parser.add_argument('--out', default=None, help='default: RUN/videos')
+  parser.add_argument('--steps', type=int, help='default: one episode')
   parser.add_argument('--seed', type=int, default=1)
-  parser.add_argument(
-      '--no-video',
-      action='store_true',
-      help='statistics and metrics only: no rendering, no OpenGL needed',
-  )
-  parser.add_argument(
-      '--no-compilation-cache',
-      action='store_true',
-      help="don't read or write JAX's persistent compilation cache",
-  )
-  _add_import_flag(parser)
+  for flag, text in (
+      ('--no-video', 'statistics and metrics only: no rendering, no OpenGL'),
+      ('--no-compilation-cache', "don't use JAX's compilation cache"),
+  ):
+    parser.add_argument(flag, action='store_true', help=text)
   args = parser.parse_args(argv)
-  cache_dir = platform.configure(
-      compilation_cache=False if args.no_compilation_cache else None
-  )
-  print(f'Compilation cache: {cache_dir or "off"}.', flush=True)
-  try:
-    _import_recorded(args.run, args.imports)
-    result = play_lib.play(
-        args.run,
-        worlds=args.worlds,
-        steps=args.steps,
-        out=args.out,
-        seed=args.seed,
-        render=not args.no_video,
-        verbose=True,
-    )
-  except (run_folder.RunFolderError, ValueError) as e:
-    return _error(e)
+  off = args.no_compilation_cache
+  cache = platform.configure(compilation_cache=False if off else None)
+  print(f'Compilation cache: {cache or "off"}.', flush=True)
+  _import_recorded(args.run, args.imports)
+  result = video.play(
+      args.run, args.worlds, args.steps, args.out, args.seed,
+      render=not args.no_video, verbose=True,
+  )  # fmt: skip
   for mode, stats in result.items():
     line = (
         f'{mode:<14} step {stats["step"]:,}: {stats["episodes"]} episodes '
@@ -519,43 +489,31 @@ def play(argv=None):
     print(line + (f'; video {stats["video"]}' if 'video' in stats else ''))
   print('Metrics (mean per world and step):')
   print(f'{"metric":<24}' + ''.join(f'{mode:>15}' for mode in result))
-  for name in next(iter(result.values()))['metrics']:
-    print(
-        f'{name:<24}'
-        + ''.join(f'{s["metrics"][name]:>15.4g}' for s in result.values())
-    )
+  for name in result['zero']['metrics']:
+    values = (f'{s["metrics"][name]:>15.4g}' for s in result.values())
+    print(f'{name:<24}' + ''.join(values))
   return 0
 
 
 def export(argv=None):
   """`mjx-composer export RUN --format onnx`: the policy for deployment."""
-  # pylint: disable=g-import-not-at-top
-  from mjx_composer.training import export as export_lib
-  from mjx_composer.training import run_folder
-  # pylint: enable=g-import-not-at-top
+  from mjx_composer.training import export as export_lib  # pylint: disable=g-import-not-at-top
 
-  parser = argparse.ArgumentParser(
-      prog='mjx-composer export',
-      description=(
-          "Write a run's newest deterministic policy as ONNX, with metadata "
-          '(observation names, shapes and order, action bounds, control '
-          'timestep, default joint positions).'
-      ),
+  parser = _run_parser(
+      'export',
+      "Write a run's newest deterministic policy as ONNX, with metadata "
+      '(observation names, shapes and order, action bounds, control '
+      'timestep, default joint positions).',
+      'default: RUN/policy.onnx',
   )
-  parser.add_argument('run', help='the run folder')
   parser.add_argument('--format', choices=('onnx',), default='onnx')
-  parser.add_argument('--out', default=None, help='default: RUN/policy.onnx')
-  _add_import_flag(parser)
   args = parser.parse_args(argv)
-  try:
-    _import_recorded(args.run, args.imports)
-    path, meta = export_lib.export_onnx(args.run, args.out)
-  except (run_folder.RunFolderError, ValueError) as e:
-    return _error(e)
+  _import_recorded(args.run, args.imports)
+  path, meta = export_lib.export_onnx(args.run, args.out)
+  names = ', '.join(meta['observation_names'])
   print(
       f'Wrote {path}: observation {meta["observation_group"]!r} '
-      f'({meta["observation_size"]} values: '
-      f'{", ".join(meta["observation_names"])}) -> '
+      f'({meta["observation_size"]} values: {names}) -> '
       f'{meta["action_size"]} actions, control timestep '
       f'{meta["control_timestep"]:g}s.'
   )
@@ -564,8 +522,8 @@ def export(argv=None):
 
 # The modules of the `train` extra (`pip install 'mjx-composer[train]'`).
 _TRAIN_EXTRA = frozenset(
-    ('brax', 'tyro', 'yaml', 'tensorboardX', 'imageio', 'imageio_ffmpeg')
-    + ('onnx', 'onnxruntime')
+    'brax tyro yaml tensorboardX imageio imageio_ffmpeg onnx '
+    'onnxruntime'.split()
 )
 
 

@@ -51,6 +51,8 @@ def test_usage_without_command(capsys):
   assert 'usage' in out
   for command in ('demo', 'list', 'train', 'play', 'export'):
     assert f'mjx-composer {command}' in out
+  play = out[out.index('mjx-composer play') : out.index('mjx-composer export')]
+  assert '--no-video' in play and '--seed' in play
 
 
 def test_train_help_lists_the_settings_with_the_tasks_defaults(capsys):
@@ -61,6 +63,10 @@ def test_train_help_lists_the_settings_with_the_tasks_defaults(capsys):
   out = ' '.join(capsys.readouterr().out.replace('│', ' ').split())
   assert '--learning-rate' in out and '--policy-layers' in out
   assert '(default: 0.995)' in out  # walk's discount, not reach's 0.95
+  # The flags that join a distributed run, parsed before the settings.
+  for flag in ['--distributed', '--coordinator HOST:PORT']:
+    assert flag in out
+  assert '--num-processes N --process-id I' in out
 
 
 def test_list_prints_every_registered_task_on_its_own_line(capsys):

@@ -1,19 +1,10 @@
 """A trained policy as an ONNX model, with what a deployment needs to know.
 
-`export_onnx(run)` writes the run's newest deterministic policy as an ONNX
-graph built with the `onnx` package from the checkpoint's parameters:
-Brax's PPO policy is observation normalization (when the run normalized),
-an MLP of dense layers with swish activations, and the tanh of the action
-distribution's mean. Input `obs`: the 'policy' observation group, float32
-`(batch, D)`; output `action`: float32 `(batch, actions)` in [-1, 1], the
-environment's action.
-
-The model's metadata (`metadata_props`, each value JSON) says how to feed
-and read it: the observation group's observables in order with their
-shapes, the action bounds and how actions map onto them, the control
-timestep, the robot's default joint positions where it has them
-(`home_joint_positions`), the task, the step trained and the exporter's
-format version.
+`export_onnx(run)` writes the newest deterministic policy, built with the
+`onnx` package from the checkpoint: observation normalization (when the run
+normalized), the MLP (swish activations) and the tanh of the action
+distribution's mean; input `obs`, the 'policy' group `(batch, D)`, output
+`action` `(batch, actions)`, float32, and its `metadata` as JSON values.
 """
 
 from __future__ import annotations
@@ -25,68 +16,35 @@ import os
 import numpy as np
 
 from mjx_composer.observation import updater as updater_lib
-from mjx_composer.training import checkpoints
 from mjx_composer.training import policy as policy_lib
-from mjx_composer.training import run_folder
 
 FORMAT = 1
-
-
-def observation_layout(env, group: str = policy_lib.POLICY_GROUP):
-  """`[(observable name, shape)]` of a flat observation group, in order.
-
-  Rebuilds the environment's observation updater with the group unflattened
-  (observation shapes only: nothing is computed) and reads its specs.
-
-  Raises:
-    ValueError: if the task has no such group, or the layout does not add
-      up to the group's size.
-  """
-  task = env.task
-  task_groups = task.observation_groups() or {}
-  if group not in task_groups:
-    raise ValueError(
-        f'Task {type(task).__name__} has no observation group {group!r} '
-        f'(it has {sorted(task_groups)}).'
-    )
-  unflat = {group: dataclasses.replace(task_groups[group], flatten=False)}
-  updater = updater_lib.Updater(
-      task.observables,
-      env.n_sub_steps,
-      groups=unflat,
-      physics=env.initial_physics(),
-  )
-  spec = updater.observation_spec()[group]
-  layout = [(name, tuple(int(d) for d in s.shape)) for name, s in spec.items()]
-  size = sum(int(np.prod(shape)) for _, shape in layout)
-  want = env.observation_spec()[group].shape[-1]
-  if size != want:
-    raise ValueError(
-        f'The observation group {group!r} has {want} values, its observables '
-        f'{size}: the environment was built with other groups than the '
-        "task's."
-    )
-  return layout
-
-
-def _default_joint_positions(env):
-  for entity in env.task.root_entity.iter_entities():
-    home = getattr(entity, 'home_joint_positions', None)
-    if home is not None:
-      return [float(x) for x in np.asarray(home).ravel()]
-  return None
+_GROUP = policy_lib.POLICY_GROUP
 
 
 def metadata(env, config, checkpoint) -> dict:
   """The ONNX model's metadata: `{key: JSON-ready value}`."""
+  # The 'policy' group's observables in order: the observation updater's
+  # specs with the group unflattened (shapes only: nothing is computed).
+  group = env.task.observation_groups()[_GROUP]
+  updater = updater_lib.Updater(
+      env.task.observables,
+      env.n_sub_steps,
+      groups={_GROUP: dataclasses.replace(group, flatten=False)},
+      physics=env.initial_physics(),
+  )
+  spec = updater.observation_spec()[_GROUP]
+  layout = [(name, tuple(int(d) for d in s.shape)) for name, s in spec.items()]
   spec = env.action_spec()
-  layout = observation_layout(env)
+  entities = env.task.root_entity.iter_entities()
+  homes = [getattr(e, 'home_joint_positions', None) for e in entities]
+  homes = [np.ravel(h).astype(float).tolist() for h in homes if h is not None]
   return {
       'format': FORMAT,
       'producer': 'mjx_composer',
       'task': config.task,
       'step': int(checkpoint.step),
-      'observation_group': policy_lib.POLICY_GROUP,
+      'observation_group': _GROUP,
       'observation_names': [name for name, _ in layout],
       'observation_shapes': [list(shape) for _, shape in layout],
       'observation_size': int(sum(np.prod(s) for _, s in layout)),
@@ -99,128 +57,71 @@ def metadata(env, config, checkpoint) -> dict:
           "environment's step as it is (no rescaling)"
       ),
       'control_timestep': float(env.control_timestep()),
-      'default_joint_positions': _default_joint_positions(env),
+      'default_joint_positions': homes[0] if homes else None,
   }
 
 
 def policy_graph(config, checkpoint):
   """The deterministic policy as an `onnx.ModelProto` (no metadata)."""
   import onnx  # pylint: disable=g-import-not-at-top
-  from onnx import helper  # pylint: disable=g-import-not-at-top
-  from onnx import numpy_helper  # pylint: disable=g-import-not-at-top
+  from onnx import helper, numpy_helper  # pylint: disable=g-import-not-at-top,g-multiple-import
 
   normalizer, policy_params, _ = checkpoint.params
   layers = policy_params['params']
-  names = sorted(layers, key=lambda n: int(n.split('_')[-1]))
-  if (
-      names != [f'hidden_{i}' for i in range(len(names))]
-      or len(names) != len(config.policy_layers) + 1
-  ):
-    raise ValueError(
-        f'The policy parameters ({list(layers)}) are not the MLP that '
-        f'policy_layers={config.policy_layers} gives: cannot export.'
-    )
-  size = int(checkpoint.observation_size[policy_lib.POLICY_GROUP][-1])
-  actions = int(checkpoint.action_size)
+  names = [f'hidden_{i}' for i in range(len(config.policy_layers) + 1)]
+  if sorted(layers) != sorted(names):
+    raise ValueError(f'Policy parameters {list(layers)}: not the MLP exported.')
   nodes, inits = [], []
 
-  def const(name, value):
-    inits.append(numpy_helper.from_array(np.asarray(value, np.float32), name))
-    return name
+  def node(op, *inputs, consts=(), dtype=np.float32, out=None):
+    """Appends `op(*inputs, *consts)` to the graph; returns its output."""
+    out = out or f'{op}_{len(nodes)}'
+    for i, value in enumerate(consts):
+      inputs += (f'{out}/{i}',)
+      array = np.asarray(value, dtype)
+      inits.append(numpy_helper.from_array(array, inputs[-1]))
+    nodes.append(helper.make_node(op, list(inputs), [out]))
+    return out
 
   x = 'obs'
   if config.normalize:
-    mean = np.asarray(normalizer.mean[policy_lib.POLICY_GROUP])
-    std = np.asarray(normalizer.std[policy_lib.POLICY_GROUP])
-    nodes.append(helper.make_node('Sub', [x, const('obs_mean', mean)], ['c']))
-    nodes.append(
-        helper.make_node('Div', ['c', const('obs_std', std)], ['normalized'])
-    )
-    x = 'normalized'
+    x = node('Sub', x, consts=[normalizer.mean[_GROUP]])
+    x = node('Div', x, consts=[normalizer.std[_GROUP]])
   for i, name in enumerate(names):
-    kernel = const(f'{name}/kernel', layers[name]['kernel'])
-    bias = const(f'{name}/bias', layers[name]['bias'])
-    nodes.append(helper.make_node('MatMul', [x, kernel], [f'{name}/mm']))
-    nodes.append(helper.make_node('Add', [f'{name}/mm', bias], [f'{name}/out']))
-    x = f'{name}/out'
+    x = node('MatMul', x, consts=[layers[name]['kernel']])
+    x = node('Add', x, consts=[layers[name]['bias']])
     if i < len(names) - 1:  # swish(x) = x * sigmoid(x)
-      nodes.append(helper.make_node('Sigmoid', [x], [f'{name}/sig']))
-      nodes.append(helper.make_node('Mul', [x, f'{name}/sig'], [f'{name}/act']))
-      x = f'{name}/act'
+      x = node('Mul', x, node('Sigmoid', x))
   # The distribution's parameters are [mean, scale]: the action is tanh(mean).
-  nodes.append(
-      helper.make_node(
-          'Slice',
-          [
-              x,
-              const_int(inits, 'starts', [0]),
-              const_int(inits, 'ends', [actions]),
-              const_int(inits, 'axes', [1]),
-          ],
-          ['mean'],
-      )
-  )
-  nodes.append(helper.make_node('Tanh', ['mean'], ['action']))
-  graph = helper.make_graph(
-      nodes,
-      'policy',
-      [
-          helper.make_tensor_value_info(
-              'obs', onnx.TensorProto.FLOAT, ['batch', size]
-          )
-      ],
-      [
-          helper.make_tensor_value_info(
-              'action', onnx.TensorProto.FLOAT, ['batch', actions]
-          )
-      ],
-      initializer=inits,
-  )
+  actions = int(checkpoint.action_size)
+  x = node('Slice', x, consts=[[0], [actions], [1]], dtype=np.int64)
+  node('Tanh', x, out='action')
+  size = int(checkpoint.observation_size[_GROUP][-1])
+  inputs, outputs = [
+      [helper.make_tensor_value_info(n, onnx.TensorProto.FLOAT, ['batch', d])]
+      for n, d in (('obs', size), ('action', actions))
+  ]
+  graph = helper.make_graph(nodes, 'policy', inputs, outputs, inits)
+  opset = [helper.make_opsetid('', 17)]
   model = helper.make_model(
-      graph,
-      producer_name='mjx_composer',
-      opset_imports=[helper.make_opsetid('', 17)],
+      graph, producer_name='mjx_composer', opset_imports=opset
   )
   onnx.checker.check_model(model)
   return model
 
 
-def const_int(inits, name, values):
-  from onnx import numpy_helper  # pylint: disable=g-import-not-at-top
-
-  inits.append(numpy_helper.from_array(np.asarray(values, np.int64), name))
-  return name
-
-
 def export_onnx(run_path: str, out: str | None = None) -> tuple[str, dict]:
-  """Writes the run's newest policy as ONNX; returns `(path, metadata)`.
+  """Writes the run's newest policy as ONNX (default: `RUN/policy.onnx`).
 
-  Args:
-    run_path: the run folder.
-    out: the file to write (default: `RUN/policy.onnx`).
-
-  Raises:
-    RunFolderError: for a missing or corrupted run folder or checkpoint.
-    ImportError: without the `onnx` package (the `train` extra).
+  Returns `(path, metadata)`; raises RunFolderError (`policy.load`).
   """
-  try:
-    import onnx  # pylint: disable=g-import-not-at-top
-  except ImportError as e:
-    raise ImportError(
-        "ONNX export needs onnx: pip install 'mjx-composer[train]'."
-    ) from e
-  run = run_folder.open_run(run_path)
-  config = run.read_config()
-  checkpoint = checkpoints.latest(run)
-  env, brax_env = policy_lib.make_environment(config)
-  checkpoints.check_compatible(
-      checkpoint, config.task, brax_env.observation_size, brax_env.action_size
-  )
+  import onnx  # pylint: disable=g-import-not-at-top
+
+  run, config, checkpoint, env, _ = policy_lib.load(run_path)
   model = policy_graph(config, checkpoint)
   meta = metadata(env, config, checkpoint)
   for key, value in meta.items():
-    entry = model.metadata_props.add()
-    entry.key, entry.value = key, json.dumps(value)
+    model.metadata_props.add(key=key, value=json.dumps(value))
   path = out or run.join('policy.onnx')
   os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
   onnx.save(model, path)
@@ -231,5 +132,4 @@ def read_metadata(path: str) -> dict:
   """The metadata of an exported model, values decoded from JSON."""
   import onnx  # pylint: disable=g-import-not-at-top
 
-  model = onnx.load(path)
-  return {p.key: json.loads(p.value) for p in model.metadata_props}
+  return {p.key: json.loads(p.value) for p in onnx.load(path).metadata_props}

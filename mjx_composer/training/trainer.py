@@ -1,36 +1,17 @@
 """Trains a run with Brax's PPO, unchanged, and fills its run folder.
 
-`train(config, run)` starts a new run; `train(config, run, resume=True)`
-continues the run from its newest checkpoint:
-
-* the step count continues (Brax counts from 0 again; every step this module
-  reports, writes and saves is the run's, Brax's plus the checkpoint's);
-* the normalizer and the policy and value parameters are the checkpoint's
-  (Brax's `restore_params`); Adam's moments and count start fresh, since
-  Brax's public API neither hands them out nor takes them back;
-* evaluations stay at the same steps: the resumed `ppo.train` is given the
-  remaining evaluations times the run's steps per evaluation;
-* the environments start new episodes and Brax's keys derive from
-  `seed + evaluations so far`, so the learning curve continues within noise,
-  not bit for bit. Brax's evaluation of the restored policy before training
-  is not logged (the checkpoint's step has one).
-
-A run that stopped before its first evaluation has no checkpoint: resuming
-it trains it again from step 0, its metrics cleared.
-
-After each evaluation the run gets a checkpoint (`checkpoints`: the latest
-and the best are kept), a `metrics.csv` row and TensorBoard scalars
-(`metrics.MetricsWriter`), and every `video_every` evaluations a video of
-the deterministic policy (`video`); at the end a `summary.json`, with the
-time to the first evaluation that reached `target_return` where one is set.
-
-In several processes (`jax.distributed`, joined before this runs), every
-process trains its share of the worlds on its local devices, and process 0,
-which Brax alone evaluates and reports to, writes the run folder.
+`train(config, run, resume=False)` starts a run, or continues it from its
+newest checkpoint (docs/training.md). Each evaluation adds a checkpoint, a
+`metrics.csv` row (`eval_row`), TensorBoard and W&B scalars and, every
+`video_every`, a video; the end `summary.json`. In several processes, each
+trains its share of the worlds; process 0, which Brax alone evaluates and
+reports to, writes the run folder.
 """
 
 from __future__ import annotations
 
+import contextlib
+import csv
 import math
 import os
 import shutil
@@ -46,126 +27,112 @@ from mjx_composer.platform import internals_jax
 from mjx_composer.platform import partitioner
 from mjx_composer.training import checkpoints
 from mjx_composer.training import config as config_lib
-from mjx_composer.training import metrics as metrics_lib
 from mjx_composer.training import policy as policy_lib
 from mjx_composer.training import run_folder
 from mjx_composer.training import video
 
-# How long processes wait for process 0's first evaluation (its compile).
-_START_TIMEOUT_S = 3600.0
-
-# What a resumed run may change; the rest would change what it trains.
-RESUMABLE = frozenset(
-    {
-        'num_timesteps',
-        'devices',
-        'video_every',
-        'video_worlds',
-        'video_steps',
-        'video_size',
-        'tensorboard',
-        'wandb',
-        'compilation_cache',
-        'target_return',
-    }
-)
+CSV_FIELDS = (
+    'step wall_s eval_return eval_return_std eval_episode_length '
+    'env_steps_per_s train_walltime_s'
+).split()
 
 
-def steps_per_evaluation(config: config_lib.TrainConfig) -> int:
-  """Environment steps between two evaluations, as Brax's `ppo.train` runs.
+def eval_row(step, metrics, wall_s, previous=None, walltime_offset=0.0):
+  """One evaluation's CSV row from Brax's `progress_fn(step, metrics)`.
 
-  Brax trains `ceil(num_timesteps / (evaluations x steps per update))`
-  updates per evaluation, each `batch_size x num_minibatches x
-  unroll_length` steps, for `max(num_evals - 1, 1)` evaluations.
+  `env_steps_per_s`: env steps since `previous` (the row before) over Brax's
+  training time, without evaluations (Brax's `training/sps` overstates it).
   """
-  per_update = config.batch_size * config.num_minibatches * config.unroll_length
-  evaluations = max(config.num_evals - 1, 1)
-  updates = math.ceil(config.num_timesteps / (evaluations * per_update))
-  return updates * per_update
+  walltime = float(metrics.get('training/walltime', 0.0)) + walltime_offset
+  rate = 0.0
+  if previous is not None and walltime > previous['train_walltime_s']:
+    seconds = walltime - previous['train_walltime_s']
+    rate = (int(step) - previous['step']) / seconds
+  get = lambda name: float(metrics.get(name, np.nan))
+  return {
+      'step': int(step),
+      'wall_s': float(wall_s),
+      'eval_return': get('eval/episode_reward'),
+      'eval_return_std': get('eval/episode_reward_std'),
+      'eval_episode_length': get('eval/avg_episode_length'),
+      'env_steps_per_s': rate,
+      'train_walltime_s': walltime,
+  }
 
 
-def check_resume_changes(
-    saved: config_lib.TrainConfig, requested: config_lib.TrainConfig
-) -> None:
-  """Raises RunFolderError if `requested` changes more than `RESUMABLE`."""
-  old, new = config_lib.to_dict(saved), config_lib.to_dict(requested)
-  changed = sorted(k for k in old if old[k] != new[k] and k not in RESUMABLE)
-  if changed:
-    raise run_folder.RunFolderError(
-        f'A resumed run keeps its settings; {changed} differ from the run '
-        f"folder's config. Only {sorted(RESUMABLE)} may change."
-    )
+def read_csv(path: str) -> list[dict]:
+  """The rows of a `metrics.csv` (numbers as floats, `step` as int)."""
+  if not os.path.exists(path):
+    return []
+  with open(path, newline='') as f:
+    return [
+        {k: int(v) if k == 'step' else float(v) for k, v in row.items()}
+        for row in csv.DictReader(f)
+    ]
 
 
-def _devices(config, log):
-  local = jax.local_device_count()
-  devices = config.devices or local
-  if devices > local:
-    raise ValueError(
-        f'devices={devices}, but this process has {local} local devices.'
-    )
-  # Brax splits the batch over every process's devices.
-  config_lib.check_devices(config, devices * jax.process_count())
-  impl = config.impl
-  if devices > 1:
-    # MuJoCo Warp's contact buffer belongs to the whole batch; Brax's pmap
-    # would split it.
-    if impl is not None and backend.get(impl).batch_shared_data:
-      raise ValueError(
-          f'impl warp trains on one device; pass --devices 1, or --impl jax '
-          f'to train on {devices}.'
-      )
-    impl = 'jax'
-  device = jax.devices()[0]
-  processes = jax.process_count()
-  log(
-      f'JAX {jax.__version__} on {device.platform}: {device.device_kind} x '
-      f'{devices} (of {local})'
-      + (
-          f' in each of {processes} processes (this is process '
-          f'{jax.process_index()}).'
-          if processes > 1
-          else '.'
-      )
-  )
-  return devices, impl
+class MetricsWriter:
+  """A run's `metrics.csv` (and its `rows`), TensorBoard and Weights & Biases
+  as `config` asks, these in process 0 (`lead`) only; the W&B run is named
+  after the run folder (a resumed run logs into the same)."""
+
+  def __init__(self, run, config, lead):
+    self._csv_path, self.rows = run.metrics_csv, read_csv(run.metrics_csv)
+    self._tb = self._wandb = None
+    # pylint: disable=g-import-not-at-top
+    if config.tensorboard and lead:  # tensorboardX: of the train extra
+      import tensorboardX
+
+      self._tb = tensorboardX.SummaryWriter(run.events_dir)
+    if config.wandb and lead:
+      try:
+        import wandb
+      except ImportError as e:
+        raise ImportError(
+            'Weights & Biases logging needs wandb: pip install wandb, or '
+            'leave out --wandb.'
+        ) from e
+      name = os.path.basename(os.path.abspath(run.path))
+      self._wandb = wandb.init(
+          project='mjx_composer', name=name, id=name, resume='allow',
+          config=config_lib.to_dict(config),
+      )  # fmt: skip
+    # pylint: enable=g-import-not-at-top
+
+  def write(self, row: dict, metrics: dict) -> None:
+    """Appends `row` (an `eval_row`) and logs every scalar of `metrics`."""
+    new_file = not os.path.exists(self._csv_path)
+    with open(self._csv_path, 'a', newline='') as f:
+      writer = csv.DictWriter(f, fieldnames=CSV_FIELDS, extrasaction='ignore')
+      if new_file:
+        writer.writeheader()
+      writer.writerow(row)
+    self.rows.append(row)
+    scalars = {
+        name: float(np.asarray(value))
+        for name, value in metrics.items()
+        if np.ndim(value) == 0
+    }
+    scalars['eval/env_steps_per_s'] = row['env_steps_per_s']
+    if self._tb is not None:
+      for name, value in scalars.items():
+        self._tb.add_scalar(name, value, row['step'])
+      self._tb.flush()
+    if self._wandb is not None:
+      self._wandb.log(scalars, step=row['step'])
+
+  def close(self) -> None:
+    if self._tb is not None:
+      self._tb.close()
+    if self._wandb is not None:
+      self._wandb.finish()
 
 
-def _restored(run, config, brax_env, lead, log):
-  """The checkpoint a resumed run continues, or None to train from step 0."""
-  if not checkpoints.paths(run):
-    log(
-        f'{run.path} has no checkpoint (it stopped before its first '
-        'evaluation): training it again from step 0.'
-    )
-    if lead:
-      for path in (run.metrics_csv, run.summary_path):
-        if os.path.exists(path):
-          os.remove(path)
-      shutil.rmtree(run.events_dir, ignore_errors=True)
-    return None
-  restored = checkpoints.latest(run)
-  checkpoints.check_compatible(
-      restored, config.task, brax_env.observation_size, brax_env.action_size
-  )
-  return restored
+def train(config, run, resume=False, log=print) -> dict:
+  """Trains a `TrainConfig` into a `RunFolder` (new, or `resume` it).
 
-
-def train(
-    config: config_lib.TrainConfig,
-    run: run_folder.RunFolder,
-    resume: bool = False,
-    log=print,
-) -> dict:
-  """Trains `config` into `run` (a new run, or `resume` its checkpoint).
-
-  Returns:
-    The summary written to `summary.json` (in processes but the first,
-    which write nothing, only the process index and the task).
-
-  Raises:
-    RunFolderError: when resuming a run whose checkpoint is corrupted or
-      whose networks do not fit the task, or a finished run.
+  Returns the summary written to `summary.json` (processes but the first
+  write nothing and return their index and the task).
   """
   from brax.training.agents.ppo import train as ppo  # pylint: disable=g-import-not-at-top
 
@@ -173,43 +140,77 @@ def train(
   cache = platform.configure(
       compilation_cache=None if config.compilation_cache else False
   )
-  devices, impl = _devices(config, log)
+  local, processes = jax.local_device_count(), jax.process_count()
+  devices = config.devices or local
+  if devices > local:
+    raise ValueError(f'devices={devices}, but this process has {local}.')
+  for name in ('num_envs', 'batch_size'):  # Brax splits them over all
+    if (value := getattr(config, name)) % (devices * processes):
+      raise ValueError(
+          f'{name} {value} is not a multiple of the {devices * processes} '
+          'devices trained on: Brax splits it evenly over them. Change it, '
+          'or the number of devices (--devices).'
+      )
+  # Brax's pmap would split MuJoCo Warp's contact buffer, the whole batch's.
+  impl = 'jax' if devices > 1 else config.impl
+  if devices > 1 and config.impl and backend.get(config.impl).batch_shared_data:
+    raise ValueError(
+        f'impl warp trains on one device; pass --devices 1, or --impl jax '
+        f'to train on {devices}.'
+    )
+  device = jax.devices()[0]
+  this = f'this is process {jax.process_index()}'
+  where = f' in each of {processes} processes ({this})' if processes > 1 else ''
+  log(
+      f'JAX {jax.__version__} on {device.platform}: {device.device_kind} x '
+      f'{devices} (of {local}){where}.'
+  )
   env, brax_env = policy_lib.make_environment(config, impl)
-  obs_size = brax_env.observation_size
   log(
       f'Task {config.task!r} (physics on impl={env.impl!r}): episodes of '
-      f'{brax_env.episode_length} steps; observations {obs_size}, '
-      f'{brax_env.action_size} actions; compilation cache: {cache or "off"}.'
+      f'{brax_env.episode_length} steps; observations '
+      f'{brax_env.observation_size}, {brax_env.action_size} actions; '
+      f'compilation cache: {cache or "off"}.'
   )
-  # Process 0 writes the run folder (Brax reports to it alone).
-  lead = jax.process_index() == 0
-  restored = _restored(run, config, brax_env, lead, log) if resume else None
-  offset, evaluations, spe = 0, 0, steps_per_evaluation(config)
-  wall, walltime = 0.0, 0.0
-  if restored is not None:
+  lead = jax.process_index() == 0  # writes the run folder: Brax reports to it
+  # Brax's steps per evaluation: whole updates, for max(num_evals - 1, 1).
+  per_update = config.batch_size * config.num_minibatches * config.unroll_length
+  evals = max(config.num_evals - 1, 1)
+  spe = math.ceil(config.num_timesteps / (evals * per_update)) * per_update
+  restored, offset, evaluations, wall, walltime = None, 0, 0, 0.0, 0.0
+  kwargs = config_lib.ppo_kwargs(config)
+  if resume and not checkpoints.paths(run):
+    log(
+        f'{run.path} has no checkpoint (it stopped before its first '
+        'evaluation): training it again from step 0.'
+    )
+    if lead:
+      for path in (run.metrics_csv, run.summary_path):
+        with contextlib.suppress(FileNotFoundError):
+          os.remove(path)
+      shutil.rmtree(run.events_dir, ignore_errors=True)
+  elif resume:
+    restored = checkpoints.latest(run)
+    checkpoints.check_compatible(restored, config.task, brax_env)
     offset, evaluations = restored.step, restored.evaluations
     spe = restored.steps_per_evaluation
-    rows = metrics_lib.read_csv(run.metrics_csv)
+    rows = read_csv(run.metrics_csv)
     if rows:
       wall, walltime = rows[-1]['wall_s'], rows[-1]['train_walltime_s']
-  remaining = math.ceil((config.num_timesteps - offset) / spe)
-  if remaining <= 0:
-    raise run_folder.RunFolderError(
-        f'The run {run.path!r} has trained {offset:,} of its '
-        f'{config.num_timesteps:,} steps: it is finished. Pass a larger '
-        '--num-timesteps to train it further.'
-    )
-  if restored is not None:
+    remaining = math.ceil((config.num_timesteps - offset) / spe)
+    if remaining <= 0:
+      raise run_folder.RunFolderError(
+          f'The run {run.path!r} has trained {offset:,} of its '
+          f'{config.num_timesteps:,} steps: it is finished. Pass a larger '
+          '--num-timesteps to train it further.'
+      )
     log(
         f'Resuming {run.path} at step {offset:,} ({evaluations} evaluations '
         f'done, {remaining} to go; Adam starts afresh).'
     )
-  writer = metrics_lib.MetricsWriter(
-      run.metrics_csv,
-      run.events_dir if config.tensorboard and lead else None,
-      config_lib.to_dict(config) if config.wandb and lead else None,
-      os.path.basename(os.path.abspath(run.path)),
-  )
+    kwargs.update(num_timesteps=remaining * spe, num_evals=remaining + 1)
+    kwargs['restore_params'] = restored.params
+  writer = MetricsWriter(run, config, lead)
   done = {'evaluations': evaluations, 'videos': []}
 
   def keep(step, make_policy, params):
@@ -223,28 +224,15 @@ def train(
     if restored is not None and step == 0:
       return  # the checkpoint's step has its evaluation already
     total = offset + int(step)
-    row = metrics_lib.eval_row(
-        total,
-        metrics,
-        wall + time.perf_counter() - start,
-        previous=writer.rows[-1] if writer.rows else None,
-        walltime_offset=walltime,
-    )
+    previous = writer.rows[-1] if writer.rows else None
+    elapsed = wall + time.perf_counter() - start
+    row = eval_row(total, metrics, elapsed, previous, walltime)
     writer.write(row, metrics)
+    index = done['evaluations'] = done['evaluations'] + bool(step)
     if step:
-      done['evaluations'] += 1
-      checkpoints.finish(
-          run,
-          checkpoints.Checkpoint(
-              total,
-              done['evaluations'],
-              spe,
-              config.task,
-              obs_size,
-              brax_env.action_size,
-              row['eval_return'],
-          ),
-      )
+      sizes = (brax_env.observation_size, brax_env.action_size)
+      info = (total, index, spe, config.task, *sizes)
+      checkpoints.finish(run, checkpoints.Checkpoint(*info, row['eval_return']))
     # The rate since the evaluation before, unless that one came before
     # this process's first epoch, whose time holds its compile.
     eta, rate = '', row['env_steps_per_s']
@@ -254,74 +242,42 @@ def train(
         f'step {total:>12,}  return {row["eval_return"]:9.3f} ± '
         f'{row["eval_return_std"]:.3f}  {row["wall_s"]:8.1f}s{eta}'
     )
-    index = done['evaluations']
-    if step and config.video_every and index % config.video_every == 0:
+    if step and config.video_every and not index % config.video_every:
       path = os.path.join(run.video_dir, f'eval_step_{total:012d}.mp4')
-      _video(env, brax_env, config, done, path)
-      done['videos'].append(path)
+      policy = (done['make_policy'], done['params'])
+      shape = (config.video_worlds, config.video_steps, config.seed + 1)
+      states = video.rollout(brax_env, *policy, *shape)[0]
+      frames = video.render_rollout(env, config.task, states, config.video_size)
+      fps = 1.0 / env.control_timestep()
+      done['videos'].append(video.write_mp4(path, frames, fps=fps))
 
+  cached = 'loaded from the compilation cache next time'
+  cached = cached if cache else 'the compilation cache is off'
   log(
       'Compiling the evaluation and the training step before the first '
-      'evaluation (minutes on a CPU; '
-      + (
-          'loaded from the compilation cache next time).'
-          if cache
-          else 'the compilation cache is off).'
-      )
+      f'evaluation (minutes on a CPU; {cached}).'
   )
   try:
     with partitioner.scope(jax.local_devices()[:devices]):
       ppo.train(
           environment=brax_env,
-          num_timesteps=remaining * spe if restored else config.num_timesteps,
-          num_evals=remaining + 1 if restored else config.num_evals,
-          num_envs=config.num_envs,
-          batch_size=config.batch_size,
-          num_minibatches=config.num_minibatches,
-          unroll_length=config.unroll_length,
-          num_updates_per_batch=config.num_updates_per_batch,
-          learning_rate=config.learning_rate,
-          entropy_cost=config.entropy_cost,
-          discounting=config.discounting,
-          reward_scaling=config.reward_scaling,
-          max_grad_norm=config.max_grad_norm,
-          normalize_observations=config.normalize,
-          num_eval_envs=config.num_eval_envs,
+          **{**kwargs, 'seed': config.seed + evaluations},
           deterministic_eval=True,
-          seed=config.seed + evaluations,
           max_devices_per_host=devices,
           network_factory=policy_lib.network_factory(config),
           progress_fn=progress,
           policy_params_fn=keep,
-          restore_params=restored.params if restored else None,
           **brax_adapter.training_kwargs(brax_env),
       )
   finally:
     writer.close()
   if not lead:
     return {'process': jax.process_index(), 'task': config.task}
-  return _summarize(
-      config,
-      run,
-      writer.rows,
-      done,
-      restored,
-      devices,
-      env,
-      log,
-      wall + time.perf_counter() - start,
-  )
-
-
-def _summarize(config, run, rows, done, restored, devices, env, log, wall_s):
-  """Writes and returns `summary.json`; logs the final line."""
-  device = jax.devices()[0]
+  wall_s = wall + time.perf_counter() - start
+  rows, target = writer.rows, config.target_return
   returns = [r['eval_return'] for r in rows]
-  target = config.target_return
-  hit = next(
-      (r for r in rows if target is not None and r['eval_return'] >= target),
-      None,
-  )
+  hits = [r for r in rows if target is not None and r['eval_return'] >= target]
+  hit = hits[0] if hits else None
   summary = {
       'task': config.task,
       'device': f'{device.platform}: {device.device_kind}',
@@ -364,14 +320,10 @@ def _summarize(config, run, rows, done, restored, devices, env, log, wall_s):
 def _join_processes(barrier: str, devices: int) -> None:
   """Waits for every process, then connects their collectives.
 
-  Brax calls `policy_params_fn` at step 0 in every process, after process
-  0's first evaluation (which compiles the evaluator), and before the first
-  training epoch. JAX's CPU collectives (Gloo) give up when a process
-  reaches its first collective more than 30 s after another, e.g. still
-  compiling; once connected, a collective waits as long as it takes. So
-  each process compiles a sum over the devices Brax trains on (each
-  process's first `devices`), the processes wait for each other at the
-  coordination service's barrier (no such limit), and then run it.
+  JAX's CPU collectives (Gloo) give up when a process reaches its first one
+  30 s after another (process 0 compiles its evaluator before step 0): each
+  compiles a sum over the devices trained on, waits for the others at the
+  coordination service's barrier, then runs it.
   """
   by_process = {}
   for device in jax.devices():
@@ -383,19 +335,5 @@ def _join_processes(barrier: str, devices: int) -> None:
       np.ones((devices,), np.float32),
   )
   total = jax.jit(jax.numpy.sum).lower(ones).compile()
-  internals_jax.wait_for_processes(barrier, _START_TIMEOUT_S)
+  internals_jax.wait_for_processes(barrier, 3600.0)  # process 0 compiles
   jax.block_until_ready(total(ones))
-
-
-def _video(env, brax_env, config, latest, path):
-  """Renders the latest deterministic policy into `path`."""
-  states = video.rollout(
-      brax_env,
-      latest['make_policy'],
-      latest['params'],
-      config.video_worlds,
-      config.video_steps,
-      config.seed + 1,
-  )[0]
-  frames = video.render_rollout(env, config.task, states, config.video_size)
-  video.write_mp4(path, frames, fps=1.0 / env.control_timestep())

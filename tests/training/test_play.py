@@ -23,7 +23,6 @@ from mjx_composer import cli
 from mjx_composer.observation import groups as groups_lib
 from mjx_composer.suite.tasks import registry
 from mjx_composer.training import checkpoints
-from mjx_composer.training import play as play_lib
 from mjx_composer.training import policy as policy_lib
 from mjx_composer.training import run_folder
 from mjx_composer.training import video
@@ -160,7 +159,7 @@ def _tip_site():
 
 def test_metrics_json_and_the_zero_action_baseline(rollouts, played):
   out, _, _ = played
-  with open(play_lib.json_path(out, 40)) as f:
+  with open(video.json_path(out, 40)) as f:
     written = json.load(f)
   assert (written['worlds'], written['steps'], written['seed']) == (2, 6, 1)
   assert list(written['modes']) == ['deterministic', 'sampled', 'zero']
@@ -214,7 +213,7 @@ def test_each_mode_takes_its_actions(rollouts):
 def test_no_video_writes_statistics_and_metrics_only(trained, tmp_path, capsys):
   out = str(tmp_path)
   assert cli.main(['play', trained, '--out', out, '--no-video'] + _PLAY) == 0
-  assert os.listdir(out) == [os.path.basename(play_lib.json_path(out, 40))]
+  assert os.listdir(out) == [os.path.basename(video.json_path(out, 40))]
   printed = capsys.readouterr().out
   assert 'rendering' not in printed and 'tip_height' in printed
 

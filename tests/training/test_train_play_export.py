@@ -28,9 +28,9 @@ from mjx_composer.observation import groups as groups_lib
 from mjx_composer.suite.tasks import registry
 from mjx_composer.training import checkpoints
 from mjx_composer.training import export as export_lib
-from mjx_composer.training import metrics as metrics_lib
 from mjx_composer.training import policy as policy_lib
 from mjx_composer.training import run_folder
+from mjx_composer.training import trainer
 from mjx_composer.training import video
 from tests import conftest
 
@@ -93,7 +93,7 @@ def trained(tmp_path_factory):
   code, first_out = _train(argv + _TINY)
   assert code == 0, first_out
   first = checkpoints.latest(run_folder.RunFolder(path))
-  first_rows = metrics_lib.read_csv(os.path.join(path, 'metrics.csv'))
+  first_rows = trainer.read_csv(os.path.join(path, 'metrics.csv'))
   first_summary = _summary(path)
   # The best return so far: the first evaluation reaching it is known.
   target = max(r['eval_return'] for r in first_rows)
@@ -152,7 +152,7 @@ def test_the_run_folder_holds_everything(trained):
 
 def test_only_the_latest_and_the_best_checkpoints_are_kept(trained):
   run = run_folder.RunFolder(trained['path'])
-  rows = metrics_lib.read_csv(run.metrics_csv)
+  rows = trainer.read_csv(run.metrics_csv)
   returns = {r['step']: r['eval_return'] for r in rows if r['step']}
   best = max(returns, key=returns.get)
   kept = [checkpoints.read(p) for p in checkpoints.paths(run)]
@@ -177,7 +177,7 @@ def test_only_the_latest_and_the_best_checkpoints_are_kept(trained):
 def test_resume_continues_the_step_count_schedule_and_parameters(trained):
   run = run_folder.RunFolder(trained['path'])
   first, seen = trained['first'], trained['seen']
-  rows = metrics_lib.read_csv(run.metrics_csv)
+  rows = trainer.read_csv(run.metrics_csv)
   # The step-0 evaluation, one per update, and the resumed one at 160; the
   # resumed run's evaluation of the restored policy is not repeated.
   assert [r['step'] for r in rows] == [0, 40, 80, 120, 160]
@@ -223,7 +223,7 @@ def test_progress_says_what_compiles_and_when_it_ends(trained):
 
 def test_the_time_to_the_target_return_is_reported(trained):
   target = trained['target']
-  rows = metrics_lib.read_csv(os.path.join(trained['path'], 'metrics.csv'))
+  rows = trainer.read_csv(os.path.join(trained['path'], 'metrics.csv'))
   hit = next(r for r in rows if r['eval_return'] >= target)
   summary = _summary(trained['path'])
   assert summary['target_return'] == target
@@ -339,7 +339,7 @@ def test_a_run_stopped_before_its_first_evaluation_trains_again(
       'has no checkpoint (it stopped before its first evaluation): '
       'training it again from step 0.' in out
   )
-  rows = metrics_lib.read_csv(os.path.join(path, 'metrics.csv'))
+  rows = trainer.read_csv(os.path.join(path, 'metrics.csv'))
   assert [r['step'] for r in rows] == [0, 40]
   assert checkpoints.latest(run_folder.RunFolder(path)).step == 40
   summary = _summary(path)
@@ -475,7 +475,7 @@ def test_distributed_processes_train_one_run(tmp_path):
   assert (summary['processes'], summary['devices']) == (2, 1)
   # Brax's step count is of both processes' worlds: 4 worlds, 2 in each.
   assert summary['steps'] == 40
-  rows = metrics_lib.read_csv(os.path.join(path, 'metrics.csv'))
+  rows = trainer.read_csv(os.path.join(path, 'metrics.csv'))
   assert [r['step'] for r in rows] == [0, 40]  # written once
   last = checkpoints.latest(run_folder.RunFolder(path))
   assert (last.step, last.evaluations) == (40, 1)
