@@ -105,7 +105,7 @@ def render_rollout(
   if target is not None and np.shape(target)[-1:] != (3,):
     target = None  # not a position: a target height, a speed...
   images, grids = np.empty((worlds, *size, 3), np.uint8), []
-  camera = camera or task_camera(task)
+  camera = task_camera(task) if camera is None else camera  # id 0 is one
   with rendering.WorldRenderer(env, *size, camera=camera) as renderer:
     for t in range(steps):
       at_t = jax.tree.map(lambda x, t=t: x[t], fields)

@@ -45,7 +45,7 @@ def task(request):
   return request.param, config, env, brax_env
 
 
-def _traced_states(brax_env, config):
+def _traced_states(brax_env):
   """The state shapes after Brax's reset and one step, traced, not compiled."""
   env = brax_adapter.wrap_for_training(
       brax_env, **brax_adapter.training_kwargs(brax_env)
@@ -58,7 +58,7 @@ def _traced_states(brax_env, config):
 
 def test_training_traces_the_tasks_reset_and_step(task):
   name, config, _, brax_env = task
-  reset, stepped = _traced_states(brax_env, config)
+  reset, stepped = _traced_states(brax_env)
   entry = registry.entry(name)
   for state in (reset, stepped):
     assert set(entry.metrics) <= set(state.metrics), sorted(state.metrics)
