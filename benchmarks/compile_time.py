@@ -63,8 +63,10 @@ Program size, per program:
   the 30 largest; `--scopes N` prints the N largest of every program.
 
 Ratios composed / raw are reported for trace, compile and total (trace +
-lowering + compile) time and for the sizes. Results go to `--out` as JSON and
-to stdout as tables, the ratios last.
+lowering + compile) time and for the sizes. Results go to `--out` as JSON,
+rewritten after each program (a run cut short by a time limit keeps what it
+measured; `unfinished` names the programs it had left), and to stdout as
+tables, the ratios last.
 
 Tasks are the bundled ones (`common.TASKS`), or a variant of the walk task
 named as `benchmarks/playground_compare.py` names its programs, e.g.
@@ -648,6 +650,28 @@ def print_tables(rows, ratio_rows):
     )
 
 
+def _write(args, rows, failed, unfinished):
+  """Writes the JSON record of the programs measured so far."""
+  import common  # pylint: disable=g-import-not-at-top
+
+  common.write_json(
+      args.out,
+      {
+          'device': rows[0]['device'] if rows else None,
+          'platform': rows[0]['platform'] if rows else None,
+          'jax': rows[0]['jax'] if rows else None,
+          'worlds': rows[0]['worlds'] if rows else args.worlds,
+          'steps': args.steps,
+          'isolated': not args.in_process,
+          'persistent_cache': False,
+          'failed': failed,
+          'unfinished': unfinished,
+          'results': rows,
+          'ratios': ratios(rows),
+      },
+  )
+
+
 def main(argv=None):
   parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
   parser.add_argument(
@@ -726,7 +750,8 @@ def main(argv=None):
   if args.in_process:
     _disable_persistent_cache()
   rows, failed = [], []
-  for task, program in measured_programs(args.tasks, programs):
+  pairs = measured_programs(args.tasks, programs)
+  for task, program in pairs:
     print(f'{task}: {program} ...', flush=True)
     if args.in_process:
       row = run_one(task, program, args.worlds, args.steps, *env_options)
@@ -735,34 +760,23 @@ def main(argv=None):
     if row is None:
       print(f'{task}: {program} FAILED (see above)', flush=True)
       failed.append(f'{task}/{program}')
-      continue
-    rows.append(row)
-    print(
-        f'{task}: {program:<9} trace {_fmt(row.get("trace_s"), ".2f")} s, '
-        f'lower {row["lower_s"]:.2f} s, compile {row["compile_s"]:.2f} s'
-        + (f', wall {row["wall_s"]:.1f} s' if 'wall_s' in row else ''),
-        flush=True,
-    )
+    else:
+      rows.append(row)
+      print(
+          f'{task}: {program:<9} trace {_fmt(row.get("trace_s"), ".2f")} s, '
+          f'lower {row["lower_s"]:.2f} s, compile {row["compile_s"]:.2f} s'
+          + (f', wall {row["wall_s"]:.1f} s' if 'wall_s' in row else ''),
+          flush=True,
+      )
+    # After every program: a run stopped by a time limit keeps what it
+    # measured (`unfinished` names what it had left).
+    left = [f'{t}/{p}' for t, p in pairs[len(rows) + len(failed) :]]
+    _write(args, rows, failed, left)
 
   if not rows:
     print('Nothing measured.')
     return 1
   ratio_rows = ratios(rows)
-  common.write_json(
-      args.out,
-      {
-          'device': rows[0]['device'],
-          'platform': rows[0]['platform'],
-          'jax': rows[0]['jax'],
-          'worlds': rows[0]['worlds'],
-          'steps': args.steps,
-          'isolated': not args.in_process,
-          'persistent_cache': False,
-          'failed': failed,
-          'results': rows,
-          'ratios': ratio_rows,
-      },
-  )
   print(
       f'\n{rows[0]["platform"]}: {rows[0]["device"]}, JAX {rows[0]["jax"]}, '
       f'{rows[0]["worlds"]} worlds, {args.steps} scanned steps; JSON: '

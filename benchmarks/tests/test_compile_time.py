@@ -1,6 +1,7 @@
 """benchmarks/compile_time.py without compiling: tasks, programs, ratios."""
 
 import argparse
+import json
 
 import jax
 import pytest
@@ -132,3 +133,31 @@ def test_a_fixed_task_has_no_per_episode_randomization():
   assert 'body_mass' in jax.eval_shape(randomized.reset, key).model_fields
   assert not jax.eval_shape(fixed.reset, key).model_fields
   assert fixed.mj_model.nbody == randomized.mj_model.nbody
+
+
+def test_the_record_is_written_after_every_program(tmp_path, monkeypatch):
+  out = tmp_path / 'record.json'
+  seen = []
+
+  def fake_run(task, program, *args):
+    del args
+    if program == 'reset':
+      return None  # a failed worker
+    if program == 'raw_reset':  # the run is stopped before its last program
+      seen.append(json.loads(out.read_text()))
+      raise KeyboardInterrupt
+    return {
+        'task': task, 'program': program, 'device': 'cpu', 'platform': 'cpu',
+        'jax': jax.__version__, 'worlds': 8, 'trace_s': 1.0, 'lower_s': 0.5,
+        'compile_s': 2.0, 'total_s': 3.5,
+    }  # fmt: skip
+
+  monkeypatch.setattr(compile_time, '_run_isolated', fake_run)
+  argv = ['--tasks', 'reach', '--programs', 'step', 'reset', 'raw_reset']
+  with pytest.raises(KeyboardInterrupt):
+    compile_time.main(argv + ['--worlds', '8', '--out', str(out)])
+  (record,) = seen
+  assert [r['program'] for r in record['results']] == ['step']
+  assert record['failed'] == ['reach/reset']
+  assert record['unfinished'] == ['reach/raw_reset']
+  assert json.loads(out.read_text()) == record  # nothing written after
