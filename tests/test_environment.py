@@ -735,6 +735,74 @@ def test_reset_hooks_read_what_they_wrote():
       np.testing.assert_allclose(read[name], value, rtol=1e-5, atol=1e-5)
 
 
+class _MassReadingTask(conftest.PendulumTask):
+  """Randomizes a ball's and the pendulum rod's densities (so their masses
+  and inertias) every episode composer's way (`initialize_episode_mjcf`),
+  then reads their composite inertias (`cinert`, com-based) and the ball's
+  position in `initialize_episode`, with no forward pass."""
+
+  def __init__(self):
+    self.arena = composer.Arena()
+    self.pendulum = conftest.Pendulum()
+    self.arena.attach(self.pendulum)
+    self.ball = conftest.Ball(density=500.0, collides=False)
+    self.arena.attach(self.ball)
+    self.variator = composer.variation.MJCFVariator()
+    scale = composer.variation.distributions.Uniform(0.5, 2.0)
+    for geom in (self.ball.geom, self.pendulum.geom):
+      self.variator.bind_attributes(
+          geom, density=composer.variation.noises.Multiplicative(scale)
+      )
+
+  def initial_task_state(self):
+    return {'cinert': jnp.zeros((2, 10)), 'ball': jnp.zeros(3)}
+
+  def initialize_episode_mjcf(self, random_state):
+    self.variator.apply_variations(random_state)
+
+  def initialize_episode(self, physics, key):
+    del key
+    bodies = physics.bind([self.ball.body, self.pendulum.geom.parent])
+    return physics.update_task_state(
+        cinert=bodies.cinert, ball=physics.bind(self.ball.body).xpos
+    )
+
+  def get_reward(self, physics):
+    return 0.0
+
+
+def test_reset_hooks_read_the_centres_of_mass_of_their_randomized_masses():
+  """The reset leaves the com-based quantities of a randomized world to
+  the hooks that read them; a read computes them for the world's masses."""
+  env = composer.Environment(_MassReadingTask())
+  task = env.task
+  states = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.key(2), 3))
+  model = copy.copy(env.mj_model)
+  data = mujoco.MjData(model)
+  ids = [
+      model.body(f'{task.ball.name}/body').id,
+      model.body(f'{task.pendulum.name}/rod').id,
+  ]
+  mujoco.mj_kinematics(model, data)
+  mujoco.mj_comPos(model, data)
+  nominal = data.cinert[ids].copy()
+  for world in range(3):
+    one = jax.tree.map(lambda x, w=world: x[w], states)
+    assert 'body_mass' in one.model_fields
+    for name, value in one.model_fields.items():  # the world's model
+      if name.startswith('body_'):
+        getattr(model, name)[:] = np.asarray(value)
+    data.qpos[:] = np.asarray(env.mj_model.qpos0)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    read = np.asarray(one.task_state['cinert'])
+    assert not np.allclose(read, nominal, rtol=1e-3)  # the masses varied
+    np.testing.assert_allclose(read, data.cinert[ids], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        one.task_state['ball'], data.xpos[ids[0]], rtol=1e-6, atol=1e-6
+    )
+
+
 class _FlakyTask(conftest.SwingTask):
   """Fails initialization with probability `p` (per attempt, from its key)."""
 

@@ -107,8 +107,14 @@ class ReferenceKinematics:
         return True
     return False
 
+  def com_varies(self, model, written=()) -> bool:
+    """Whether `model`'s com-based quantities (`subtree_com`, `cinert`,
+    `cdof`) can differ from the host's: a mass, an inertia or an inertial
+    frame can (`written` as in `apply`)."""
+    return self._varies(model, _MASS + _INERTIAL_FRAME, frozenset(written))
+
   @jax.named_scope('kinematics')
-  def apply(self, model, data, written=()) -> mjx.Data:
+  def apply(self, model, data, written=(), com=True) -> mjx.Data:
     """`mjx.com_pos(model, mjx.kinematics(model, data))`, reusing the host's.
 
     Args:
@@ -117,6 +123,10 @@ class ReferenceKinematics:
         MJX computes everything.
       written: names of model fields about to change (e.g. set by the
         compiler in this call), treated as varying.
+      com: False leaves the com-based quantities at the host's values
+        where only a mass, an inertia or an inertial frame varies
+        (`com_varies`), for a caller that marks them stale and computes
+        them where they are read (a reset's hooks: `Physics.read`).
 
     Returns:
       `data` with the kinematics and com-based fields set.
@@ -143,7 +153,7 @@ class ReferenceKinematics:
         values[pos_name] = jnp.asarray(self._values[pos_name], dtype)
         values[mat_name] = jnp.asarray(self._values[mat_name], dtype)
     data = _set(data, values)
-    if self._varies(model, _MASS + _INERTIAL_FRAME, written):
+    if com and self.com_varies(model, written):
       return mjx.com_pos(model, data)
     return _set(
         data,

@@ -41,7 +41,8 @@ of a derived quantity after such a write, with no forward pass between:
   stage of the forward pass that computes it (kinematics for positions, the
   full pass otherwise), as composer's reset context does; the hooks start
   from the reset's state, whose positions are computed and whose velocities
-  and sensors are not (`mark_written`);
+  and sensors are not, nor, where the episode's masses vary, its centres of
+  mass and composite inertias (`mark_written`);
 * in the step hooks, raises at trace time (`StaleReadError`): there an
   unseen forward pass would add a second copy of the physics to every
   control step. Call `physics.forward()` (or `physics.kinematics()`)

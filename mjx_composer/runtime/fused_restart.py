@@ -214,7 +214,9 @@ class _FusedLoop:
     moved = t.restore(carry)
     if t.sensors_once_per_step:
       moved = moved.replace(
-          data=substep_sensors.sensors_of(moved.model, moved.data, started)
+          data=substep_sensors.sensors_of(
+              moved.model, moved.data, started, t.step_forward.sensor_stages
+          )
       )
     moved = moved.replace(data=t.step_forward(moved.model, moved.data))
     stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)

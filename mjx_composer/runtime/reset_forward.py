@@ -420,6 +420,16 @@ class StepForward:
   stage: str = 'none'
   sensors: bool = False
 
+  @property
+  def sensor_stages(self) -> int:
+    """The sensor stages this recomputes: 0 none, 1 position, 2 position
+    and velocity, 3 all (what `substep_sensors.sensors_of` may skip)."""
+    if self.stage == 'full':
+      return 3
+    if not self.sensors:
+      return 0
+    return AFTER_STEP_STAGES.index(self.stage)
+
   def __call__(self, model, data):
     """`data` with the stage recomputed at its (new) integration state.
 

@@ -89,7 +89,10 @@ def without_sensors(model: mjx.Model) -> mjx.Model:
 
 
 def sensors_of(
-    model: mjx.Model, data: mjx.Data, started: IntegrationState
+    model: mjx.Model,
+    data: mjx.Data,
+    started: IntegrationState,
+    recomputed: int = 0,
 ) -> mjx.Data:
   """`data` with the sensors its last physics step would have computed.
 
@@ -98,13 +101,24 @@ def sensors_of(
     data: the data after a step run with `without_sensors(model)`.
     started: the step's integration state before the step
       (`IntegrationState.of` of the data it stepped).
+    recomputed: the sensor stages (1 position, 2 velocity, 3 all) that the
+      caller computes again right after, at the new state
+      (`reset_forward.StepForward.sensor_stages`): these are skipped here,
+      their results would be overwritten. Their `OUTPUTS` then keep their
+      values until the caller writes them.
 
   Returns:
-    `data`, its `OUTPUTS` as `mjx.step(model, ...)` leaves them.
+    `data`, its `OUTPUTS` (but those of the `recomputed` stages) as
+    `mjx.step(model, ...)` leaves them.
   """
+  if recomputed >= 3:
+    return data
   advanced = {name: getattr(data, name) for name in ADVANCED}
   data = data.replace(**dataclasses.asdict(started))
-  data = mjx.sensor_vel(model, mjx.sensor_pos(model, data))
+  if recomputed < 1:
+    data = mjx.sensor_pos(model, data)
+  if recomputed < 2:
+    data = mjx.sensor_vel(model, data)
   # `mjx.forward` skips the acceleration stage's sensors where the model has
   # no constraint rows (its solver does not run).
   if internals.data_impl(data).efc_J.size:

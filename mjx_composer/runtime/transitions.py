@@ -277,11 +277,18 @@ class Transitions:
       # As in composer's reset context, a hook's read of what a write made
       # stale sees the new state: the read runs the forward pass's stage
       # that computes it (`Physics.forward_stale_reads`). The reset wrote
-      # the initial velocities and controls and computed only positions.
+      # the initial velocities and controls and computed only positions;
+      # where the episode's masses vary, not even the centres of mass and
+      # composite inertias, which few hooks read (as a write of masses
+      # would, `mark_written('body_mass')` makes a read compute them).
+      kinematics = self._initial_kinematics
+      stale = ['qvel', 'act', 'ctrl']
+      if kinematics.com_varies(physics.model):
+        stale.append('body_mass')
       physics = physics.replace(
-          data=self._initial_kinematics.apply(physics.model, self.initial.data),
+          data=kinematics.apply(physics.model, self.initial.data, com=False),
           forward_stale_reads=True,
-      ).mark_written('qvel', 'act', 'ctrl')
+      ).mark_written(*stale)
       physics = self.hooks.initialize_episode(physics, key, writers)
       # A hook that drew a NaN (or an infinity) into the state fails the
       # attempt, as an initializer that finds no valid pose does.
@@ -368,9 +375,12 @@ class Transitions:
     """
     fields = tuple(carry.model_fields)
     physics = self.restore(start)
-    # What an attempt's hooks start from: `start`'s kinematics.
+    # What an attempt's hooks start from: `start`'s kinematics (its centres
+    # of mass are left to the reset's forward pass, as `_attempt` does).
     physics = physics.replace(
-        data=self._initial_kinematics.apply(physics.model, self.initial.data)
+        data=self._initial_kinematics.apply(
+            physics.model, self.initial.data, com=False
+        )
     )
     nominal = physics.carry(fields)
     nominal = nominal.replace(
@@ -423,7 +433,10 @@ class Transitions:
     if sensors_once:
       physics = physics.replace(
           data=substep_sensors_lib.sensors_of(
-              physics.model, physics.data, started
+              physics.model,
+              physics.data,
+              started,
+              self.step_forward.sensor_stages,
           )
       )
     physics = physics.replace(

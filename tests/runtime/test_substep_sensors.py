@@ -16,6 +16,7 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer.runtime import data_reads
+from mjx_composer.runtime import reset_forward
 from mjx_composer.runtime import substep_sensors
 from tests import conftest
 from tests.runtime import test_reset_forward
@@ -82,6 +83,44 @@ def test_sensors_of_a_step_are_mjx_steps_and_mujocos(sensed):
   clock = m.sensor_adr[list(m.sensor_type).index(mujoco.mjtSensor.mjSENS_CLOCK)]
   assert float(once.sensordata[clock]) == pytest.approx(0.25)
   assert float(once.time) == pytest.approx(0.25 + m.opt.timestep)
+
+
+@pytest.mark.parametrize('stage', ['position', 'velocity', 'full'])
+def test_sensor_stages_the_step_forward_recomputes_are_skipped(sensed, stage):
+  m, model, d = sensed
+  data = mjx.put_data(m, d)
+  step_forward = reset_forward.StepForward(stage, sensors=True)
+  recomputed = step_forward.sensor_stages
+  assert recomputed == {'position': 1, 'velocity': 2, 'full': 3}[stage]
+
+  def control_step_end(x, recomputed):
+    started = substep_sensors.IntegrationState.of(x)
+    stepped = mjx.step(substep_sensors.without_sensors(model), x)
+    sensed = substep_sensors.sensors_of(model, stepped, started, recomputed)
+    return stepped, sensed, step_forward(model, sensed)
+
+  end = jax.jit(control_step_end, static_argnums=1)
+  (stepped, all_sensed, full), (_, skipped, lean) = (
+      end(data, 0),
+      end(data, recomputed),
+  )
+  # What the step's forward stage leaves is the same either way ...
+  for name, a, b in zip(
+      data_reads.leaf_names(data), jax.tree.leaves(full), jax.tree.leaves(lean)
+  ):
+    np.testing.assert_array_equal(a, b, err_msg=name)
+  # ... and the skipped stages' sensors really were not computed before it.
+  stages = np.asarray(m.sensor_needstage)
+  rows = np.concatenate(
+      [
+          np.arange(m.sensor_adr[i], m.sensor_adr[i] + m.sensor_dim[i])
+          for i in range(m.nsensor)
+          if stages[i] <= recomputed
+      ]
+  )
+  before = np.asarray(stepped.sensordata)[rows]
+  np.testing.assert_array_equal(np.asarray(skipped.sensordata)[rows], before)
+  assert np.any(np.asarray(all_sensed.sensordata)[rows] != before)
 
 
 def test_outputs_are_what_the_sensor_stages_write(sensed):
