@@ -211,14 +211,7 @@ class _FusedLoop:
     """Ends the control step; prepares the restart where one is wanted."""
     t = self._t
     carry, obs_state, stepped, failures = loop
-    moved = t.restore(carry)
-    if t.sensors_once_per_step:
-      moved = moved.replace(
-          data=substep_sensors.sensors_of(
-              moved.model, moved.data, started, t.step_forward.sensor_stages
-          )
-      )
-    moved = moved.replace(data=t.step_forward(moved.model, moved.data))
+    moved = t.after_physics(t.restore(carry), started)
     stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)
     carry, failures = control_flow.once_or_never(
         control_flow.batch_any(self._reset_from(stepped, next_reset)[2]),

@@ -429,20 +429,25 @@ class Transitions:
         (physics.carry(fields), state.obs_state, started),
         jnp.arange(self.n_sub_steps, dtype=jnp.int32),
     )
-    physics = self.restore(carry)
-    if sensors_once:
-      physics = physics.replace(
-          data=substep_sensors_lib.sensors_of(
-              physics.model,
-              physics.data,
-              started,
-              self.step_forward.sensor_stages,
-          )
-      )
-    physics = physics.replace(
-        data=self.step_forward(physics.model, physics.data)
-    )
+    physics = self.after_physics(self.restore(carry), started)
     return self.end_step(state, physics, obs_state, keys, action_nonfinite)
+
+  @_named_scope
+  def after_physics(self, physics, started):
+    """`physics` after a control step's last sub-step, as its readers see it.
+
+    The sensors of that sub-step where the sub-steps skipped them
+    (`sensors_once_per_step`; `started`, its `IntegrationState`), then the
+    stage of the forward pass the step recomputes at the new state
+    (`step_forward`); the sensor stages that stage recomputes are not
+    computed before it.
+    """
+    data = physics.data
+    if self.sensors_once_per_step:
+      data = substep_sensors_lib.sensors_of(
+          physics.model, data, started, self.step_forward.sensor_stages
+      )
+    return physics.replace(data=self.step_forward(physics.model, data))
 
   def can_fuse_restart(self) -> bool:
     """Whether `step_and_restart` and `reset_or_step` apply
