@@ -303,6 +303,16 @@ class Environment:
     return self._transitions.step_forward.stage
 
   @property
+  def carried_stage(self) -> str | None:
+    """The stage of the forward pass ('position' or 'velocity') that each
+    physics step of `step` computes at its end and the next starts from,
+    or None where the control step recomputes its end-of-step stage after
+    its last physics step (`ExecutionOptions.carry_stage`,
+    `mjx_composer.runtime.carried_stage`). Found by tracing the step's
+    hooks on first use."""
+    return self._transitions.carried_stage
+
+  @property
   def random_state(self):
     return self._random_state
 
@@ -391,7 +401,12 @@ class Environment:
 
     Where the world's episode ended, the step also starts the next one, as
     `ExecutionOptions.auto_reset` says (`runtime.auto_reset`: the program
-    was chosen when the environment was built).
+    was chosen when the environment was built). `state` comes from `reset`
+    or `step`: its physics starts from the stage of the forward pass its
+    data holds (`carried_stage`), so a state whose positions you set by
+    hand steps from them once its data is forwarded
+    (`state.replace(data=env.physics(state).forward().data)`), as
+    composer's physics after such a write needs `physics.forward()`.
     """
     arguments.check_one_world(state)
     return self._advance(state, self._check_action(action))

@@ -14,7 +14,10 @@ values:
 * `sensors_once_per_step`: whether the sub-steps leave the sensors to the
   control step's end (`runtime.substep_sensors`);
 * `step_forward`: what a control step recomputes after its last physics
-  step (`reset_forward.after_step`, `runtime.dirty_forward`).
+  step (`reset_forward.after_step`, `runtime.dirty_forward`);
+* `carried_stage`: whether the control step computes that stage at the end
+  of every physics step and carries it to the next, instead of recomputing
+  it after its last (`runtime.carried_stage`).
 
 Each runs on first use (building stays cheap for an environment that is
 never traced) or all at once (`analyse`), and answers the same whenever it
@@ -32,6 +35,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from mjx_composer.runtime import carried_stage as carried_stage_lib
 from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import reset_forward as reset_forward_lib
@@ -77,8 +81,8 @@ class Analysis:
     """Runs every analysis now (each otherwise runs on first use).
 
     `reset_shapes` (the reset's `initialize_episode` hooks and the step
-    hooks, traced abstractly), `reset_forward`, `sensors_once_per_step` and
-    `step_forward` (their readers' jaxprs). They read shapes only, so they
+    hooks, traced abstractly), `reset_forward`, `sensors_once_per_step`,
+    `step_forward` and `carried_stage` (their readers' jaxprs). They read shapes only, so they
     answer the same whenever they run; running them at build keeps their
     traces out of the first trace of `reset` or `step`. Raises what tracing
     those hooks raises.
@@ -88,6 +92,7 @@ class Analysis:
         'reset_forward',
         'sensors_once_per_step',
         'step_forward',
+        'carried_stage',
     ):
       getattr(self, analysis)
     return self
@@ -159,8 +164,9 @@ class Analysis:
     """The stage of the forward pass that a reset runs.
 
     With `reset_forward_mode='observed'`, the cheapest stage that computes
-    what the FIRST state's readers read (`_read_after_reset`);
-    'full' on MuJoCo Warp, whose forward pass is one kernel sequence.
+    what the FIRST state's readers read (`_read_after_reset`), and at least
+    the stage the control step carries (`carried_stage`); 'full' on MuJoCo
+    Warp, whose forward pass is one kernel sequence.
     """
     model, data = self._t.initial.model, self._t.initial.data
     if (
@@ -172,12 +178,17 @@ class Analysis:
           'full', True, frozenset(), frozenset()
       )
     read = self._read_after_reset()
-    return reset_forward_lib.choose_stage(
+    chosen = reset_forward_lib.choose_stage(
         read.fields,
         model,
         data,
         self._t.initial.index.mj_model,
         sensordata=read.sensordata,
+    )
+    if self.carried_stage is None:
+      return chosen
+    return chosen.at_least(
+        self.carried_stage, model, data, self._t.initial.index.mj_model
     )
 
   def _read_after_reset(self) -> data_reads.Reads:
@@ -239,3 +250,10 @@ class Analysis:
     after composer's `Physics.step`, and the acceleration stage too where
     composer's physics is dirty after it (`reset_forward.after_step`)."""
     return reset_forward_lib.after_step(self._t)
+
+  @functools.cached_property
+  def carried_stage(self) -> str | None:
+    """The stage of the forward pass the control step computes at the end
+    of every physics step and carries to the next (`step_forward`'s), or
+    None where it recomputes it after its last (`carried_stage.carries`)."""
+    return carried_stage_lib.carries(self._t)

@@ -269,6 +269,7 @@ def _build_on(
       fixed_initial_state=arguments.fixed_initial_state,
       substep_sensors=options.substep_sensors,
       dirty_forward=options.dirty_forward,
+      carry_stage=options.carry_stage,
   )
   # `can_fuse_restart` is a fact of the host model: decide here, once.
   step = auto_reset_lib.step_program(

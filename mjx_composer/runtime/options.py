@@ -29,6 +29,7 @@ Impl = Literal['jax', 'warp']
 ResetForward = Literal['observed', 'full']
 SubstepSensors = Literal['read', 'all']
 DirtyForward = Literal['composer', 'never']
+CarryStage = Literal['auto', 'never']
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,6 +135,17 @@ class ExecutionOptions:
       control step fewer for such tasks. Trajectories are the same either
       way (to float rounding); what is read of the acceleration stage
       after a step differs.
+    carry_stage: 'auto' (default): where a control step recomputes the
+      position (or velocity) stage after its last sub-step
+      (`step_forward_stage`) and nothing between physics steps disturbs
+      it, every physics step computes that stage of its new state at its
+      end, and the next one starts from it instead of computing it again:
+      one copy of the stage in the step program instead of two, the same
+      trajectories, observations and rewards to float rounding
+      (`runtime.carried_stage`; `Environment.carried_stage` says which
+      stage). A reset then computes at least that stage. 'never': every
+      physics step is `mjx.step`, and the control step recomputes the
+      stage after its last.
 
   Raises:
     ValueError: for a value outside a field's choices, or options that
@@ -152,6 +164,7 @@ class ExecutionOptions:
   reset_forward: ResetForward = 'observed'
   substep_sensors: SubstepSensors = 'read'
   dirty_forward: DirtyForward = 'composer'
+  carry_stage: CarryStage = 'auto'
 
   def __post_init__(self):
     if isinstance(self.per_world_model_fields, str):
@@ -167,6 +180,7 @@ class ExecutionOptions:
     _check_choice('reset_forward', self.reset_forward, ('observed', 'full'))
     _check_choice('substep_sensors', self.substep_sensors, ('read', 'all'))
     _check_choice('dirty_forward', self.dirty_forward, ('composer', 'never'))
+    _check_choice('carry_stage', self.carry_stage, ('auto', 'never'))
     impl_choice.check_impl(self.impl, 'ExecutionOptions(impl=...)')
     impl_choice.check_buffer_arguments(
         self.impl, self.naconmax, self.njmax, requested=self.impl

@@ -354,6 +354,28 @@ class ResetForward:
         )
     )
 
+  def at_least(self, stage, model, data, mj_model) -> 'ResetForward':
+    """This stage, or `stage` where that is later: a reset whose state
+    must carry `stage` (`runtime.carried_stage`) computes it.
+
+    Arguments as `choose_stage`'s. The later stage computes the sensors
+    where this one does, as `choose_stage` would have chosen them.
+    """
+    if STAGES.index(self.stage) >= STAGES.index(stage):
+      return self
+    rows = None
+    if self.sensors:
+      rows = _exact_rows(mj_model, stage)
+      if rows.all():
+        rows = None
+    return ResetForward(
+        stage,
+        self.sensors,
+        written(stage, model, data, self.sensors),
+        self.derived or written('full', model, data),
+        rows,
+    )
+
   def sensors_of(self, model, data):
     """`data`, through the full forward pass with its sensors skipped
     (`mjDSBL_SENSOR`), with the sensors this stage computes.

@@ -40,6 +40,7 @@ from mjx_composer.model import kinematics as kinematics_lib
 from mjx_composer.platform import backend as backend_lib
 from mjx_composer.platform import shared_buffers
 from mjx_composer.runtime import analysis as analysis_lib
+from mjx_composer.runtime import carried_stage as carried_stage_lib
 from mjx_composer.runtime import control_flow
 from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import fused_restart
@@ -114,6 +115,9 @@ class Transitions:
       the full forward pass of the new state where its readers read the
       acceleration stage, `step_forward`, `runtime.dirty_forward`) or
       'never' (the acceleration stage keeps the step's values).
+    carry_stage: 'auto' (`step`'s physics steps compute the end-of-step
+      stage at their end and start from it, where `carried_stage.carries`
+      allows) or 'never'.
   """
 
   initial: physics_lib.Physics
@@ -128,6 +132,7 @@ class Transitions:
   fixed_initial_state: bool = False
   substep_sensors: str = 'all'
   dirty_forward: str = 'composer'
+  carry_stage: str = 'auto'
 
   @functools.cached_property
   def backend(self) -> backend_lib.Backend:
@@ -154,6 +159,12 @@ class Transitions:
     """What a control step recomputes after its last physics step
     (`Analysis.step_forward`)."""
     return self.analysis.step_forward
+
+  @property
+  def carried_stage(self) -> str | None:
+    """The end-of-step stage that `step`'s sub-steps compute and carry
+    (`Analysis.carried_stage`), or None."""
+    return self.analysis.carried_stage
 
   @property
   def sensors_once_per_step(self) -> bool:
@@ -405,20 +416,33 @@ class Transitions:
     fields = tuple(state.model_fields)
     physics = self.before_step(state, action, keys)
     sensors_once = self.sensors_once_per_step
+    carried = self.carried_stage
+    n = self.n_sub_steps
 
     def substep(loop, i):
       carry, obs_state, started = loop
       physics = self.before_substep(
           self.restore(carry), action, keys, i, fields
       )
+      model = physics.model
       if sensors_once:
         started = substep_sensors_lib.IntegrationState.of(physics.data)
         physics = physics.replace(
-            model=substep_sensors_lib.without_sensors(physics.model)
+            model=substep_sensors_lib.without_sensors(model)
         )
-      carry, obs_state = self.after_substep(
-          physics.step(), obs_state, keys, i, fields
-      )
+      if carried is None:
+        moved = physics.step()
+      else:
+        moved = physics.replace(
+            data=carried_stage_lib.physics_step(
+                physics.model, physics.data, carried
+            )
+        )
+      carry, obs_state = self.after_substep(moved, obs_state, keys, i, fields)
+      if carried is not None:
+        carry = carry.replace(
+            data=self._end_substep(model, carry.data, started, i == n - 1)
+        )
       return (carry, obs_state, started), None
 
     started = None
@@ -427,27 +451,52 @@ class Transitions:
     (carry, obs_state, started), _ = jax.lax.scan(
         substep,
         (physics.carry(fields), state.obs_state, started),
-        jnp.arange(self.n_sub_steps, dtype=jnp.int32),
+        jnp.arange(n, dtype=jnp.int32),
     )
-    physics = self.after_physics(self.restore(carry), started)
+    physics = self.after_physics(self.restore(carry), started, carried)
     return self.end_step(state, physics, obs_state, keys, action_nonfinite)
 
   @_named_scope
-  def after_physics(self, physics, started):
+  def _end_substep(self, model, data, started, last):
+    """A sub-step's data (after its hooks), with the carried stage of its
+    new state (`carried_stage`); at the control step's last sub-step
+    (`last`, shared by the batch), first the sensors it skipped
+    (`sensors_once_per_step`), as `after_physics` computes them."""
+    if self.sensors_once_per_step:
+      data = control_flow.once_or_never(
+          last,
+          lambda data: substep_sensors_lib.sensors_of(
+              model, data, started, self.step_forward.sensor_stages
+          ),
+          data,
+      )
+    return carried_stage_lib.stage(model, data, self.carried_stage)
+
+  @_named_scope
+  def after_physics(self, physics, started, carried=None):
     """`physics` after a control step's last sub-step, as its readers see it.
 
     The sensors of that sub-step where the sub-steps skipped them
     (`sensors_once_per_step`; `started`, its `IntegrationState`), then the
     stage of the forward pass the step recomputes at the new state
     (`step_forward`); the sensor stages that stage recomputes are not
-    computed before it.
+    computed before it. Where the sub-steps carried a stage (`carried`,
+    `carried_stage`), they computed it and the sensors: what
+    `step_forward` computes beyond it follows (`carried_stage.finish`).
     """
     data = physics.data
+    step_forward = self.step_forward
+    if carried is not None:
+      return physics.replace(
+          data=carried_stage_lib.finish(
+              physics.model, data, carried, step_forward
+          )
+      )
     if self.sensors_once_per_step:
       data = substep_sensors_lib.sensors_of(
-          physics.model, data, started, self.step_forward.sensor_stages
+          physics.model, data, started, step_forward.sensor_stages
       )
-    return physics.replace(data=self.step_forward(physics.model, data))
+    return physics.replace(data=step_forward(physics.model, data))
 
   def can_fuse_restart(self) -> bool:
     """Whether `step_and_restart` and `reset_or_step` apply
