@@ -66,7 +66,7 @@ def rest_of_forward(model: mjx.Model, data: mjx.Data, name: str) -> mjx.Data:
   data = mjx.make_constraint(model, data)
   data = mjx.sensor_pos(model, data)
   if name == 'position':
-    data = _velocity_part(model, data)
+    data = reset_forward_lib.velocity_part(model, data)
   data = mjx.passive(model, data)
   data = mjx.rne(model, data)
   data = mjx.tendon_bias(model, data)
@@ -135,23 +135,12 @@ def finish(model, data, name, step_forward):
   velocity stage where `name` is the position stage and `step_forward`'s
   is the velocity stage, then `step_forward`'s sensors."""
   if name == 'position' and step_forward.stage == 'velocity':
-    data = _velocity_part(model, data)
+    data = reset_forward_lib.velocity_part(model, data)
   if step_forward.sensors:
     data = mjx.sensor_pos(model, data)
     if step_forward.stage == 'velocity':
       data = mjx.sensor_vel(model, data)
   return data
-
-
-def _velocity_part(model, data):
-  """What `mjx.fwd_velocity` computes before its force terms."""
-  impl = internals.data_impl(data)
-  data = internals.replace_data_impl(
-      data,
-      actuator_velocity=impl.actuator_moment @ data.qvel,
-      ten_velocity=impl.ten_J @ data.qvel,
-  )
-  return mjx.com_vel(model, data)
 
 
 def _read_by_stage(model, data, name) -> frozenset[str]:

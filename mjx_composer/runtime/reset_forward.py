@@ -111,16 +111,20 @@ def _position(m, d, sensors):
   return mjx.sensor_pos(m, d) if sensors else d
 
 
-def _velocity(m, d, sensors):
-  d = _position(m, d, sensors)
-  # What `mjx.fwd_velocity` computes before its force terms.
+def velocity_part(m, d):
+  """What `mjx.fwd_velocity` computes before its force terms: actuator and
+  tendon velocities, and the bodies' com-based velocities."""
   impl = internals.data_impl(d)
   d = internals.replace_data_impl(
       d,
       actuator_velocity=impl.actuator_moment @ d.qvel,
       ten_velocity=impl.ten_J @ d.qvel,
   )
-  d = mjx.com_vel(m, d)
+  return mjx.com_vel(m, d)
+
+
+def _velocity(m, d, sensors):
+  d = velocity_part(m, _position(m, d, sensors))
   return mjx.sensor_vel(m, d) if sensors else d
 
 
