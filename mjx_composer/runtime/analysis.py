@@ -82,9 +82,9 @@ class Analysis:
 
     `reset_shapes` (the reset's `initialize_episode` hooks and the step
     hooks, traced abstractly), `reset_forward`, `sensors_once_per_step`,
-    `step_forward` and `carried_stage` (their readers' jaxprs). They read shapes only, so they
-    answer the same whenever they run; running them at build keeps their
-    traces out of the first trace of `reset` or `step`. Raises what tracing
+    `step_forward` and `carried_stage` (their readers' jaxprs). They read
+    shapes only, so they answer the same whenever they run; running them at
+    build keeps their traces out of the first trace of `reset` or `step`. Raises what tracing
     those hooks raises.
     """
     for analysis in (
@@ -215,8 +215,7 @@ class Analysis:
       before = self._t.before_step(first, action, keys)
       before = self._t.before_substep(before, action, keys, 0, fields)
       after = before.carry(fields)
-      pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
-      written = [new for new, old in pairs if new is not old]
+      written = data_reads.replaced(data, after.data)
       read = (
           first.replace(data=None, metrics=metrics),
           after.replace(data=None),

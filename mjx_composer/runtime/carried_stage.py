@@ -97,10 +97,9 @@ def carries(transitions) -> str | None:
   physics step that uses it leaves valid: the step hooks write nothing the
   stage reads, and the `before_substep` hooks read nothing it writes
   (module docstring). None with `carry_stage='never'`, where the backend
-  runs the forward pass whole,
-  where `mjx.step` is not a forward pass and an integrator
-  (`substep_sensors.INTEGRATORS`) or where a step hook writes a model
-  field. Found from abstract traces with the shapes of a reset's `State`
+  runs the forward pass whole, where `mjx.step` is not a forward pass and
+  an integrator (`substep_sensors.INTEGRATORS`) or where a step hook
+  writes a model field. Found from abstract traces with the shapes of a reset's `State`
   (`Analysis.reset_shapes`).
   """
   t = transitions
@@ -147,9 +146,7 @@ def _read_by_stage(model, data, name) -> frozenset[str]:
   """The `mjx.Data` leaves that stage `name` computes its results from."""
 
   def computed(data):
-    new = stage(model, data, name)
-    pairs = zip(jax.tree.leaves(new), jax.tree.leaves(data))
-    return [x for x, old in pairs if x is not old], ()
+    return data_reads.replaced(data, stage(model, data, name)), ()
 
   return data_reads.reads(computed, data).fields
 
@@ -162,17 +159,10 @@ def _written_by_step_hooks(t, state) -> frozenset[str]:
   """The `mjx.Data` leaves the step hooks that run between the stage and a
   physics step write: `after_step`, the scheduled ones, `before_step` and
   `before_substep`. `state`: a `State`'s shapes."""
-  names = data_reads.leaf_names(state.data)
   written = set()
 
   def note(before, after):
-    written.update(
-        name
-        for name, old, new in zip(
-            names, jax.tree.leaves(before), jax.tree.leaves(after)
-        )
-        if new is not old
-    )
+    written.update(data_reads.replaced_names(before, after))
 
   def run(state, key, action):
     keys = keys_lib.StepKeys.split(key)
@@ -199,8 +189,7 @@ def _read_by_before_substep(t, state) -> data_reads.Reads:
     after = t.before_substep(
         t.physics(state.replace(data=data)), action, keys, i, fields
     ).carry(fields)
-    pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
-    written = [new for new, old in pairs if new is not old]
+    written = data_reads.replaced(data, after.data)
     return (after.replace(data=None), written), after.data
 
   return data_reads.reads(

@@ -38,6 +38,22 @@ def leaf_names(data) -> list[str]:
   ]
 
 
+def replaced(before, after) -> list:
+  """The leaves of `after` that are not `before`'s (the same structure):
+  what a traced function wrote, as new values, for `reads`' outputs."""
+  pairs = zip(jax.tree.leaves(after), jax.tree.leaves(before))
+  return [new for new, old in pairs if new is not old]
+
+
+def replaced_names(before, after) -> frozenset[str]:
+  """The names (`leaf_names`) of the leaves of `before` that `after` (the
+  same structure, traced from it) replaced."""
+  pairs = zip(
+      leaf_names(before), jax.tree.leaves(before), jax.tree.leaves(after)
+  )
+  return frozenset(name for name, old, new in pairs if new is not old)
+
+
 @dataclasses.dataclass(frozen=True)
 class Reads:
   """What a function reads of an `mjx.Data` (`reads`).

@@ -199,13 +199,7 @@ def _trace_written(
       result = StepForward(stage, sensors)(model, data)
     else:
       result = forward(stage, model, data, sensors)
-    before = jax.tree.leaves(data)
-    after = jax.tree.leaves(result)
-    out['names'] = frozenset(
-        name
-        for name, old, new in zip(data_reads.leaf_names(data), before, after)
-        if new is not old
-    )
+    out['names'] = data_reads.replaced_names(data, result)
     return result
 
   jax.eval_shape(run, data)
@@ -581,12 +575,10 @@ def after_step(transitions) -> StepForward:
     before = t.before_step(stepped, action, next_keys)
     before = t.before_substep(before, action, next_keys, 0, fields)
     after = before.carry(fields)
-    pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
-    written_leaves = [new for new, old in pairs if new is not old]
     read = (
         stepped.replace(data=None),
         after.replace(data=None),
-        written_leaves,
+        data_reads.replaced(data, after.data),
     )
     return read, stepped.data
 

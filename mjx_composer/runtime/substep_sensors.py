@@ -162,7 +162,6 @@ def _between_substeps(t, state) -> tuple[data_reads.Reads, set[str]]:
   """
   action = jax.ShapeDtypeStruct(t.action_shape, jnp.float32)
   index = jax.ShapeDtypeStruct((), jnp.int32)
-  names = data_reads.leaf_names(state.data)
   hooks_wrote = set()
 
   def readers(data, state, key, action, i):
@@ -172,13 +171,11 @@ def _between_substeps(t, state) -> tuple[data_reads.Reads, set[str]]:
     carry, obs_state = t.after_substep(
         stepped, state.obs_state, keys, i, fields
     )
-    pairs = zip(names, jax.tree.leaves(carry.data), jax.tree.leaves(data))
-    hooks_wrote.update(name for name, new, old in pairs if new is not old)
+    hooks_wrote.update(data_reads.replaced_names(data, carry.data))
     after = t.before_substep(
         t.restore(carry), action, keys, i + 1, fields
     ).carry(fields)
-    pairs = zip(jax.tree.leaves(after.data), jax.tree.leaves(data))
-    written = [new for new, old in pairs if new is not old]
+    written = data_reads.replaced(data, after.data)
     return (after.replace(data=None), obs_state, written), after.data
 
   read = data_reads.reads(

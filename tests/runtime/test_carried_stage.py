@@ -14,6 +14,7 @@ from mjx_composer.runtime import data_reads
 from tests import conftest
 from tests.runtime import test_reset_forward
 from tests.runtime import test_substep_sensors
+from tests.runtime import test_transitions
 
 
 @pytest.fixture(scope='module')
@@ -105,32 +106,10 @@ def test_carried_stages_make_the_same_episodes(disturbs):
   a_states = test_reset_forward.rollout(carried, 12)
   b_states = test_reset_forward.rollout(recomputed, 12)
   assert np.asarray(a_states[10].last()).all()
-  for a, b in zip(a_states, b_states):
-    for name in ('observation', 'reward', 'discount'):
-      jax.tree.map(
-          lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5),
-          getattr(a, name),
-          getattr(b, name),
-      )
-    for name, x, y in zip(
-        data_reads.leaf_names(a.data),
-        jax.tree.leaves(a.data),
-        jax.tree.leaves(b.data),
-    ):
-      np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5, err_msg=name)
-    np.testing.assert_array_equal(a.step_type, b.step_type)
+  test_substep_sensors.assert_close_episodes(a_states, b_states)
   # The gyro, read after the step, moves: the test sees the stage's values.
   gyro = [np.asarray(s.observation['gyro']) for s in a_states[1:10]]
   assert np.abs(gyro[-1] - gyro[0]).max() > 0.1
-
-
-def _equations(jaxpr) -> int:
-  count = 0
-  for eqn in jaxpr.eqns:
-    count += 1
-    for sub in jax.extend.core.jaxprs_in_params(eqn.params):
-      count += _equations(sub)
-  return count
 
 
 def test_the_step_program_holds_one_copy_of_the_stage():
@@ -139,7 +118,9 @@ def test_the_step_program_holds_one_copy_of_the_stage():
       jax.vmap(carried.reset), jax.random.split(jax.random.key(0), 2)
   )
   actions = jnp.zeros((2, 1))
-  size = lambda f, *args: _equations(jax.make_jaxpr(f)(*args).jaxpr)
+  size = lambda f, *args: test_transitions._flat_eqn_count(
+      jax.make_jaxpr(f)(*args).jaxpr
+  )
   physics = carried.initial_physics()
   stage = size(
       lambda d: carried_stage.stage(physics.model, d, 'velocity'), physics.data

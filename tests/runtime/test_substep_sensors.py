@@ -249,6 +249,25 @@ class _SensingTask(conftest.SwingTask):
     return physics
 
 
+def assert_close_episodes(a_states, b_states):
+  """Two rollouts' observations, rewards, discounts, metrics and data agree
+  to float32 rounding (1e-5), their step types exactly."""
+  for a, b in zip(a_states, b_states, strict=True):
+    for name in ('observation', 'reward', 'discount', 'metrics'):
+      jax.tree.map(
+          lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5),
+          getattr(a, name),
+          getattr(b, name),
+      )
+    for name, x, y in zip(
+        data_reads.leaf_names(a.data),
+        jax.tree.leaves(a.data),
+        jax.tree.leaves(b.data),
+    ):
+      np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5, err_msg=name)
+    np.testing.assert_array_equal(a.step_type, b.step_type)
+
+
 def _make_env(mode, between=None, observed='acceleration', **options):
   options.setdefault('share_reset_forward', False)
   return composer.Environment(
@@ -290,20 +309,7 @@ def test_sensors_once_per_step_make_the_same_episodes(
   )
   assert once_env.sensors_once_per_step
   assert not every_env.sensors_once_per_step
-  for a, b in zip(once, every):
-    for name in ('observation', 'reward', 'discount', 'metrics'):
-      jax.tree.map(
-          lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5),
-          getattr(a, name),
-          getattr(b, name),
-      )
-    for name, x, y in zip(
-        data_reads.leaf_names(a.data),
-        jax.tree.leaves(a.data),
-        jax.tree.leaves(b.data),
-    ):
-      np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-5, err_msg=name)
-    np.testing.assert_array_equal(a.step_type, b.step_type)
+  assert_close_episodes(once, every)
   # The observed sensors change over the episode: the test sees them.
   rate = 'accelerometer' if observed == 'acceleration' else 'gyro'
   final = np.asarray(once[9].observation[rate])
