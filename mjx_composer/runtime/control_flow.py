@@ -12,8 +12,8 @@ combinators keep the work conditional without conditionals:
   world's is set), so that loops on it stay loops;
 * `select_reset`: a per-world select between a step's result and a reset,
   whose batching rule computes the resets only when some world needs one;
-* `loop_with_reset`: the sub-step loop of a fused auto-reset, with one more
-  iteration (the reset's) only when some world wants it;
+* `loop_with_reset`: the sub-step loop of a fused auto-reset, with more
+  iterations (the reset's) only when some world wants them;
 * `trace_once`: a function traced once and reused where it is needed twice;
 * `tree_select`: a leaf-by-leaf select that keeps MuJoCo Warp's buffers
   shared by the batch.
@@ -238,29 +238,33 @@ class _Rows:
     return jax.tree.unflatten(self._treedef, leaves)
 
 
-def loop_with_reset(n, body, wants_reset, carry, operands):
-  """`body(i, carry, operands)` for `i < n`, then `i = n` where it is wanted.
+def loop_with_reset(n, body, wants_reset, carry, operands, extra=1):
+  """`body(i, carry, operands)` for `i < n`, then `n <= i < n + extra` where
+  a reset is wanted.
 
-  The step loop of an auto-reset whose last iteration resets the episode,
+  The step loop of an auto-reset whose last iterations reset the episode,
   so that the reset's forward pass is the sub-steps' forward pass (one copy
   in the program). For one world this is a while loop of `n` iterations,
-  plus one where `wants_reset(carry, operands)` holds after them. Under
+  plus `extra` where `wants_reset(carry, operands)` holds after them. Under
   `jax.vmap` a batched loop condition would turn every branch on `i` in the
   body into a select, computing the reset at every sub-step; the batching
   rule instead keeps `i` shared by the batch, runs the body batched inside
   the loop (so `batch_any` in it sees the batch), and runs the extra
-  iteration when some world wants it. Results are the same either way. The
-  body is traced once and reused by both paths.
+  iterations when some world wants them. Results are the same either way.
+  The body is traced once and reused by both paths.
 
   Args:
     n: the iterations every world runs.
-    body: `(i, carry, operands) -> carry`, for one world; at `i = n` it must
-      return `carry` unchanged where `wants_reset` is False (the batch runs
-      that iteration for every world). Its parts that run at one `i` only
-      belong in `once_or_never`, with conditions on `i` or `batch_any`.
+    body: `(i, carry, operands) -> carry`, for one world; at `i >= n` it
+      must return `carry` unchanged where `wants_reset` is False (the batch
+      runs those iterations for every world), and leave what
+      `wants_reset` reads unchanged before the last. Its parts that run at
+      some `i` only belong in `once_or_never`, with conditions on `i` or
+      `batch_any`.
     wants_reset: `(carry, operands) -> bool`, for one world.
     carry: the initial carry.
     operands: per-world inputs the body reads.
+    extra: the iterations of the reset.
 
   Returns:
     The final carry.
@@ -274,7 +278,8 @@ def loop_with_reset(n, body, wants_reset, carry, operands):
     def again(loop):
       i, carry = loop
       return jnp.logical_or(
-          i < n, jnp.logical_and(i == n, any_wants(carry, operands))
+          i < n,
+          jnp.logical_and(i < n + extra, any_wants(carry, operands)),
       )
 
     def step(loop):

@@ -22,9 +22,14 @@ The loop, over `i`: iterations `0..n-1` are the sub-steps (before-substep
 hooks, forward pass, integrator, after-substep hooks and observation
 update); the last of them also ends the control step and, where some world
 wants a reset, prepares it (the `initialize_episode` hooks, randomization
-included); iteration `n` runs only where some world wants it, and forwards
-the prepared reset with actuation masked. The parts that run at one
-iteration only are loops run once or never (`control_flow.once_or_never`)
+included); then, only where some world wants it, the reset's forward pass
+runs, with actuation masked. Where the sub-steps carry the end-of-step
+stage (`carried_stage`: each forward pass runs from the stage its data
+holds, and each sub-step computes the stage of its new state), the reset
+takes two iterations: `n` computes the prepared reset's stage, with the same
+copy of the stage the sub-steps use, and `n + 1` runs the rest of its
+forward pass; else it is iteration `n`. The parts that run at some
+iterations only are loops run once or never (`control_flow.once_or_never`)
 on conditions shared by the batch (the counter, `control_flow.batch_any`),
 so nothing in the loop is a `lax.cond` and nothing is computed for every
 world at every sub-step but the sub-step itself and selects on the counter.
@@ -32,11 +37,13 @@ world at every sub-step but the sub-step itself and selects on the counter.
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
 import numpy as np
 
+from mjx_composer.runtime import carried_stage
 from mjx_composer.runtime import control_flow
 from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import keys as keys_lib
@@ -130,6 +137,11 @@ class _FusedLoop:
     self._integrate = substep_sensors.INTEGRATORS[
         int(transitions.initial.model.opt.integrator)
     ]
+    self._carried = transitions.carried_stage
+    # The iteration whose forward pass is the restart's: the one after the
+    # sub-steps, or where they carry a stage, the one after the iteration
+    # that computes the prepared restart's stage.
+    self._restart_at = self._n + (self._carried is not None)
 
   def run(self, state, action, next_reset):
     """The loop from `state` (whose key is the step's)."""
@@ -149,6 +161,7 @@ class _FusedLoop:
             jnp.zeros((), jnp.int32),
         ),
         (state, action, keys, next_reset, action_nonfinite),
+        extra=self._restart_at - self._n + 1,
     )
     return stepped
 
@@ -157,32 +170,43 @@ class _FusedLoop:
     t, n, fields = self._t, self._n, self._fields
     carry, obs_state, stepped, failures = loop
     state, action, keys, next_reset, action_nonfinite = operands
-    # At `i = n` the carry is the prepared restart: its sub-step hooks and
+    # From `i = n` the carry is the prepared restart: its sub-step hooks and
     # integration are computed and dropped (selects on the shared `i`).
     ready = carry
     hooked = t.before_substep(t.restore(carry), action, keys, i, fields).carry(
         fields
     )
     physics = t.restore(control_flow.tree_select(i < n, hooked, carry))
-    forward_model = actuation_masked(physics.model, i == n)
     started = None
     if t.sensors_once_per_step:
       started = substep_sensors.IntegrationState.of(physics.data)
-      forward_model = substep_sensors.without_sensors(forward_model)
-    physics = physics.replace(data=mjx.forward(forward_model, physics.data))
-    moved = physics.replace(data=self._integrate(physics.model, physics.data))
-    moved, obs_state = t.after_substep(moved, obs_state, keys, i, fields)
+    forwarded, moved, obs_state = self._physics_step(
+        i, physics, obs_state, keys
+    )
     # The restart's end first: it is the last reader of `ready` and
-    # `physics`, whose buffers the control step's end may then overwrite
+    # `forwarded`, whose buffers the control step's end may then overwrite
     # in place (else XLA copies them at every iteration).
     stepped = control_flow.once_or_never(
-        i == n,
+        i == self._restart_at,
         lambda stepped: self._finish_restart(
-            ready, physics, failures, stepped, next_reset
+            ready, t.restore(forwarded), failures, stepped, next_reset
         ),
         stepped,
     )
-    carry = control_flow.tree_select(i < n, moved, physics.carry(fields))
+    carry = control_flow.tree_select(i < n, moved, forwarded)
+    if self._carried is not None:
+      # The stage of the sub-step's new state, or at `i = n` of the
+      # prepared restart, whose forward pass the next iteration runs from
+      # it; that forward pass needs none after it.
+      carry = control_flow.once_or_never(
+          i < self._restart_at,
+          lambda carry: carry.replace(
+              data=t.end_substep(
+                  t.restore(carry).model, carry.data, started, i == n - 1
+              )
+          ),
+          carry,
+      )
     carry, obs_state, stepped, failures = control_flow.once_or_never(
         i == n - 1,
         lambda loop: self._end_step(
@@ -191,6 +215,42 @@ class _FusedLoop:
         (carry, obs_state, stepped, failures),
     )
     return carry, obs_state, stepped, failures
+
+  def _physics_step(self, i, physics, obs_state, keys):
+    """`(forwarded, moved, obs_state)` of iteration `i`: the carry after
+    the forward pass (with actuation masked at the restart's), then after
+    the integrator and the `after_substep` hooks, and the observation
+    state they leave.
+
+    Where the sub-steps carry a stage, the forward pass starts from it
+    (`carried_stage.rest_of_forward`), and the iteration that computes the
+    prepared restart's stage (`i = n`) runs none of this.
+    """
+    t, fields = self._t, self._fields
+
+    def run(loop):
+      physics = t.restore(loop[0])
+      model = actuation_masked(physics.model, i == self._restart_at)
+      if t.sensors_once_per_step:
+        model = substep_sensors.without_sensors(model)
+      if self._carried is None:
+        data = mjx.forward(model, physics.data)
+      else:
+        with jax.named_scope('forward'):
+          data = carried_stage.rest_of_forward(
+              model, physics.data, self._carried
+          )
+      forwarded = physics.replace(data=data)
+      moved = forwarded.replace(data=self._integrate(physics.model, data))
+      moved, obs_state = t.after_substep(moved, loop[2], keys, i, fields)
+      return forwarded.carry(fields), moved, obs_state
+
+    start = physics.carry(fields)
+    if self._carried is None:
+      return run((start, start, obs_state))
+    return control_flow.once_or_never(
+        i != self._n, run, (start, start, obs_state)
+    )
 
   def _reset_from(self, stepped, next_reset):
     """(key, previous state, whether it resets) of the reset iteration."""
@@ -211,7 +271,7 @@ class _FusedLoop:
     """Ends the control step; prepares the restart where one is wanted."""
     t = self._t
     carry, obs_state, stepped, failures = loop
-    moved = t.after_physics(t.restore(carry), started)
+    moved = t.after_physics(t.restore(carry), started, self._carried)
     stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)
     carry, failures = control_flow.once_or_never(
         control_flow.batch_any(self._reset_from(stepped, next_reset)[2]),

@@ -441,7 +441,7 @@ class Transitions:
       carry, obs_state = self.after_substep(moved, obs_state, keys, i, fields)
       if carried is not None:
         carry = carry.replace(
-            data=self._end_substep(model, carry.data, started, i == n - 1)
+            data=self.end_substep(model, carry.data, started, i == n - 1)
         )
       return (carry, obs_state, started), None
 
@@ -457,7 +457,7 @@ class Transitions:
     return self.end_step(state, physics, obs_state, keys, action_nonfinite)
 
   @_named_scope
-  def _end_substep(self, model, data, started, last):
+  def end_substep(self, model, data, started, last):
     """A sub-step's data (after its hooks), with the carried stage of its
     new state (`carried_stage`); at the control step's last sub-step
     (`last`, shared by the batch), first the sensors it skipped

@@ -71,12 +71,12 @@ class _Disturbing(test_substep_sensors._SensingTask):
     return physics.replace(data=physics.data.replace(qfrc_applied=applied))
 
 
-def _env(disturbs=None, carry_stage='auto'):
+def _env(disturbs=None, carry_stage='auto', share_reset_forward=False):
   return composer.Environment(
       _Disturbing(disturbs),
       time_limit=0.1,
       options=composer.ExecutionOptions(
-          share_reset_forward=False, carry_stage=carry_stage
+          share_reset_forward=share_reset_forward, carry_stage=carry_stage
       ),
   )
 
@@ -112,8 +112,14 @@ def test_carried_stages_make_the_same_episodes(disturbs):
   assert np.abs(gyro[-1] - gyro[0]).max() > 0.1
 
 
-def test_the_step_program_holds_one_copy_of_the_stage():
-  carried, recomputed = _env(), _env(carry_stage='never')
+# The restart runs separately, or in the sub-step loop, whose reset then
+# uses the sub-steps' copy of the stage.
+@pytest.mark.parametrize('share_reset_forward', [False, True])
+def test_the_step_program_holds_one_copy_of_the_stage(share_reset_forward):
+  carried = _env(share_reset_forward=share_reset_forward)
+  recomputed = _env(
+      carry_stage='never', share_reset_forward=share_reset_forward
+  )
   states = jax.eval_shape(
       jax.vmap(carried.reset), jax.random.split(jax.random.key(0), 2)
   )

@@ -93,7 +93,7 @@ def test_the_fused_path_is_taken(env, monkeypatch):
   monkeypatch.setattr(
       control_flow,
       'loop_with_reset',
-      lambda *args: calls.append(1) or loop(*args),
+      lambda *args, **kwargs: calls.append(1) or loop(*args, **kwargs),
   )
   jax.eval_shape(
       env.step, jax.eval_shape(env.reset, jax.random.key(0)), jnp.zeros(1)
@@ -117,6 +117,26 @@ def test_the_fused_path_is_taken(env, monkeypatch):
 
 
 def test_fused_step_equals_step_then_restart(env, reset_states):
+  # The sub-steps carry the position stage: the restart's takes an
+  # iteration of its own before its forward pass.
+  assert env.carried_stage == 'position'
+  _assert_fused_equals_step_then_restart(env, reset_states)
+
+
+def test_fused_step_without_a_carried_stage_equals_step_then_restart():
+  env = composer.Environment(
+      _RandomizedSwing(),
+      time_limit=0.05,
+      options=composer.ExecutionOptions(carry_stage='never'),
+  )
+  assert env.carried_stage is None
+  keys = jax.random.split(jax.random.key(3), 3)
+  _assert_fused_equals_step_then_restart(
+      env, jax.jit(jax.vmap(env.reset))(keys)
+  )
+
+
+def _assert_fused_equals_step_then_restart(env, reset_states):
   reference = jax.jit(jax.vmap(_step_then_restart(env)))
   fused = jax.jit(jax.vmap(env.step))
   actions = jax.random.uniform(
