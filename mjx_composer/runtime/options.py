@@ -76,9 +76,11 @@ class ExecutionOptions:
       same-step auto-reset, a LAST state's reset with next-step) in one more
       iteration of the sub-step loop, so that the step program holds one
       copy of the forward pass (`Transitions.step_and_restart`,
-      `Transitions.reset_or_step`): it compiles faster, and on a GPU runs
-      slightly slower than the separate restart. False runs the sub-steps as
-      a `lax.scan` of `mjx.step` and the restart separately. States are
+      `Transitions.reset_or_step`, with the sub-steps' copy of the carried
+      stage where `carry_stage` applies): it compiles faster on a CPU; on a
+      GPU it runs slower than the separate restart, with more memory
+      (docs/performance.md). False runs the sub-steps as a `lax.scan` and
+      the restart separately. States are
       bit-identical either way; a reward, computed in other fusions of the
       compiled program, may differ in its last bits (a few ulps). Models
       the fused loop cannot run exactly (RK4, muscles, actuator gravity
