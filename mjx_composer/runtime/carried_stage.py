@@ -120,10 +120,10 @@ def carries(transitions) -> str | None:
   if t.n_sub_steps > 1:
     read = _read_by_before_substep(t, state).fields
   for name in reversed(STAGES[: STAGES.index(end) + 1]):
-    if _read_by_stage(model, data, name) & hooks_write:
+    stage_reads, stage_writes = _stage_io(model, data, name)
+    if stage_reads & hooks_write:
       continue
-    wrote = reset_forward_lib.written(name, model, data, False, after_step=True)
-    if read is not None and wrote & read:
+    if read is not None and stage_writes & read:
       continue
     return name
   return None
@@ -142,13 +142,37 @@ def finish(model, data, name, step_forward):
   return data
 
 
-def _read_by_stage(model, data, name) -> frozenset[str]:
-  """The `mjx.Data` leaves that stage `name` computes its results from."""
+# `_stage_io`'s answers, for every environment of a model.
+_STAGE_IO = data_reads.PerStructure()
 
-  def computed(data):
-    return data_reads.replaced(data, stage(model, data, name)), ()
 
-  return data_reads.reads(computed, data).fields
+def _stage_io(model, data, name) -> tuple[frozenset[str], frozenset[str]]:
+  """The `mjx.Data` leaves that stage `name` computes its results from, and
+  those it writes: one trace of the stage answers both."""
+
+  def compute():
+    out = {}
+
+    def computed(data, model):
+      staged = stage(model, data, name)
+      out['written'] = data_reads.replaced_names(data, staged)
+      return data_reads.replaced(data, staged), ()
+
+    # The model is traced as an argument: the answers depend on its
+    # structure only.
+    read = data_reads.reads(computed, data, model).fields
+    if 'written' not in out:  # `reads` traced nothing (no dead-code pass)
+      out['written'] = reset_forward_lib.written(
+          name, model, data, False, after_step=True
+      )
+    return read, out['written']
+
+  key = (
+      name,
+      data_reads.structure_key(model),
+      data_reads.structure_key(data),
+  )
+  return _STAGE_IO(key, compute)
 
 
 def _action(t):

@@ -54,6 +54,41 @@ def replaced_names(before, after) -> frozenset[str]:
   return frozenset(name for name, old, new in pairs if new is not old)
 
 
+def structure_key(tree) -> tuple:
+  """What a trace of a function of `tree` can depend on: its structure
+  (with MJX's static fields, which drive MJX's Python branches) and its
+  leaves' shapes and dtypes, not their values."""
+  leaves, treedef = jax.tree.flatten(tree)
+  return treedef, tuple(
+      (np.shape(x), str(getattr(x, 'dtype', type(x).__name__))) for x in leaves
+  )
+
+
+class PerStructure:
+  """Answers of traces that depend on what they trace only through its
+  `structure_key`, each computed once per key in this process.
+
+  Every environment of a model asks the same few questions of MJX's forward
+  pass (what a stage reads and writes), and environments of one model ask
+  them again: each trace of a stage takes a fraction of a second, of the
+  full forward pass seconds. The oldest answers are dropped past
+  `max_entries`.
+  """
+
+  def __init__(self, max_entries: int = 256):
+    self._answers = {}
+    self._max_entries = max_entries
+
+  def __call__(self, key, compute):
+    """The answer for `key` (a tuple that holds `structure_key`s), from
+    `compute()` the first time."""
+    if key not in self._answers:
+      if len(self._answers) >= self._max_entries:
+        self._answers.pop(next(iter(self._answers)))
+      self._answers[key] = compute()
+    return self._answers[key]
+
+
 @dataclasses.dataclass(frozen=True)
 class Reads:
   """What a function reads of an `mjx.Data` (`reads`).

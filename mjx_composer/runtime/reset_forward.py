@@ -146,22 +146,9 @@ def forward(stage, model, data, sensors=True):
   return mjx.fwd_actuation(model, _STAGE_FNS[stage](model, data, sensors))
 
 
-def _trace_key(tree) -> tuple:
-  """What a trace of a function of `tree` can depend on: its structure
-  (with MJX's static fields, which drive MJX's Python branches) and its
-  leaves' shapes and dtypes, not their values."""
-  leaves, treedef = jax.tree.flatten(tree)
-  return treedef, tuple(
-      (np.shape(x), str(getattr(x, 'dtype', type(x).__name__))) for x in leaves
-  )
-
-
-# `written`'s answers, by what its trace depends on. Every environment of a
-# model asks for the same few stages (the reset's choice, the control
-# step's), and environments of one model ask again: each trace of a full
-# forward pass takes seconds.
-_WRITTEN: dict = {}
-_WRITTEN_MAX = 256
+# `written`'s answers: every environment of a model asks for the same few
+# stages (the reset's choice, the control step's).
+_WRITTEN = data_reads.PerStructure()
 
 
 def written(
@@ -179,14 +166,12 @@ def written(
       stage,
       bool(sensors),
       bool(after_step),
-      _trace_key(model),
-      _trace_key(data),
+      data_reads.structure_key(model),
+      data_reads.structure_key(data),
   )
-  if key not in _WRITTEN:
-    if len(_WRITTEN) >= _WRITTEN_MAX:
-      _WRITTEN.pop(next(iter(_WRITTEN)))
-    _WRITTEN[key] = _trace_written(stage, model, data, sensors, after_step)
-  return _WRITTEN[key]
+  return _WRITTEN(
+      key, lambda: _trace_written(stage, model, data, sensors, after_step)
+  )
 
 
 def _trace_written(
