@@ -125,18 +125,27 @@ def update(host, plan, fields, auto_stat):
 
 
 def _body_invweight0(m, mx, d, minv):
+  """Each body's mean translational and rotational inverse inertia at qpos0:
+  the means of the diagonals of the two 3x3 blocks of `J M^-1 J^T`, `J` the
+  body's 6-row Jacobian at its centre of mass (mj_setConst).
+
+  Only those diagonals are formed, never the 6x6 products (whose
+  temporaries were the largest of a randomized reset): the translational
+  ones as `J_k M^-1 J_k` over the three rows `k`; the rotational rows are
+  the dofs' axes `A` where the dof moves the body, so their sum is
+  `mask^T (M^-1 * A A^T) mask` in the body's dof mask.
+  """
   # mask[b, v] = 1 if dof v moves body b (its body is an ancestor of b).
   mask = inertia.ancestor_matrix(m)[np.asarray(m.dof_bodyid)].T
   mask = jnp.asarray(mask, d.cdof.dtype)  # (nbody, nv)
   root_com = d.subtree_com[np.asarray(m.body_rootid)]
   offset = d.xipos - root_com  # (nbody, 3)
-  cdof = d.cdof  # (nv, 6)
+  cdof = d.cdof  # (nv, 6): rotation axis, then linear velocity
   jacp = cdof[None, :, 3:] + jnp.cross(cdof[None, :, :3], offset[:, None, :])
-  jacr = jnp.broadcast_to(cdof[None, :, :3], jacp.shape)
-  jac = jnp.concatenate([jacp, jacr], -1) * mask[:, :, None]  # (nb, nv, 6)
-  a = jnp.einsum('bik,ij,bjl->bkl', jac, minv, jac)
-  tran = jnp.trace(a[:, :3, :3], axis1=1, axis2=2) / 3
-  rot = jnp.trace(a[:, 3:, 3:], axis1=1, axis2=2) / 3
+  jacp = jacp * mask[:, :, None]  # (nbody, nv, 3)
+  tran = jnp.einsum('bik,ij,bjk->b', jacp, minv, jacp) / 3
+  axes = cdof[:, :3] @ cdof[:, :3].T  # (nv, nv)
+  rot = jnp.einsum('bi,ij,bj->b', mask, minv * axes, mask) / 3
   out = jnp.stack([tran, rot], -1)
   weld = np.asarray(m.body_weldid)
   static = np.asarray(m.body_dofnum)[weld] == 0
