@@ -6,8 +6,9 @@ conditional costs a host round trip, and its output needs buffers of its
 own, so the branch not taken copies its operand into them. These
 combinators keep the work conditional without conditionals:
 
-* `once_or_never`: `fn(x)` if a predicate holds, as a `while_loop` that runs
-  once or never (a loop that does not run leaves its carry in place);
+* `once_or_never`: `fn(x)` if a predicate shared by the batch holds, as a
+  `while_loop` that runs once or never (a loop that does not run leaves its
+  carry in place);
 * `batch_any`: a flag that is shared by the batch under `vmap` (whether any
   world's is set), so that loops on it stay loops;
 * `select_reset`: a per-world select between a step's result and a reset,
@@ -330,16 +331,47 @@ def _batch_any_rule(axis_size, in_batched, flag):
 def once_or_never(pred, fn, operand):
   """`fn(operand)` if `pred`, else `operand`: a loop run once or never.
 
-  Meant for a `pred` shared by the batch (a loop counter, `batch_any`): the
-  loop then stays a loop under `jax.vmap`. A per-world `pred` still gives
-  each world its own result, but `vmap` runs `fn` for the whole batch when
-  any world's holds and selects. Not a `lax.cond`: a conditional's output
-  needs buffers of its own, so on a GPU the branch not taken copies its
-  operand into them, where a loop that does not run leaves its carry in
-  place.
+  For a `pred` shared by the batch (a loop counter, `batch_any`): the loop
+  then stays a loop under `jax.vmap`; a per-world `pred` is refused where
+  the loop is batched. Not a `lax.cond`: a conditional's output needs
+  buffers of its own, so on a GPU the branch not taken copies its operand
+  into them, where a loop that does not run leaves its carry in place.
+  Under `jax.vmap` the loop's carry is batched whole (`_per_world`), so
+  that JAX's batching rule batches `fn`'s program once, not once to find
+  which parts of the carry are batched and once more for the result.
   """
+  pred, operand = _per_world(pred, operand)
 
   def body(loop):
-    return jnp.zeros((), bool), fn(loop[1])
+    flag, operand = loop
+    return jnp.zeros_like(flag), fn(operand)
 
-  return jax.lax.while_loop(lambda loop: loop[0], body, (pred, operand))[1]
+  return jax.lax.while_loop(
+      lambda loop: batch_any(loop[0]), body, (pred, operand)
+  )[1]
+
+
+@jax.custom_batching.custom_vmap
+def _per_world(pred, operand):
+  """`(pred, operand)` for one world; under `jax.vmap`, every leaf batched.
+
+  The shared `pred` and the leaves of `operand` that are not batched are
+  broadcast to the batch (MuJoCo Warp's buffers shared by the batch stay
+  as they are).
+  """
+  return pred, operand
+
+
+@_per_world.def_vmap
+def _per_world_rule(axis_size, in_batched, pred, operand):
+  pred_batched, operand_batched = in_batched
+  if pred_batched:
+    raise ValueError(
+        'once_or_never needs a predicate shared by the batch (a loop '
+        'counter, or control_flow.batch_any of a per-world flag), not a '
+        'per-world one.'
+    )
+  pred, operand = _batch_all(
+      axis_size, (pred, operand), (pred_batched, operand_batched)
+  )
+  return (pred, operand), (True, _out_batched(operand))

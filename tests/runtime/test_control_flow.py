@@ -219,3 +219,41 @@ def test_once_or_never_on_a_shared_condition_stays_a_loop_under_vmap():
   )
   hlo = jax.jit(jax.vmap(world)).lower(flags, x).as_text()
   assert 'stablehlo.while' in hlo and 'stablehlo.select' not in hlo
+
+
+def test_once_or_never_refuses_a_per_world_condition_under_vmap():
+  def world(flag, x):
+    return control_flow.once_or_never(flag, lambda v: v + 1.0, x)
+
+  with pytest.raises(ValueError, match='shared by the batch'):
+    jax.vmap(world)(jnp.array([False, True]), jnp.zeros((2, 3)))
+
+
+def test_once_or_never_batches_its_function_once_under_vmap():
+  # A marker in `fn` whose batching rule counts how often `fn`'s program
+  # is batched. JAX's loop batching batches a body twice where part of
+  # its carry is not batched (the shared condition, a constant operand).
+  batched = []
+
+  @jax.custom_batching.custom_vmap
+  def marker(v):
+    return v
+
+  @marker.def_vmap
+  def _(axis_size, in_batched, v):
+    del axis_size
+    batched.append(1)
+    return v, in_batched[0]
+
+  def world(flag, x):
+    constant = jnp.ones(3)  # not batched
+    y, c = control_flow.once_or_never(
+        control_flow.batch_any(flag),
+        lambda operand: (marker(operand[0]) * operand[1], operand[1]),
+        (x, constant),
+    )
+    return y + c
+
+  out = jax.vmap(world)(jnp.array([False, True]), jnp.full((2, 3), 2.0))
+  np.testing.assert_array_equal(out, np.full((2, 3), 3.0))
+  assert len(batched) == 1
