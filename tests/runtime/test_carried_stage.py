@@ -11,6 +11,7 @@ import pytest
 import mjx_composer as composer
 from mjx_composer.runtime import carried_stage
 from mjx_composer.runtime import data_reads
+from mjx_composer.runtime import reset_forward
 from tests import conftest
 from tests.runtime import test_reset_forward
 from tests.runtime import test_substep_sensors
@@ -38,6 +39,36 @@ def test_a_physics_step_from_the_carried_stage_is_mjx_step(moving, stage):
       data_reads.leaf_names(data), jax.tree.leaves(got), jax.tree.leaves(want)
   ):
     np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+@pytest.mark.parametrize('stage', carried_stage.STAGES)
+def test_what_a_stage_reads_and_writes_is_traced_once_per_model_structure(
+    moving, stage, monkeypatch
+):
+  model, data = moving
+  monkeypatch.setattr(carried_stage, '_STAGE_IO', data_reads.PerStructure())
+  traced = []
+  trace = carried_stage.stage
+  monkeypatch.setattr(
+      carried_stage,
+      'stage',
+      lambda *args: traced.append(args[2]) or trace(*args),
+  )
+  reads, writes = carried_stage._stage_io(model, data, stage)
+  # The writes are those `reset_forward.written` finds for the stage a
+  # control step runs after its physics, sensors skipped.
+  assert writes == reset_forward.written(
+      stage, model, data, False, after_step=True
+  )
+  assert 'qpos' in reads and 'xpos' in writes
+  assert ('qvel' in reads) == ('cvel' in writes) == (stage == 'velocity')
+  # Abstract data of the same shapes, another put of the same model: the
+  # same answers, without a second trace.
+  again = carried_stage._stage_io(
+      jax.tree.map(jnp.asarray, model), jax.eval_shape(lambda: data), stage
+  )
+  assert again == (reads, writes)
+  assert traced == [stage]
 
 
 class _Disturbing(test_substep_sensors._SensingTask):

@@ -105,7 +105,7 @@ def test_what_a_stage_writes_is_traced_once_per_model_structure(
   data = mjx.put_data(m, d)
   traced = []
   trace = reset_forward._trace_written  # pylint: disable=protected-access
-  monkeypatch.setattr(reset_forward, '_WRITTEN', {})
+  monkeypatch.setattr(reset_forward, '_WRITTEN', data_reads.PerStructure())
   monkeypatch.setattr(
       reset_forward,
       '_trace_written',
