@@ -52,6 +52,7 @@ def stage(model: mjx.Model, data: mjx.Data, name: str) -> mjx.Data:
   return reset_forward_lib.StepForward(name, sensors=False)(model, data)
 
 
+@jax.named_scope('forward')
 def rest_of_forward(model: mjx.Model, data: mjx.Data, name: str) -> mjx.Data:
   """`mjx.forward(model, data)` of `data` whose stage `name` is current.
 
@@ -83,9 +84,7 @@ def physics_step(model: mjx.Model, data: mjx.Data, name: str) -> mjx.Data:
   """`mjx.step(model, data)` of `data` whose stage `name` is current, without
   the stage of the new state (`stage` computes it)."""
   integrate = substep_sensors.INTEGRATORS[int(model.opt.integrator)]
-  with jax.named_scope('forward'):
-    data = rest_of_forward(model, data, name)
-  return integrate(model, data)
+  return integrate(model, rest_of_forward(model, data, name))
 
 
 def carries(transitions) -> str | None:

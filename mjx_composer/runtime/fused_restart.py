@@ -37,7 +37,6 @@ world at every sub-step but the sub-step itself and selects on the counter.
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
@@ -236,10 +235,7 @@ class _FusedLoop:
       if self._carried is None:
         data = mjx.forward(model, physics.data)
       else:
-        with jax.named_scope('forward'):
-          data = carried_stage.rest_of_forward(
-              model, physics.data, self._carried
-          )
+        data = carried_stage.rest_of_forward(model, physics.data, self._carried)
       forwarded = physics.replace(data=data)
       moved = forwarded.replace(data=self._integrate(physics.model, data))
       moved, obs_state = t.after_substep(moved, loop[2], keys, i, fields)
