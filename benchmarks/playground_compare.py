@@ -27,9 +27,10 @@ loads) for `--steps` control steps of 5 physics steps, held actions:
               delay, history, randomize, push, fall (`FEATURES`), or groups
               (the critic group observed too); `only_<f>+<g>+...` switches
               on several (e.g. only_fall+randomize);
-* ours_on_chunk<K>: on request, ours_on with `auto_reset_batch=K`: the
-              worlds whose episodes end are reset K at a time, not with
-              the whole batch.
+* <ours>_chunk<K>: on request, any of ours with `auto_reset_batch=K`
+              (e.g. ours_on_chunk512): the worlds whose episodes end are
+              reset K at a time, not with the whole batch, so the step
+              program's restart holds K worlds' temporaries.
 
 For each: control steps per second (median of `--repeats` calls), the first
 call's seconds (trace, lower and XLA compile of the rollout, and of the
@@ -67,6 +68,7 @@ import argparse
 import importlib.metadata
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -161,6 +163,8 @@ SUFFIXES = {
     SHARED: dict(share_reset_forward=True),
     ALL_SENSORS: dict(substep_sensors='all'),
 }
+# `_chunk<K>`: `auto_reset_batch=K`.
+_CHUNK = re.compile(r'_chunk([1-9][0-9]*)$')
 
 
 def split_suffixes(name):
@@ -174,6 +178,11 @@ def split_suffixes(name):
         name = name[: -len(suffix)]
         kwargs.update(suffix_kwargs)
         stripped = True
+    chunk = _CHUNK.search(name)
+    if chunk:
+      name = name[: chunk.start()]
+      kwargs['auto_reset_batch'] = int(chunk.group(1))
+      stripped = True
   return name, kwargs
 
 
@@ -184,37 +193,30 @@ def program_name(name):
   `share_reset_forward=True` (the restart of ended episodes fused into the
   sub-step loop), e.g. `ours_on_shared`; and in `_all_sensors`: with
   `substep_sensors='all'` (every sub-step computes the sensors, as
-  `mjx.step` does), e.g. `ours_off_all_sensors`.
+  `mjx.step` does), e.g. `ours_off_all_sensors`; and in `_chunk<K>`: with
+  `auto_reset_batch=K` (not with `_shared`), e.g. `ours_on_chunk512`.
   """
   if name.startswith(('playground', 'raw')):
     if name in ('playground', 'playground_trained', 'raw'):
       return name
     raise argparse.ArgumentTypeError(f'unknown program {name!r}')
   base, kwargs = split_suffixes(name)
-  shared = bool(kwargs.get('share_reset_forward'))
-  if shared and base.startswith('ours_on_chunk'):
+  if kwargs.get('share_reset_forward') and 'auto_reset_batch' in kwargs:
     raise argparse.ArgumentTypeError(
         f'{name!r}: auto_reset_batch needs the separate restart'
     )
   features = base[len('only_') :].split('+')
-  if (
-      base in ('ours_on', 'ours_off')
-      or (
-          base.startswith('only_')
-          and all(f in FEATURES or f == 'groups' for f in features)
-      )
-      or (
-          base.startswith('ours_on_chunk')
-          and base[len('ours_on_chunk') :].isdigit()
-      )
+  if base in ('ours_on', 'ours_off') or (
+      base.startswith('only_')
+      and all(f in FEATURES or f == 'groups' for f in features)
   ):
     return name
   raise argparse.ArgumentTypeError(
       f'unknown program {name!r}: ours_on, ours_off, playground, '
       'playground_trained, raw, '
-      "ours_on_chunk<K>, or only_ followed by features joined by '+' from "
+      "or only_ followed by features joined by '+' from "
       f'{", ".join((*FEATURES, "groups"))}; ours\' may end in '
-      f'{" and ".join(SUFFIXES)}'
+      f'{", ".join(SUFFIXES)} and _chunk<K>'
   )
 
 
@@ -237,13 +239,6 @@ def env_variants(names, **env_kwargs):
     elif name == 'ours_on':
       envs[name] = common.make_env(
           'walk', time_limit=walk.EPISODE_SECONDS, **env_kwargs
-      )
-    elif name.startswith('ours_on_chunk'):
-      envs[name] = common.make_env(
-          'walk',
-          time_limit=walk.EPISODE_SECONDS,
-          auto_reset_batch=int(name[len('ours_on_chunk') :]),
-          **env_kwargs,
       )
     elif name == 'ours_off':
       envs[name] = common.make_walk_like_playground(

@@ -16,6 +16,8 @@ def test_ours_programs_take_the_shared_suffix():
       'ours_off_shared',
       'only_noise+randomize_shared',
       'ours_on_chunk512',
+      'only_noise+randomize+groups_chunk64',
+      'ours_off_chunk8_all_sensors',
       'ours_off_all_sensors',
       'only_noise+randomize_all_sensors_shared',
       'playground',
@@ -28,10 +30,22 @@ def test_ours_programs_take_the_shared_suffix():
       ('raw_shared', 'unknown program'),
       ('raw_all_sensors', 'unknown program'),
       ('ours_on_chunk512_shared', 'separate restart'),
+      ('ours_off_shared_chunk8', 'separate restart'),
+      ('ours_on_chunk0', 'unknown program'),
       ('only_wings_shared', 'unknown program'),
   ):
     with pytest.raises(argparse.ArgumentTypeError, match=message):
       playground_compare.program_name(name)
+
+
+def test_suffixes_are_environment_arguments():
+  assert playground_compare.split_suffixes(
+      'only_noise+groups_chunk64_all_sensors'
+  ) == ('only_noise+groups', dict(auto_reset_batch=64, substep_sensors='all'))
+  assert playground_compare.split_suffixes('ours_on_shared') == (
+      'ours_on',
+      dict(share_reset_forward=True),
+  )
 
 
 def test_a_shared_program_fuses_the_restart_whatever_the_default():
