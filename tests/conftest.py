@@ -58,22 +58,6 @@ def _optimized_compiles(request):
 
 
 @pytest.fixture(scope='module', autouse=True)
-def _cache_every_program():
-  """Keeps every program the suite compiles in the persistent cache.
-
-  `platform.configure` leaves out programs that compile in under 0.1 s
-  (`compilation_cache.MIN_COMPILE_TIME_SECS`). The suite compiles about
-  3,900 of them in a run (eager indexing and arithmetic on device arrays),
-  each again in every run; loaded from the cache instead, each costs about
-  16 ms less on a 2-core CPU (tests/observation/test_contacts.py with
-  tests/physics/test_bindings.py, 1,104 such programs: 49.9 s to 32.2 s).
-  Set for every module, since a test may call `platform.configure` again.
-  """
-  jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)
-  yield
-
-
-@pytest.fixture(scope='module', autouse=True)
 def _free_compiled_programs():
   """Drops JAX's in-memory caches after each test module.
 

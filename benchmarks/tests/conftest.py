@@ -15,6 +15,5 @@ _BENCHMARKS = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path[:0] = [_BENCHMARKS, os.path.dirname(_BENCHMARKS)]  # + `tests`
 
 # pylint: disable=g-import-not-at-top,wrong-import-position,unused-import
-from tests.conftest import _cache_every_program
 from tests.conftest import _free_compiled_programs
 from tests.conftest import _optimized_compiles

@@ -21,6 +21,5 @@ sys.path[:0] = [
 ]
 
 # pylint: disable=g-import-not-at-top,wrong-import-position,unused-import
-from tests.conftest import _cache_every_program
 from tests.conftest import _free_compiled_programs
 from tests.conftest import _optimized_compiles
