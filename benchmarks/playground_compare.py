@@ -41,9 +41,8 @@ bytes in use after each program are recorded too (a running maximum: JAX
 cannot reset it). Ratios: ours/raw and ours/playground per world count.
 
 Every program compiles as our scripts and command line compile
-(`platform.configure`: threefry lowered as JAX's GPU kernel; on one H200,
-walk with its features on, 8,192 worlds, the rollout's first call took
-69.9 s with it and 98.6 s without; `MJX_COMPOSER_THREEFRY_KERNEL=0`
+(`platform.configure`: threefry lowered as JAX's GPU kernel, whose effect
+on the first calls docs/performance.md gives; `MJX_COMPOSER_THREEFRY_KERNEL=0`
 measures without), Playground's and raw MJX's too, and never from JAX's
 persistent compilation cache.
 
