@@ -1,9 +1,11 @@
-"""Scaling over devices: one device against all local devices, same worlds.
+"""Scaling over devices: one device against all local devices.
 
 For `--worlds` worlds (default 65,536), first on one device and then on all
 N local devices, the world axis split over them with
 `mjx_composer.platform.sharding` (each device steps its own worlds, with no
-communication between devices), it times:
+communication between devices), it times (`--scaling strong`, the default:
+the same worlds on N devices; `weak`: N x the worlds on N devices, the same
+worlds per device as the one device had; both: both):
 
 * raw:      raw MJX on the reach model: per control step, `ctrl` set and
             `jax.vmap(mjx.step)` run n sub-steps in a `lax.fori_loop`
@@ -24,13 +26,23 @@ communication between devices), it times:
             over its devices, each with worlds / N worlds. One unroll of
             `--ppo-unroll` steps per world per training step, no
             evaluation; Brax's env steps per second of each epoch after the
-            first (which compiles), median.
+            first (which compiles), median;
+* train:    the training command, `mjx-composer train TASK` (`--train-task`,
+            default joystick, with its registered settings), each run in its
+            own process, `--devices 1` against `--devices N`: the task's
+            `num_envs` worlds (weak scaling: N x its `num_envs` and
+            `batch_size`), `--train-intervals` evaluations apart of
+            `--train-updates` training steps each; the training env steps
+            per second of `metrics.csv` between evaluations after the first
+            (which compiles), median. It runs before the other parts, while
+            this process holds no device memory.
 
 On several GPUs the per-device programs and Brax's `pmap` compile with
 GSPMD (`mjx_composer.platform.partitioner` says why).
 
 It reports physics steps per second (raw, composed, gspmd: control steps x
-n sub-steps; ppo: Brax's env steps x n sub-steps), the median of
+n sub-steps; ppo: Brax's env steps x n sub-steps; train: env steps, which
+are control steps), the median of
 `--repeats` calls after two warm-up calls (compilation excluded), and the
 scaling efficiency, N-device steps/s over N x 1-device steps/s (1.0: linear).
 It also counts the collective operations (all-reduce, all-gather, ...) in
@@ -38,6 +50,7 @@ the compiled raw and composed programs. Results go to stdout and to `--out` as J
 
     python benchmarks/scaling.py                     # 65,536 worlds
     python benchmarks/scaling.py --parts raw composed --worlds 32768
+    python benchmarks/scaling.py --parts train --scaling strong weak
 
 On CPU, forced host devices make a quick check of the script:
 
@@ -47,7 +60,11 @@ On CPU, forced host devices make a quick check of the script:
 
 import argparse
 import functools
+import os
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
 
 import jax
@@ -57,7 +74,8 @@ from mjx_composer import platform
 from mjx_composer.platform import partitioner
 from mjx_composer.platform import sharding
 
-PARTS = ('raw', 'composed', 'ppo')
+PARTS = ('raw', 'composed', 'ppo', 'train')
+SCALINGS = ('strong', 'weak')
 _COLLECTIVES = (
     'all-reduce',
     'all-gather',
@@ -183,6 +201,64 @@ def time_ppo(brax_env, worlds, devices, args):
   }
 
 
+def train_flags(task, devices, scale, args):
+  """`mjx-composer train` flags of one scaling run.
+
+  `scale` multiplies the task's `num_envs` and `batch_size` (weak scaling:
+  the number of devices), so each device trains the worlds and minibatch
+  one device has at scale 1; every interval between evaluations is
+  `args.train_updates` training steps.
+  """
+  from mjx_composer.training import config as config_lib  # pylint: disable=g-import-not-at-top
+
+  config = config_lib.defaults(task)
+  worlds, batch = config.num_envs * scale, config.batch_size * scale
+  per_update = batch * config.num_minibatches * config.unroll_length
+  steps = args.train_intervals * args.train_updates * per_update
+  return [
+      '--devices', str(devices), '--num-envs', str(worlds),
+      '--batch-size', str(batch), '--num-timesteps', str(steps),
+      '--num-evals', str(args.train_intervals + 1), '--no-tensorboard',
+  ]  # fmt: skip
+
+
+def train_rate(rows):
+  """Median env steps/s of `metrics.csv` rows after the first interval.
+
+  Row 0 is the evaluation before training; row 1's interval holds the
+  training step's compile.
+  """
+  if len(rows) < 3:
+    raise ValueError(
+        f'{len(rows)} evaluations: the rate needs at least 3 (the first '
+        'two intervals hold the compile); raise --train-intervals.'
+    )
+  return statistics.median(row['env_steps_per_s'] for row in rows[2:])
+
+
+def time_train(task, devices, scale, args):
+  """Env steps/s of `mjx-composer train` in its own process, or None."""
+  from mjx_composer.training import trainer  # pylint: disable=g-import-not-at-top
+
+  flags = train_flags(task, devices, scale, args)
+  with tempfile.TemporaryDirectory() as tmp:
+    run_dir = os.path.join(tmp, 'run')
+    command = [sys.executable, '-m', 'mjx_composer.cli', 'train', task]
+    command += ['--run-dir', run_dir, *flags]
+    print(' '.join(command[1:]), flush=True)
+    start = time.perf_counter()
+    if subprocess.run(command, check=False).returncode:
+      return None  # its output says why
+    rows = trainer.read_csv(os.path.join(run_dir, 'metrics.csv'))
+  return {
+      'steps_per_s': train_rate(rows),
+      'env_steps_per_s_per_interval': [r['env_steps_per_s'] for r in rows[1:]],
+      'final_return': rows[-1]['eval_return'],
+      'total_s': time.perf_counter() - start,
+      'flags': flags,
+  }
+
+
 def main():
   parser = common.make_parser(__doc__, repeats=3, out='scaling.json')
   parser.add_argument('--worlds', type=int, default=65_536)
@@ -208,85 +284,96 @@ def main():
   parser.add_argument('--ppo-unroll', type=int, default=10)
   parser.add_argument('--ppo-minibatches', type=int, default=32)
   parser.add_argument('--ppo-updates', type=int, default=8)
+  parser.add_argument(
+      '--scaling',
+      nargs='+',
+      choices=SCALINGS,
+      default=['strong'],
+      help='strong: the same worlds on all devices; weak: devices x worlds',
+  )
+  parser.add_argument(
+      '--train-task', default='joystick', help="the train part's task"
+  )
+  parser.add_argument(
+      '--train-intervals',
+      type=int,
+      default=4,
+      help='evaluation intervals of each train run (the first compiles)',
+  )
+  parser.add_argument(
+      '--train-updates',
+      type=int,
+      default=20,
+      help='training steps (one unroll of every world each) per interval',
+  )
   args = parser.parse_args()
   if args.ppo_epochs < 2 and 'ppo' in args.parts:
     parser.error('--ppo-epochs must be at least 2 (the first compiles).')
+  if args.train_intervals < 2 and 'train' in args.parts:
+    parser.error('--train-intervals must be at least 2 (the first compiles).')
+
+  results = {}
+
+  def record(part, key, result):
+    results.setdefault(part, {})[key] = result
+    rate = f'{result["steps_per_s"]:,.0f}' if result else 'failed'
+    print(f'{part:>9} on {key} device(s): {rate} steps/s', flush=True)
+
+  if 'train' in args.parts:
+    # Before this process takes the devices' memory: each run is a process.
+    n = _local_device_count()
+    record('train', '1', time_train(args.train_task, 1, 1, args))
+    for scaling in args.scaling if n > 1 else ():
+      scale = n if scaling == 'weak' else 1
+      result = time_train(args.train_task, n, scale, args)
+      record('train', _key(n, scaling), result)
 
   cache_dir = platform.configure()
   device = common.print_device()
   local = jax.local_devices()
-  counts = sorted({1, len(local)})
-  for count in counts:
-    sharding.check_num_worlds(args.worlds, sharding.world_mesh(local[:count]))
+  n = len(local)
+  # (devices, worlds) of every run: one device, then all for each scaling.
+  runs = {'1': (1, args.worlds)}
+  for scaling in args.scaling if n > 1 else ():
+    runs[_key(n, scaling)] = (n, args.worlds * (n if scaling == 'weak' else 1))
+  for count, worlds in runs.values():
+    sharding.check_num_worlds(worlds, sharding.world_mesh(local[:count]))
   print(
-      f'{args.worlds:,} worlds on 1 and {len(local)} devices; compilation '
+      f'{args.worlds:,} worlds on 1 device, runs {runs} on {n}; compilation '
       f'cache: {cache_dir or "off"}',
       flush=True,
   )
 
   env = common.make_env('reach', time_limit=args.time_limit)
-  results = {}
-
-  def record(part, count, result):
-    results.setdefault(part, {})[str(count)] = result
-    print(
-        f'{part:>9} on {count} device(s): '
-        f'{result["steps_per_s"]:,.0f} physics steps/s',
-        flush=True,
-    )
-
-  for count in counts:
+  for key, (count, worlds) in runs.items():
     mesh = sharding.world_mesh(local[:count])
     if 'raw' in args.parts:
-      record(
-          'raw',
-          count,
-          time_raw(env, mesh, args.worlds, args.steps, args.repeats),
-      )
+      record('raw', key, time_raw(env, mesh, worlds, args.steps, args.repeats))
     if 'composed' in args.parts:
       record(
           'composed',
-          count,
-          time_composed(env, mesh, args.worlds, args.steps, args.repeats),
+          key,
+          time_composed(env, mesh, worlds, args.steps, args.repeats),
       )
-  if 'composed' in args.parts and args.gspmd and len(local) > 1:
-    # XLA's partitioning of one program; on one device it is the same
-    # program as `composed`.
-    results['gspmd'] = {'1': results['composed']['1']}
-    record(
-        'gspmd',
-        len(local),
-        time_composed(
-            env,
-            sharding.world_mesh(local),
-            args.worlds,
-            args.steps,
-            args.repeats,
-            gspmd=True,
-        ),
-    )
+    if 'composed' in args.parts and args.gspmd and count > 1:
+      # XLA's partitioning of one program; on one device it is the same
+      # program as `composed`.
+      results.setdefault('gspmd', {'1': results['composed']['1']})
+      record(
+          'gspmd',
+          key,
+          time_composed(
+              env, mesh, worlds, args.steps, args.repeats, gspmd=True
+          ),
+      )
   if 'ppo' in args.parts:
     from mjx_composer.adapters import brax as brax_adapter  # pylint: disable=g-import-not-at-top
 
     brax_env = brax_adapter.BraxEnv(env)
-    for count in counts:
-      record('ppo', count, time_ppo(brax_env, args.worlds, count, args))
+    for key, (count, worlds) in runs.items():
+      record('ppo', key, time_ppo(brax_env, worlds, count, args))
 
-  n = len(local)
-  summary = []
-  for part, rows in results.items():
-    one = rows['1']['steps_per_s']
-    many = rows.get(str(n), rows['1'])['steps_per_s']
-    summary.append(
-        {
-            'part': part,
-            'one_device': one,
-            'all_devices': many,
-            'devices': n,
-            'efficiency': many / (n * one),
-        }
-    )
-
+  summary = summarize(results, n, args.scaling)
   common.write_results(
       args.out,
       device,
@@ -296,24 +383,74 @@ def main():
       n_sub_steps=env.n_sub_steps,
       steps_per_call=args.steps,
       time_limit=args.time_limit,
+      train_task=args.train_task if 'train' in args.parts else None,
   )
   print(
-      f'\n{args.worlds:,} worlds, {device.device_kind}; physics steps/s '
-      f'(efficiency: {n}-device / ({n} x 1-device))'
+      f'\n{args.worlds:,} worlds on one device, {device.device_kind}; '
+      f'physics steps/s (train: env steps/s); efficiency: {n}-device / '
+      f'({n} x 1-device); weak: {n} x the worlds on {n}'
   )
-  print(f'| part | 1 device | {n} devices | efficiency | collectives on {n} |')
-  print('|---|---|---|---|---|')
+  print(
+      f'| part | scaling | 1 device | {n} devices | efficiency | '
+      f'collectives on {n} |'
+  )
+  print('|---|---|---|---|---|---|')
   for row in summary:
-    many = results[row['part']].get(str(n), {})
+    many = results[row['part']].get(_key(n, row['scaling'])) or {}
     if 'collectives' in many:
       found = {k: v for k, v in many['collectives'].items() if v}
       found = ', '.join(f'{k} x{v}' for k, v in found.items()) or 'none'
     else:
       found = '-'  # not counted (Brax's programs)
     print(
-        f'| {row["part"]} | {row["one_device"]:,.0f} | '
+        f'| {row["part"]} | {row["scaling"]} | {row["one_device"]:,.0f} | '
         f'{row["all_devices"]:,.0f} | {row["efficiency"]:.3f} | {found} |'
     )
+
+
+def _key(devices, scaling):
+  """The `runs` key of a run on `devices` devices."""
+  return str(devices) if scaling == 'strong' else f'{devices}_{scaling}'
+
+
+def summarize(results, n, scalings):
+  """One row per part and scaling: its rates and efficiency on `n` devices.
+
+  A part whose runs failed (None) is left out; with one device, the
+  one-device run stands for all.
+  """
+  summary = []
+  for part, runs in results.items():
+    for scaling in scalings:
+      one = runs.get('1')
+      many = runs.get(_key(n, scaling)) if n > 1 else one
+      if not one or not many:
+        continue
+      summary.append(
+          {
+              'part': part,
+              'scaling': scaling,
+              'one_device': one['steps_per_s'],
+              'all_devices': many['steps_per_s'],
+              'devices': n,
+              'efficiency': many['steps_per_s'] / (n * one['steps_per_s']),
+          }
+      )
+  return summary
+
+
+def _local_device_count():
+  """JAX's local device count, asked of another process.
+
+  Starting JAX's GPU client here would reserve most of each GPU's memory
+  for this process, none left for the training runs' processes.
+  """
+  command = [
+      sys.executable,
+      '-c',
+      'import jax; print(jax.local_device_count())',
+  ]
+  return int(subprocess.check_output(command, text=True).split()[-1])
 
 
 if __name__ == '__main__':
