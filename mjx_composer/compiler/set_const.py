@@ -129,11 +129,12 @@ def _body_invweight0(m, mx, d, minv):
   the means of the diagonals of the two 3x3 blocks of `J M^-1 J^T`, `J` the
   body's 6-row Jacobian at its centre of mass (mj_setConst).
 
-  Only those diagonals are formed, never the 6x6 products (whose
-  temporaries were the largest of a randomized reset): the translational
-  ones as `J_k M^-1 J_k` over the three rows `k`; the rotational rows are
-  the dofs' axes `A` where the dof moves the body, so their sum is
-  `mask^T (M^-1 * A A^T) mask` in the body's dof mask.
+  Only those diagonals are formed, never the 6x6 products: the
+  translational ones as `J_k M^-1 J_k` over the three rows `k`, one body at
+  a time (a loop: every body's Jacobian at once, and its product with
+  `M^-1`, were the largest temporaries of a randomized restart on a GPU);
+  the rotational rows are the dofs' axes `A` where the dof moves the body,
+  so their sum is `mask^T (M^-1 * A A^T) mask` in the body's dof mask.
   """
   # mask[b, v] = 1 if dof v moves body b (its body is an ancestor of b).
   mask = inertia.ancestor_matrix(m)[np.asarray(m.dof_bodyid)].T
@@ -141,9 +142,14 @@ def _body_invweight0(m, mx, d, minv):
   root_com = d.subtree_com[np.asarray(m.body_rootid)]
   offset = d.xipos - root_com  # (nbody, 3)
   cdof = d.cdof  # (nv, 6): rotation axis, then linear velocity
-  jacp = cdof[None, :, 3:] + jnp.cross(cdof[None, :, :3], offset[:, None, :])
-  jacp = jacp * mask[:, :, None]  # (nbody, nv, 3)
-  tran = jnp.einsum('bik,ij,bjk->b', jacp, minv, jacp) / 3
+
+  def translational(body):
+    body_offset, body_mask = body
+    jacp = cdof[:, 3:] + jnp.cross(cdof[:, :3], body_offset)
+    jacp = jacp * body_mask[:, None]  # (nv, 3)
+    return jnp.sum(jacp * (minv @ jacp)) / 3
+
+  tran = jax.lax.map(translational, (offset, mask))
   axes = cdof[:, :3] @ cdof[:, :3].T  # (nv, nv)
   rot = jnp.einsum('bi,ij,bj->b', mask, minv * axes, mask) / 3
   out = jnp.stack([tran, rot], -1)

@@ -746,7 +746,10 @@ def test_principal_axes_of_several_bodies_come_from_one_loop():
   On a GPU every iteration of a loop is a kernel launch per loop: a loop per
   body made the walk task's randomized reset twice as slow. Two props of two
   geoms each need principal axes (one loop); a body of one geom copies the
-  geom's frame (no loop).
+  geom's frame (no loop). Beside it, `set_const` forms the bodies'
+  translational inverse weights in one loop over the bodies (a few small
+  kernels an iteration, where every body at once held the randomized
+  restart's largest temporaries).
   """
 
   class Ball(conftest.SpecEntity):
@@ -770,6 +773,7 @@ def test_principal_axes_of_several_bodies_come_from_one_loop():
     values = [jnp.asarray(v) for v in compiler.initial_values]
     return _loops(jax.make_jaxpr(compiler)(env.mjx_model, values).jaxpr)
 
-  assert loops([(props[0].cube, 'density', 'density')]) == 1
-  assert loops([(p.cube, 'density', 'density') for p in props]) == 1
-  assert loops([(b.sphere, 'density', 'density') for b in balls]) == 0
+  assert loops([(props[0].cube, 'density', 'density')]) == 2
+  assert loops([(p.cube, 'density', 'density') for p in props]) == 2
+  assert loops([(b.sphere, 'density', 'density') for b in balls]) == 1
+  assert loops([(b.sphere, 'rgba', 'rgba') for b in balls]) == 0
