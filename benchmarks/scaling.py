@@ -321,21 +321,17 @@ def main():
 
   if 'train' in args.parts:
     # Before this process takes the devices' memory: each run is a process.
-    n = _local_device_count()
-    record('train', '1', time_train(args.train_task, 1, 1, args))
-    for scaling in args.scaling if n > 1 else ():
-      scale = n if scaling == 'weak' else 1
-      result = time_train(args.train_task, n, scale, args)
-      record('train', _key(n, scaling), result)
+    for key, (count, scale) in _runs(_local_device_count(), args).items():
+      record('train', key, time_train(args.train_task, count, scale, args))
 
   cache_dir = platform.configure()
   device = common.print_device()
   local = jax.local_devices()
   n = len(local)
-  # (devices, worlds) of every run: one device, then all for each scaling.
-  runs = {'1': (1, args.worlds)}
-  for scaling in args.scaling if n > 1 else ():
-    runs[_key(n, scaling)] = (n, args.worlds * (n if scaling == 'weak' else 1))
+  runs = {
+      key: (count, args.worlds * scale)
+      for key, (count, scale) in _runs(n, args).items()
+  }
   for count, worlds in runs.values():
     sharding.check_num_worlds(worlds, sharding.world_mesh(local[:count]))
   print(
@@ -411,6 +407,14 @@ def main():
 def _key(devices, scaling):
   """The `runs` key of a run on `devices` devices."""
   return str(devices) if scaling == 'strong' else f'{devices}_{scaling}'
+
+
+def _runs(n, args):
+  """`{key: (devices, worlds scale)}`: one device, then `n` per scaling."""
+  runs = {'1': (1, 1)}
+  for scaling in args.scaling if n > 1 else ():
+    runs[_key(n, scaling)] = (n, n if scaling == 'weak' else 1)
+  return runs
 
 
 def summarize(results, n, scalings):

@@ -75,3 +75,10 @@ def test_efficiency_is_all_devices_over_n_times_one_per_scaling():
       {'raw': {'1': {'steps_per_s': 10.0}}}, 1, ['weak']
   )
   assert one_device[0]['efficiency'] == 1.0
+
+
+def test_runs_are_one_device_then_all_devices_per_scaling():
+  both = types.SimpleNamespace(scaling=['strong', 'weak'])
+  assert scaling._runs(4, both) == {'1': (1, 1), '4': (4, 1), '4_weak': (4, 4)}
+  # With one device there is nothing to scale to.
+  assert scaling._runs(1, both) == {'1': (1, 1)}
