@@ -49,6 +49,8 @@ def _format_operand(value, use_str, parenthesize):
 class _BinaryOperation(composite.CompositeVariation):
   """`op(first, second)` of two evaluated operands (one at least a variation)."""
 
+  _BATCHES = True
+
   def __init__(self, op, first, second):
     self._op = op
     self._operands = (first, second)
@@ -112,6 +114,8 @@ class _BinaryOperation(composite.CompositeVariation):
 
 class _UnaryOperation(composite.CompositeVariation):
   """`op(operand)` of an evaluated variation (composer only has `neg`)."""
+
+  _BATCHES = True
 
   def __init__(self, op, operand):
     self._op = op

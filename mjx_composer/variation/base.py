@@ -209,6 +209,20 @@ class Variation(metaclass=abc.ABCMeta):
       )
     return self(initial_value, current_value, key), state
 
+  # ------------------------------------------------- Sampling together.
+
+  # Whether equal copies of this variation, bound to several attributes, may
+  # be drawn in one `jax.vmap` over their keys, initial and current values
+  # and states (`structures.sample_each`): its `_sample` is a function of
+  # those arrays alone (no Python use of their values, no evaluation round).
+  # Read from the class itself, never inherited: a subclass that overrides
+  # how it samples says so again.
+  _BATCHES = False
+
+  def _batches(self) -> bool:
+    """Whether `structures.sample_each` may draw copies of it together."""
+    return bool(type(self).__dict__.get("_BATCHES", False))
+
   # ---------------------------------------------------------- Helpers.
 
   def _require_key(self, key):

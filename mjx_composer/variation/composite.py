@@ -45,6 +45,11 @@ class CompositeVariation(base.Variation):
   def _apply(self, values, key, initial_value, current_value):
     """Computes the value from the evaluated operands."""
 
+  def _batches(self) -> bool:
+    return super()._batches() and all(
+        structures.batches(operand) for operand in self._operands
+    )
+
   def initial_state(self, initial_value=None):
     inputs = self._operand_inputs(initial_value, None)
     return structures.collapse(

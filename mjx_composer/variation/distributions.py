@@ -143,6 +143,8 @@ class Uniform(Distribution):
   does; non-finite bounds are refused.
   """
 
+  _BATCHES = True
+
   _DOMAINS = {
       "low": parameter_checks.FINITE,
       "high": parameter_checks.FINITE,
@@ -182,6 +184,8 @@ class UniformInteger(Distribution):
   `static_bounds()` is `(low, high - 1)`. As numpy refuses them, `low >=
   high` (or `low <= 0` without `high`) and non-integer bounds are refused.
   """
+
+  _BATCHES = True
 
   _DOMAINS = {
       "low": parameter_checks.INTEGER,
@@ -351,6 +355,8 @@ class UniformPointOnSphere(base.Variation):
 class Normal(Distribution):
   """Gaussian with mean `loc` and standard deviation `scale` (finite, >= 0)."""
 
+  _BATCHES = True
+
   _DOMAINS = {
       "loc": parameter_checks.FINITE,
       "scale": parameter_checks.NONNEGATIVE,
@@ -367,6 +373,8 @@ class Normal(Distribution):
 class LogNormal(Distribution):
   """`exp(N(mean, sigma))` (numpy's `lognormal` parametrisation; `sigma >= 0`)."""
 
+  _BATCHES = True
+
   _DOMAINS = {
       "mean": parameter_checks.FINITE,
       "sigma": parameter_checks.NONNEGATIVE,
@@ -382,6 +390,8 @@ class LogNormal(Distribution):
 
 class Exponential(Distribution):
   """Exponential with mean `scale` (numpy's parametrisation; `scale >= 0`)."""
+
+  _BATCHES = True
 
   _DOMAINS = {"scale": parameter_checks.NONNEGATIVE}
 
@@ -413,6 +423,8 @@ class Bernoulli(Distribution):
 
   `prob` must lie in [0, 1], as numpy's `binomial` requires.
   """
+
+  _BATCHES = True
 
   _DOMAINS = {"prob": parameter_checks.PROBABILITY}
 

@@ -52,12 +52,16 @@ class _Noise(composite.CompositeVariation):
 class Additive(_Noise):
   """Adds the amount: `(current if cumulative else initial) + amount`."""
 
+  _BATCHES = True
+
   def _combine(self, value, amount):
     return value + amount
 
 
 class Multiplicative(_Noise):
   """Multiplies by the amount: `(current if cumulative else initial) * amount`."""
+
+  _BATCHES = True
 
   def _combine(self, value, amount):
     return value * amount

@@ -385,22 +385,22 @@ class Variator:
         count, draw = jnp.zeros((), jnp.int32), True
       new_entry['count'] = jnp.asarray(count, jnp.int32)
 
-    values, new_states = [], []
     binding_keys = rounds.fold_in_each(
         key, [binding.slot for binding in bindings]
     )
     with rounds.evaluation_round(key):
-      for i, binding in enumerate(bindings):
-        value, state = structures.sample(
-            binding.variation,
-            states[i],
-            binding_keys[i],
-            initial[i],
-            current[i],
-        )
-        values.append(_conform(value, initial[i], binding, name))
-        new_states.append(state)
-    new_states = tuple(new_states)
+      drawn = structures.sample_each(
+          [binding.variation for binding in bindings],
+          states,
+          binding_keys,
+          initial,
+          current,
+      )
+    values = [
+        _conform(value, initial[i], binding, name)
+        for i, (binding, (value, _)) in enumerate(zip(bindings, drawn))
+    ]
+    new_states = tuple(state for _, state in drawn)
     invalid = invalid_draw(values, plan.bounds)
     if draw is not True:
       invalid = jnp.logical_and(draw, invalid)
