@@ -153,6 +153,22 @@ def fold(step_key, entry: Entry, purpose: int):
   return jax.random.fold_in(step_key, entry.uids[purpose])
 
 
+def fold_each(step_key, entries, purpose: int) -> dict:
+  """`{entry.index: fold(step_key, entry, purpose)}`, from one hash.
+
+  The same keys, bit for bit, as `fold` of each entry
+  (`stable_id.fold_in_each`): an update of many noisy observables derives
+  their keys in one PRNG call, not one each.
+  """
+  entries = list(entries)
+  if step_key is None and entries:
+    fold(step_key, entries[0], purpose)  # says what is missing
+  keys = stable_id_lib.fold_in_each(
+      step_key, [entry.uids[purpose] for entry in entries]
+  )
+  return {entry.index: key for entry, key in zip(entries, keys)}
+
+
 def step_key(key, t):
   """The key shared by every sample taken at timestamp `t`."""
   return None if key is None else jax.random.fold_in(key, t)

@@ -280,8 +280,11 @@ class Updater:
 
   # -- sampling --------------------------------------------------------------
 
-  def _sample(self, entry: plan.Entry, physics, step_key) -> dict:
-    """Evaluates one observable once; returns `{stream: value}`."""
+  def _sample(self, entry: plan.Entry, physics, corruptor_key) -> dict:
+    """Evaluates one observable once; returns `{stream: value}`.
+
+    `corruptor_key`: the key of its corruptor's draw (`_corruptor_keys`).
+    """
     raw = entry.observable.raw_observation_callable(physics)()
     samples = {}
     if plan.CLEAN in entry.streams:
@@ -289,9 +292,7 @@ class Updater:
     if plan.VALUE in entry.streams:
       value = raw
       if entry.corruptor is not None:
-        value = observable_base.corrupt(
-            entry.corruptor, raw, plan.fold(step_key, entry, plan.CORRUPTOR)
-        )
+        value = observable_base.corrupt(entry.corruptor, raw, corruptor_key)
       samples[plan.VALUE] = self._conform(entry, value, plan.VALUE)
     return samples
 
@@ -322,6 +323,16 @@ class Updater:
 
     jax.eval_shape(sample_all, physics)
 
+  def _corruptor_keys(self, entries, step_key) -> dict:
+    """`{entry.index: key}` of the corruptor draws of `entries` at the
+    timestamp of `step_key` (`plan.fold_each`)."""
+    corrupted = [
+        e
+        for e in entries
+        if e.corruptor is not None and plan.VALUE in e.streams
+    ]
+    return plan.fold_each(step_key, corrupted, plan.CORRUPTOR)
+
   # -- pure functions --------------------------------------------------------
 
   def reset(self, physics, key=None) -> UpdaterState:
@@ -330,8 +341,9 @@ class Updater:
     needs_key = any(e.needs_key for e in self._entries)
     step_key = plan.step_key(key, t) if needs_key else None
     buffers = []
+    corruptor_keys = self._corruptor_keys(self._entries, step_key)
     for entry in self._entries:
-      samples = self._sample(entry, physics, step_key)
+      samples = self._sample(entry, physics, corruptor_keys.get(entry.index))
       if entry.schedule is not None:
         buffers.append(obs_buffer.ring_init(entry.schedule, samples, self._pad))
         continue
@@ -414,10 +426,13 @@ class Updater:
     t = state.t
     needs_key = any(self._entries[i].needs_key for i in active)
     step_key = plan.step_key(key, t) if needs_key else None
+    corruptor_keys = self._corruptor_keys(
+        [self._entries[i] for i in active], step_key
+    )
     for index in active:
       entry = self._entries[index]
       buffer = buffers[index]
-      samples = self._sample(entry, physics, step_key)
+      samples = self._sample(entry, physics, corruptor_keys.get(index))
       if entry.schedule is not None:
         buffers[index] = obs_buffer.ring_write(
             entry.schedule, buffer, samples, t, substep

@@ -312,8 +312,11 @@ class EnvironmentHooks:
     identity (its owner's, and its place among that owner's calls);
     `writers` as in `initialize_episode`."""
     name = 'initialize_episode_mjcf'
-    for participant in self._episode_variators:
-      result = self._call(participant, name, physics, key, None)
+    participants = self._episode_variators
+    for participant, hook_key in zip(
+        participants, keys_lib.hook_keys(key, participants)
+    ):
+      result = self._call(participant, name, physics, hook_key, None)
       _record_writers(
           writers, f'{participant.describe}.{name}', physics, result
       )
@@ -340,24 +343,34 @@ class EnvironmentHooks:
   def scheduled(self, physics, key, writers=None):
     """Runs the hooks registered with `Physics.schedule_before_step`;
     `writers` as in `initialize_episode`."""
-    for name, hook in physics.scheduled_hooks:
-      participant = Participant(f'scheduled:{name}', name, hook, False)
-      result = self._call(participant, 'scheduled', physics, key, None)
-      _record_writers(writers, f'{name} (scheduled)', physics, result)
+    participants = [
+        Participant(f'scheduled:{name}', name, hook, False)
+        for name, hook in physics.scheduled_hooks
+    ]
+    for participant, hook_key in zip(
+        participants, keys_lib.hook_keys(key, participants)
+    ):
+      result = self._call(participant, 'scheduled', physics, hook_key, None)
+      _record_writers(
+          writers, f'{participant.describe} (scheduled)', physics, result
+      )
       physics = result
     return physics
 
   def _run(self, name, physics, key, action=None, writers=None):
-    for participant in self.participants(name):
-      result = self._call(participant, name, physics, key, action)
+    participants = self.participants(name)
+    for participant, hook_key in zip(
+        participants, keys_lib.hook_keys(key, participants)
+    ):
+      result = self._call(participant, name, physics, hook_key, action)
       label = f'{participant.describe}.{name}'
       _record_writers(writers, label, physics, result)
       physics = result
     return physics
 
-  def _call(self, participant, name, physics, key, action):
+  def _call(self, participant, name, physics, hook_key, action):
+    """`participant`'s hook `name` with its own key (`keys.hook_keys`)."""
     _check_takes_key(participant, name)
-    hook_key = keys_lib.hook_key(key, participant.identity)
     physics.forget_writes()
     refusal = functools.partial(_host_randomness_error, participant, name)
     with internals_numpy.refusing_host_randomness(refusal):

@@ -15,7 +15,7 @@ key gives the same trajectory whatever the batch size:
   (`next_step_keys`): the reset's, and the step's whose result is
   discarded;
 * each hook participant folds in the stable id of its identity
-  (`hook_key`), so that overriding one more hook never changes another
+  (`hook_keys`), so that overriding one more hook never changes another
   owner's draws.
 """
 
@@ -41,9 +41,12 @@ def next_step_keys(key) -> tuple[jax.Array, jax.Array]:
   return reset_key, step_key
 
 
-def hook_key(key, identity: str) -> jax.Array:
-  """The key of the hook participant `identity` (see `hooks.Participant`)."""
-  return jax.random.fold_in(key, stable_id_lib.stable_id(identity))
+def hook_keys(key, participants) -> list[jax.Array]:
+  """The key of each hook participant: `key` with the stable id of its
+  identity folded in (`hooks.Participant.identity`), all from one hash."""
+  return stable_id_lib.fold_in_each(
+      key, [stable_id_lib.stable_id(p.identity) for p in participants]
+  )
 
 
 @jax.tree_util.register_dataclass

@@ -11,8 +11,8 @@ from typing import Any, Tuple
 
 import jax
 
+from mjx_composer.utils import stable_id
 from mjx_composer.variation import base
-from mjx_composer.variation import rounds
 from mjx_composer.variation import structures
 
 
@@ -79,7 +79,7 @@ class CompositeVariation(base.Variation):
     operand_keys = (
         {i: operand_key for i in varied}
         if n == 1
-        else dict(zip(varied, rounds.fold_in_each(operand_key, varied)))
+        else dict(zip(varied, stable_id.fold_in_each(operand_key, varied)))
     )
     values, new_states = [], []
     for i, (operand, operand_state, (iv, cv)) in enumerate(

@@ -93,21 +93,3 @@ def current_round() -> Optional[_Round]:
 def fold_in(key, index):
   """`jax.random.fold_in(key, index)`, or None without a key."""
   return None if key is None else jax.random.fold_in(key, index)
-
-
-def fold_in_each(key, indices):
-  """`[fold_in(key, i) for i in indices]`, from one batched hash.
-
-  The same keys, bit for bit, as folding each index in on its own; but each
-  PRNG call is a kernel (a GPU) or a loop (a CPU) of its own in the compiled
-  program, and a reset holds dozens of them.
-  """
-  indices = list(indices)
-  if key is None:
-    return [None] * len(indices)
-  if len(indices) < 2:
-    return [jax.random.fold_in(key, i) for i in indices]
-  keys = jax.vmap(jax.random.fold_in, in_axes=(None, 0))(
-      key, jnp.asarray(indices, jnp.uint32)
-  )
-  return list(keys)

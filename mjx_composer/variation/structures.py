@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import tree
 
+from mjx_composer.utils import stable_id
 from mjx_composer.variation import base
 from mjx_composer.variation import random_state as random_state_lib
 from mjx_composer.variation import rounds
@@ -69,7 +70,7 @@ def sample_structure(
   states = state if state is not None else (None,) * n
   # Leaf i's key is fold_in(key, i), all of them from one hash.
   keyed = [i for i, leaf in enumerate(leaves) if callable(leaf)]
-  leaf_keys = dict(zip(keyed, rounds.fold_in_each(key, keyed)))
+  leaf_keys = dict(zip(keyed, stable_id.fold_in_each(key, keyed)))
   values, new_states = [], []
   for i, (leaf, leaf_state, iv, cv) in enumerate(zip(leaves, states, ivs, cvs)):
     if isinstance(leaf, base.Variation):

@@ -385,7 +385,7 @@ class Variator:
         count, draw = jnp.zeros((), jnp.int32), True
       new_entry['count'] = jnp.asarray(count, jnp.int32)
 
-    binding_keys = rounds.fold_in_each(
+    binding_keys = stable_id_lib.fold_in_each(
         key, [binding.slot for binding in bindings]
     )
     with rounds.evaluation_round(key):

@@ -12,6 +12,7 @@ replayed draw by draw.
 import collections
 import contextlib
 import itertools
+import zlib
 from unittest import mock
 
 from dm_control.composer.observation import fake_physics as dm_fake_physics
@@ -783,6 +784,49 @@ def test_noise_independent_of_other_observables():
   del observables['clean']
   with_extra = _run(updater_lib.Updater(observables, 2), 3)[0]['noisy']
   np.testing.assert_array_equal(reference, with_extra)
+
+
+def _fold_ins(jaxpr) -> int:
+  """`random_fold_in` equations in a jaxpr, nested ones included."""
+  count = 0
+  for eqn in jaxpr.eqns:
+    count += eqn.primitive.name == 'random_fold_in'
+    for param in eqn.params.values():
+      for sub in param if isinstance(param, (list, tuple)) else (param,):
+        sub = getattr(sub, 'jaxpr', sub)
+        if hasattr(sub, 'eqns'):
+          count += _fold_ins(sub)
+  return count
+
+
+def test_corruptor_keys_are_the_documented_folds_from_one_hash():
+  # The sample at timestamp t of observable `name` is corrupted with
+  # fold_in(fold_in(key, t), stable_id(f'{name}#0')) (0: the corruptor's
+  # purpose), the keys of every observable from one PRNG call.
+  names = ('a', 'b', 'c')
+  observables = _enabled(
+      **{
+          name: base.Generic(
+              lambda p: jnp.zeros(2),
+              corruptor=lambda v, key: v + jax.random.uniform(key, v.shape),
+          )
+          for name in names
+      }
+  )
+  updater = updater_lib.Updater(observables, 1)
+  physics = fake_physics.FakePhysics.create()
+  key = jax.random.key(4)
+  observation = updater.get_observation(updater.reset(physics, key))
+  for name in names:
+    uid = zlib.crc32(f'{name}#0'.encode()) & 0x7FFFFFFF
+    expected = jax.random.uniform(
+        jax.random.fold_in(jax.random.fold_in(key, 0), uid), (2,)
+    )
+    # One buffered sample (buffer_size 1).
+    np.testing.assert_array_equal(observation[name], [expected], err_msg=name)
+  jaxpr = jax.make_jaxpr(lambda k: updater.reset(physics, k))(key)
+  # One fold for the timestamp, one for the three observables.
+  assert _fold_ins(jaxpr.jaxpr) == 2
 
 
 def test_same_observations_in_a_batch_as_in_one_world():

@@ -155,6 +155,21 @@ def test_keys_derive_from_stable_identities():
   assert expected['task'] != expected['second']
 
 
+def test_the_participants_keys_come_from_one_hash():
+  # Every participant of a hook gets its key (the test above) from one PRNG
+  # call: each call is a kernel of its own on a GPU.
+  task = _DrawingTask()
+  hooks = hooks_lib.EnvironmentHooks(task)
+  assert len(hooks.participants('initialize_episode')) >= 2
+  jaxpr = jax.make_jaxpr(
+      lambda key: hooks.initialize_episode(_initial(task), key)
+  )(jax.random.key(0))
+  fold_ins = [
+      eqn for eqn in jaxpr.jaxpr.eqns if eqn.primitive.name == 'random_fold_in'
+  ]
+  assert len(fold_ins) == 1
+
+
 def test_model_field_writers_name_the_hook():
   task = _Task()
   hooks, physics = _run(task)
