@@ -3,7 +3,8 @@
 Random streams are split by `jax.random.fold_in(key, stable_id(name))`, so
 that a draw depends on who draws (a hook's owner, an observable's purpose),
 not on the order in which things were built. Python's `hash` of a string
-changes from process to process; CRC-32 does not.
+changes from process to process; CRC-32 does not. `fold_in_each` folds
+many of them into one key at once.
 
 This module imports nothing from the package: authoring code (observables,
 variations) and the runtime both use it.
