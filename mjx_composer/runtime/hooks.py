@@ -117,6 +117,11 @@ class Participant:
   takes_action: bool
 
 
+def _keyed(participants, key):
+  """`(participant, its key)` pairs (`keys.hook_keys`: one hash for all)."""
+  return zip(participants, keys_lib.hook_keys(key, participants))
+
+
 def _overrides(obj, name: str, base_cls) -> bool:
   method = getattr(type(obj), name, None)
   return method is not None and method is not getattr(base_cls, name, None)
@@ -312,10 +317,7 @@ class EnvironmentHooks:
     identity (its owner's, and its place among that owner's calls);
     `writers` as in `initialize_episode`."""
     name = 'initialize_episode_mjcf'
-    participants = self._episode_variators
-    for participant, hook_key in zip(
-        participants, keys_lib.hook_keys(key, participants)
-    ):
+    for participant, hook_key in _keyed(self._episode_variators, key):
       result = self._call(participant, name, physics, hook_key, None)
       _record_writers(
           writers, f'{participant.describe}.{name}', physics, result
@@ -347,9 +349,7 @@ class EnvironmentHooks:
         Participant(f'scheduled:{name}', name, hook, False)
         for name, hook in physics.scheduled_hooks
     ]
-    for participant, hook_key in zip(
-        participants, keys_lib.hook_keys(key, participants)
-    ):
+    for participant, hook_key in _keyed(participants, key):
       result = self._call(participant, 'scheduled', physics, hook_key, None)
       _record_writers(
           writers, f'{participant.describe} (scheduled)', physics, result
@@ -358,10 +358,7 @@ class EnvironmentHooks:
     return physics
 
   def _run(self, name, physics, key, action=None, writers=None):
-    participants = self.participants(name)
-    for participant, hook_key in zip(
-        participants, keys_lib.hook_keys(key, participants)
-    ):
+    for participant, hook_key in _keyed(self.participants(name), key):
       result = self._call(participant, name, physics, hook_key, action)
       label = f'{participant.describe}.{name}'
       _record_writers(writers, label, physics, result)

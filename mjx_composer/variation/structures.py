@@ -144,10 +144,7 @@ def batches(structure) -> bool:
   Every variation in it says it may (`Variation._BATCHES`); a bare callable
   leaf may do anything with its arguments, so it never does.
   """
-  if isinstance(structure, base.Variation):
-    return structure._batches()  # pylint: disable=protected-access
-  if callable(structure):
-    return False
+  # A variation or a callable flattens to itself.
   return all(
       leaf._batches() if isinstance(leaf, base.Variation) else not callable(leaf)  # pylint: disable=protected-access
       for leaf in tree.flatten(structure)
