@@ -17,7 +17,8 @@ values:
   step (`reset_forward.after_step`, `runtime.dirty_forward`);
 * `carried_stage`: whether the control step computes that stage at the end
   of every physics step and carries it to the next, instead of recomputing
-  it after its last (`runtime.carried_stage`).
+  it after its last (`runtime.carried_stage`), and `carried`, what it hands
+  on to the sensors of the last sub-step.
 
 Each runs on first use (building stays cheap for an environment that is
 never traced) or all at once (`analyse`), and answers the same whenever it
@@ -82,7 +83,7 @@ class Analysis:
 
     `reset_shapes` (the reset's `initialize_episode` hooks and the step
     hooks, traced abstractly), `reset_forward`, `sensors_once_per_step`,
-    `step_forward` and `carried_stage` (their readers' jaxprs). They read
+    `step_forward`, `carried_stage` and `carried` (their readers' jaxprs). They read
     shapes only, so they answer the same whenever they run; running them at
     build keeps their traces out of the first trace of `reset` or `step`. Raises what tracing
     those hooks raises.
@@ -93,6 +94,7 @@ class Analysis:
         'sensors_once_per_step',
         'step_forward',
         'carried_stage',
+        'carried',
     ):
       getattr(self, analysis)
     return self
@@ -256,3 +258,9 @@ class Analysis:
     of every physics step and carries to the next (`step_forward`'s), or
     None where it recomputes it after its last (`carried_stage.carries`)."""
     return carried_stage_lib.carries(self._t)
+
+  @functools.cached_property
+  def carried(self) -> carried_stage_lib.Stage | None:
+    """`carried_stage` with what it hands on to the last sub-step's sensors
+    (`carried_stage.of`), or None."""
+    return carried_stage_lib.of(self._t)

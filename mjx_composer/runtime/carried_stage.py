@@ -16,6 +16,14 @@ sub-step, the control step's readers and the next control step's first
 sub-step use. The stage then has one copy in the program and runs as often
 as before (`n` times a control step, and once a reset).
 
+Where the sub-steps also leave the sensors to the control step's end
+(`substep_sensors`), the last sub-step's sensors read some of what the
+stage of its new state overwrites (its sites' poses, centres of mass). The
+stage hands those leaves on (`Stage.run`, `Stage.sensor_inputs`), and the
+control step computes the sensors after the sub-steps from them
+(`Stage.sensors_of_last`): the sub-step loop holds no branch on which
+sub-step is the last.
+
 It holds where the stage a state carries is that of its integration
 state whenever a physics step starts (`carries`): every reset computes it
 (`Analysis.reset_forward` raises the reset's stage to it), and nothing that
@@ -32,6 +40,8 @@ the data, before stepping it.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import jax.numpy as jnp
@@ -50,6 +60,40 @@ STAGES = ('position', 'velocity')
 def stage(model: mjx.Model, data: mjx.Data, name: str) -> mjx.Data:
   """`data` with stage `name` (of `STAGES`) computed, sensors skipped."""
   return reset_forward_lib.StepForward(name, sensors=False)(model, data)
+
+
+@dataclasses.dataclass(frozen=True)
+class Stage:
+  """The stage a control step's sub-steps carry (`carries`), and what it
+  hands on to the sensors of the last sub-step (module docstring).
+
+  Attributes:
+    name: one of `STAGES`.
+    sensor_inputs: the `mjx.Data` leaves (`data_reads.leaf_names`) that the
+      stage overwrites and the last sub-step's sensors read; empty where
+      the sub-steps compute their own sensors.
+  """
+
+  name: str
+  sensor_inputs: frozenset = frozenset()
+
+  def run(self, model: mjx.Model, data: mjx.Data):
+    """`(data with the stage computed, {leaf: value before it})` of the
+    `sensor_inputs` leaves."""
+    kept = data_reads.leaves_named(data, self.sensor_inputs)
+    return stage(model, data, self.name), kept
+
+  def sensors_of_last(self, model, data, kept, started, recomputed):
+    """`data` (after `run`) with the sensors of the physics step before
+    it, as `substep_sensors.sensors_of` computes them from the data before
+    the stage: `kept` restores what the stage overwrote of their inputs,
+    and the stage reads and writes none of their outputs (`carries`)."""
+    sensed = substep_sensors.sensors_of(
+        model, data_reads.with_leaves(data, kept), started, recomputed
+    )
+    return data_reads.with_leaves(
+        data, data_reads.leaves_named(sensed, substep_sensors.OUTPUTS)
+    )
 
 
 @jax.named_scope('forward')
@@ -126,6 +170,38 @@ def carries(transitions) -> str | None:
       continue
     return name
   return None
+
+
+def of(transitions) -> Stage | None:
+  """The `Stage` that `transitions`' sub-steps carry (`carries`), or None.
+
+  Its `sensor_inputs`, where the sub-steps leave the sensors to the control
+  step's end (`Transitions.sensors_once_per_step`): what the stage writes
+  and the sensors read, beyond the integration state that `sensors_of`
+  takes from the step's start. Found from traces with the shapes of a
+  reset's `State`.
+  """
+  t = transitions
+  name = t.carried_stage
+  if name is None:
+    return None
+  if not t.sensors_once_per_step:
+    return Stage(name)
+  model = t.initial.model
+  data = t.analysis.reset_shapes.state.data
+  stage_reads, stage_writes = _stage_io(model, data, name)
+  # The sensors of the last sub-step are computed after the stage, from
+  # what it kept: it must neither read nor write what they write.
+  assert not (stage_reads | stage_writes) & substep_sensors.OUTPUTS, name
+  recomputed = t.step_forward.sensor_stages
+
+  def sensors(data, started):
+    sensed = substep_sensors.sensors_of(model, data, started, recomputed)
+    return data_reads.leaves_named(sensed, substep_sensors.OUTPUTS), ()
+
+  started = jax.eval_shape(substep_sensors.IntegrationState.of, data)
+  read = data_reads.reads(sensors, data, started).fields
+  return Stage(name, frozenset(read & stage_writes))
 
 
 def finish(model, data, name, step_forward):

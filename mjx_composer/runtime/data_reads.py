@@ -38,6 +38,29 @@ def leaf_names(data) -> list[str]:
   ]
 
 
+def leaves_named(data, names) -> dict:
+  """`{name: leaf}` of `data`'s leaves named in `names` (`leaf_names`)."""
+  names = frozenset(names)
+  return {
+      name: leaf
+      for name, leaf in zip(leaf_names(data), jax.tree.leaves(data))
+      if name in names
+  }
+
+
+def with_leaves(data, leaves: dict):
+  """`data` with the leaves named in `leaves` (`leaves_named`) replaced."""
+  if not leaves:
+    return data
+  return jax.tree.unflatten(
+      jax.tree.structure(data),
+      [
+          leaves.get(name, leaf)
+          for name, leaf in zip(leaf_names(data), jax.tree.leaves(data))
+      ],
+  )
+
+
 def replaced(before, after) -> list:
   """The leaves of `after` that are not `before`'s (the same structure):
   what a traced function wrote, as new values, for `reads`' outputs."""

@@ -136,7 +136,7 @@ class _FusedLoop:
     self._integrate = substep_sensors.INTEGRATORS[
         int(transitions.initial.model.opt.integrator)
     ]
-    self._carried = transitions.carried_stage
+    self._carried = transitions.carried
     # The iteration whose forward pass is the restart's: the one after the
     # sub-steps, or where they carry a stage, the one after the iteration
     # that computes the prepared restart's stage.
@@ -179,47 +179,38 @@ class _FusedLoop:
     started = None
     if t.sensors_once_per_step:
       started = substep_sensors.IntegrationState.of(physics.data)
-    forwarded, moved, obs_state = self._physics_step(
-        i, physics, obs_state, keys
-    )
-    # The restart's end first: it is the last reader of `ready` and
-    # `forwarded`, whose buffers the control step's end may then overwrite
-    # in place (else XLA copies them at every iteration).
+    carry, obs_state = self._physics_step(i, physics, obs_state, keys)
+    # The restart's end first: it is the last reader of `ready` and of the
+    # restart's forward pass, whose buffers the stage below may then
+    # overwrite in place (else XLA copies them at every iteration).
     stepped = control_flow.once_or_never(
         i == self._restart_at,
         lambda stepped: self._finish_restart(
-            ready, t.restore(forwarded), failures, stepped, next_reset
+            ready, t.restore(carry), failures, stepped, next_reset
         ),
         stepped,
     )
-    carry = control_flow.tree_select(i < n, moved, forwarded)
+    kept = {}
     if self._carried is not None:
       # The stage of the sub-step's new state, or at `i = n` of the
       # prepared restart, whose forward pass the next iteration runs from
-      # it; that forward pass needs none after it.
-      carry = control_flow.once_or_never(
-          i < self._restart_at,
-          lambda carry: carry.replace(
-              data=t.end_substep(
-                  t.restore(carry).model, carry.data, started, i == n - 1
-              )
-          ),
-          carry,
-      )
+      # it; after that forward pass it is computed and dropped (the loop
+      # ends there), cheaper than a branch at every iteration.
+      data, kept = t.end_substep(t.restore(carry).model, carry.data)
+      carry = carry.replace(data=data)
     carry, obs_state, stepped, failures = control_flow.once_or_never(
         i == n - 1,
         lambda loop: self._end_step(
-            state, keys, next_reset, action_nonfinite, started, loop
+            state, keys, next_reset, action_nonfinite, started, kept, loop
         ),
         (carry, obs_state, stepped, failures),
     )
     return carry, obs_state, stepped, failures
 
   def _physics_step(self, i, physics, obs_state, keys):
-    """`(forwarded, moved, obs_state)` of iteration `i`: the carry after
-    the forward pass (with actuation masked at the restart's), then after
-    the integrator and the `after_substep` hooks, and the observation
-    state they leave.
+    """`(carry, obs_state)` after iteration `i`'s physics: the forward pass
+    (with actuation masked at the restart's), then at a sub-step the
+    integrator and the `after_substep` hooks and observation update.
 
     Where the sub-steps carry a stage, the forward pass starts from it
     (`carried_stage.rest_of_forward`), and the iteration that computes the
@@ -228,25 +219,29 @@ class _FusedLoop:
     t, fields = self._t, self._fields
 
     def run(loop):
-      physics = t.restore(loop[0])
+      carry, obs_state = loop
+      physics = t.restore(carry)
       model = actuation_masked(physics.model, i == self._restart_at)
       if t.sensors_once_per_step:
         model = substep_sensors.without_sensors(model)
       if self._carried is None:
         data = mjx.forward(model, physics.data)
       else:
-        data = carried_stage.rest_of_forward(model, physics.data, self._carried)
+        data = carried_stage.rest_of_forward(
+            model, physics.data, self._carried.name
+        )
       forwarded = physics.replace(data=data)
       moved = forwarded.replace(data=self._integrate(physics.model, data))
-      moved, obs_state = t.after_substep(moved, loop[2], keys, i, fields)
-      return forwarded.carry(fields), moved, obs_state
+      moved, obs_state = t.after_substep(moved, obs_state, keys, i, fields)
+      return (
+          control_flow.tree_select(i < self._n, moved, forwarded.carry(fields)),
+          obs_state,
+      )
 
-    start = physics.carry(fields)
+    start = (physics.carry(fields), obs_state)
     if self._carried is None:
-      return run((start, start, obs_state))
-    return control_flow.once_or_never(
-        i != self._n, run, (start, start, obs_state)
-    )
+      return run(start)
+    return control_flow.once_or_never(i != self._n, run, start)
 
   def _reset_from(self, stepped, next_reset):
     """(key, previous state, whether it resets) of the reset iteration."""
@@ -263,11 +258,13 @@ class _FusedLoop:
         previous.last(),
     )
 
-  def _end_step(self, state, keys, next_reset, action_nonfinite, started, loop):
+  def _end_step(
+      self, state, keys, next_reset, action_nonfinite, started, kept, loop
+  ):
     """Ends the control step; prepares the restart where one is wanted."""
     t = self._t
     carry, obs_state, stepped, failures = loop
-    moved = t.after_physics(t.restore(carry), started, self._carried)
+    moved = t.after_physics(t.restore(carry), started, kept)
     stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)
     carry, failures = control_flow.once_or_never(
         control_flow.batch_any(self._reset_from(stepped, next_reset)[2]),

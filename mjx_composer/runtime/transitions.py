@@ -42,6 +42,7 @@ from mjx_composer.platform import shared_buffers
 from mjx_composer.runtime import analysis as analysis_lib
 from mjx_composer.runtime import carried_stage as carried_stage_lib
 from mjx_composer.runtime import control_flow
+from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import fused_restart
 from mjx_composer.runtime import hooks as hooks_lib
@@ -165,6 +166,12 @@ class Transitions:
     """The end-of-step stage that `step`'s sub-steps compute and carry
     (`Analysis.carried_stage`), or None."""
     return self.analysis.carried_stage
+
+  @property
+  def carried(self) -> carried_stage_lib.Stage | None:
+    """`carried_stage` with what it hands on to the last sub-step's sensors
+    (`Analysis.carried`), or None."""
+    return self.analysis.carried
 
   @property
   def sensors_once_per_step(self) -> bool:
@@ -416,11 +423,10 @@ class Transitions:
     fields = tuple(state.model_fields)
     physics = self.before_step(state, action, keys)
     sensors_once = self.sensors_once_per_step
-    carried = self.carried_stage
-    n = self.n_sub_steps
+    carried = self.carried
 
     def substep(loop, i):
-      carry, obs_state, started = loop
+      carry, obs_state, started, kept = loop
       physics = self.before_substep(
           self.restore(carry), action, keys, i, fields
       )
@@ -435,67 +441,68 @@ class Transitions:
       else:
         moved = physics.replace(
             data=carried_stage_lib.physics_step(
-                physics.model, physics.data, carried
+                physics.model, physics.data, carried.name
             )
         )
       carry, obs_state = self.after_substep(moved, obs_state, keys, i, fields)
       if carried is not None:
-        carry = carry.replace(
-            data=self.end_substep(model, carry.data, started, i == n - 1)
-        )
-      return (carry, obs_state, started), None
+        data, kept = self.end_substep(model, carry.data)
+        carry = carry.replace(data=data)
+      return (carry, obs_state, started, kept), None
 
     started = None
     if sensors_once:
       started = substep_sensors_lib.IntegrationState.of(physics.data)
-    (carry, obs_state, started), _ = jax.lax.scan(
+    kept = {}
+    if carried is not None:
+      kept = data_reads.leaves_named(physics.data, carried.sensor_inputs)
+    (carry, obs_state, started, kept), _ = jax.lax.scan(
         substep,
-        (physics.carry(fields), state.obs_state, started),
-        jnp.arange(n, dtype=jnp.int32),
+        (physics.carry(fields), state.obs_state, started, kept),
+        jnp.arange(self.n_sub_steps, dtype=jnp.int32),
     )
-    physics = self.after_physics(self.restore(carry), started, carried)
+    physics = self.after_physics(self.restore(carry), started, kept)
     return self.end_step(state, physics, obs_state, keys, action_nonfinite)
 
   @_named_scope
-  def end_substep(self, model, data, started, last):
-    """A sub-step's data (after its hooks), with the carried stage of its
-    new state (`carried_stage`); at the control step's last sub-step
-    (`last`, shared by the batch), first the sensors it skipped
-    (`sensors_once_per_step`), as `after_physics` computes them."""
-    if self.sensors_once_per_step:
-      data = control_flow.once_or_never(
-          last,
-          lambda data: substep_sensors_lib.sensors_of(
-              model, data, started, self.step_forward.sensor_stages
-          ),
-          data,
-      )
-    return carried_stage_lib.stage(model, data, self.carried_stage)
+  def end_substep(self, model, data):
+    """A sub-step's data (after its hooks) with the carried stage of its
+    new state (`carried_stage`), and the values the stage overwrote of the
+    inputs of the sub-step's sensors (`carried_stage.Stage.run`), for
+    `after_physics` where the sub-step is the control step's last."""
+    return self.carried.run(model, data)
 
   @_named_scope
-  def after_physics(self, physics, started, carried=None):
+  def after_physics(self, physics, started, kept=None):
     """`physics` after a control step's last sub-step, as its readers see it.
 
     The sensors of that sub-step where the sub-steps skipped them
     (`sensors_once_per_step`; `started`, its `IntegrationState`), then the
     stage of the forward pass the step recomputes at the new state
     (`step_forward`); the sensor stages that stage recomputes are not
-    computed before it. Where the sub-steps carried a stage (`carried`,
-    `carried_stage`), they computed it and the sensors: what
-    `step_forward` computes beyond it follows (`carried_stage.finish`).
+    computed before it. Where the sub-steps carried a stage
+    (`carried_stage`), they computed it: the sensors come from what it
+    kept of their inputs (`kept`, from `end_substep`), and what
+    `step_forward` computes beyond the stage follows
+    (`carried_stage.finish`).
     """
     data = physics.data
     step_forward = self.step_forward
-    if carried is not None:
-      return physics.replace(
-          data=carried_stage_lib.finish(
-              physics.model, data, carried, step_forward
-          )
-      )
+    carried = self.carried
     if self.sensors_once_per_step:
-      data = substep_sensors_lib.sensors_of(
-          physics.model, data, started, step_forward.sensor_stages
+      if carried is None:
+        data = substep_sensors_lib.sensors_of(
+            physics.model, data, started, step_forward.sensor_stages
+        )
+      else:
+        data = carried.sensors_of_last(
+            physics.model, data, kept, started, step_forward.sensor_stages
+        )
+    if carried is not None:
+      data = carried_stage_lib.finish(
+          physics.model, data, carried.name, step_forward
       )
+      return physics.replace(data=data)
     return physics.replace(data=step_forward(physics.model, data))
 
   def can_fuse_restart(self) -> bool:

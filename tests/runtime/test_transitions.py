@@ -395,3 +395,25 @@ def test_the_separate_step_branches_only_inside_its_reset(
   assert all(_reset_loop(loops) for loops in conditionals), conditionals
   # The reset loop is there, and the sub-step scan branches nowhere.
   assert 'while' in str(jaxpr)
+  # Nor does it loop but where `mjx.step` does (the constraint solver): the
+  # sensors of the last sub-step are computed after the scan, not in a loop
+  # run at one sub-step of the scan.
+  (scan,) = [e for e in jaxpr.eqns if e.primitive.name == 'scan']
+  model = env._transitions.initial.model  # pylint: disable=protected-access
+  raw = jax.make_jaxpr(jax.vmap(lambda d: mjx.step(model, d)))(
+      jax.tree.map(lambda x: jnp.stack([x, x]), mjx.make_data(model))
+  ).jaxpr
+  assert _while_loops(scan.params['jaxpr'].jaxpr) == _while_loops(raw) > 0
+
+
+def _while_loops(jaxpr):
+  """The `while` loops of a jaxpr, at any depth."""
+  count = 0
+  for eqn in jaxpr.eqns:
+    count += eqn.primitive.name == 'while'
+    for param in eqn.params.values():
+      for sub in param if isinstance(param, (tuple, list)) else (param,):
+        sub = getattr(sub, 'jaxpr', sub)
+        if hasattr(sub, 'eqns'):
+          count += _while_loops(sub)
+  return count
