@@ -9,6 +9,9 @@ combinators keep the work conditional without conditionals:
 * `once_or_never`: `fn(x)` if a predicate shared by the batch holds, as a
   `while_loop` that runs once or never (a loop that does not run leaves its
   carry in place);
+* `run_unless`: `fn(x)` unless a predicate shared by the batch holds, for
+  work that runs almost always: a `lax.cond`, whose predicate is read once
+  where a loop that runs reads its condition twice;
 * `batch_any`: a flag that is shared by the batch under `vmap` (whether any
   world's is set), so that loops on it stay loops;
 * `select_reset`: a per-world select between a step's result and a reset,
@@ -349,6 +352,37 @@ def once_or_never(pred, fn, operand):
   return jax.lax.while_loop(
       lambda loop: batch_any(loop[0]), body, (pred, operand)
   )[1]
+
+
+def run_unless(skip, fn, operand):
+  """`operand` if `skip`, else `fn(operand)`: a `lax.cond`.
+
+  For a `skip` shared by the batch (a loop counter) that seldom holds. Each
+  `once_or_never` that runs reads its condition twice (a host round trip
+  each on a GPU); this reads it once. Its output does not reuse its
+  operand's buffers, so the branch that skips copies `operand` into the
+  output: keep in `operand` what `fn` writes, and read the rest outside.
+  A per-world `skip` is refused where the conditional is batched (it would
+  turn into a select that runs `fn` for every world).
+  """
+  return jax.lax.cond(_shared(skip), lambda x: x, fn, operand)
+
+
+@jax.custom_batching.custom_vmap
+def _shared(pred):
+  """`pred`; refused under `jax.vmap` where it is batched."""
+  return pred
+
+
+@_shared.def_vmap
+def _shared_rule(axis_size, in_batched, pred):
+  del axis_size
+  if in_batched[0]:
+    raise ValueError(
+        'run_unless needs a condition shared by the batch (a loop counter), '
+        'not a per-world one.'
+    )
+  return pred, False
 
 
 @jax.custom_batching.custom_vmap

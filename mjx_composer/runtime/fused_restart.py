@@ -28,11 +28,14 @@ stage (`carried_stage`: each forward pass runs from the stage its data
 holds, and each sub-step computes the stage of its new state), the reset
 takes two iterations: `n` computes the prepared reset's stage, with the same
 copy of the stage the sub-steps use, and `n + 1` runs the rest of its
-forward pass; else it is iteration `n`. The parts that run at some
-iterations only are loops run once or never (`control_flow.once_or_never`)
-on conditions shared by the batch (the counter, `control_flow.batch_any`),
-so nothing in the loop is a `lax.cond` and nothing is computed for every
-world at every sub-step but the sub-step itself and selects on the counter.
+forward pass (the stage runs at every iteration: after the reset's
+forward pass it is computed and dropped); else it is iteration `n`. The
+parts that run at one iteration only are loops run once or never
+(`control_flow.once_or_never`) on conditions shared by the batch (the
+counter, `control_flow.batch_any`); the physics, which runs at every
+iteration but `n` where a stage is carried, is a conditional on the counter
+(`control_flow.run_unless`). Nothing is computed for every world at every
+sub-step but the sub-step itself and selects on the counter.
 """
 
 from __future__ import annotations
@@ -241,7 +244,9 @@ class _FusedLoop:
     start = (physics.carry(fields), obs_state)
     if self._carried is None:
       return run(start)
-    return control_flow.once_or_never(i != self._n, run, start)
+    # It runs at every iteration but one: a conditional reads `i` once where
+    # a loop run once reads it twice, and leaves the carry fewer copies.
+    return control_flow.run_unless(i == self._n, run, start)
 
   def _reset_from(self, stepped, next_reset):
     """(key, previous state, whether it resets) of the reset iteration."""

@@ -1,5 +1,6 @@
 """Control flow: tracing a reset once, the reset select, and the
-shared-condition loops of the fused restart (`batch_any`, `once_or_never`).
+shared-condition loops of the fused restart (`batch_any`, `once_or_never`)
+and its conditional (`run_unless`).
 """
 
 import jax
@@ -224,6 +225,39 @@ def test_once_or_never_on_a_shared_condition_stays_a_loop_under_vmap():
 def test_once_or_never_refuses_a_per_world_condition_under_vmap():
   def world(flag, x):
     return control_flow.once_or_never(flag, lambda v: v + 1.0, x)
+
+  with pytest.raises(ValueError, match='shared by the batch'):
+    jax.vmap(world)(jnp.array([False, True]), jnp.zeros((2, 3)))
+
+
+def test_run_unless_runs_fn_unless_skip():
+  x = jnp.arange(3.0)
+  double = lambda v: v * 2.0
+  np.testing.assert_array_equal(
+      control_flow.run_unless(jnp.asarray(False), double, x), x * 2
+  )
+  np.testing.assert_array_equal(
+      control_flow.run_unless(jnp.asarray(True), double, x), x
+  )
+
+
+def test_run_unless_on_a_shared_counter_stays_a_conditional_under_vmap():
+  def world(i, x):
+    return control_flow.run_unless(i == 1, lambda v: v + 1.0, x)
+
+  x = jnp.zeros((2, 3))
+  step = jax.vmap(world, in_axes=(None, 0))
+  np.testing.assert_array_equal(step(0, x), np.ones((2, 3)))
+  np.testing.assert_array_equal(step(1, x), np.zeros((2, 3)))
+  hlo = jax.jit(step).lower(0, x).as_text()
+  assert 'stablehlo.case' in hlo and 'stablehlo.select' not in hlo
+  # A loop run once or never reads its condition twice when it runs.
+  assert 'stablehlo.while' not in hlo
+
+
+def test_run_unless_refuses_a_per_world_condition_under_vmap():
+  def world(flag, x):
+    return control_flow.run_unless(flag, lambda v: v + 1.0, x)
 
   with pytest.raises(ValueError, match='shared by the batch'):
     jax.vmap(world)(jnp.array([False, True]), jnp.zeros((2, 3)))
