@@ -9,7 +9,8 @@ a Perfetto trace) one call of `--steps` control steps of:
 * each variant named with `--variants`: `no_ends` (no time limit),
   `no_obs` (no time limit, every observable disabled), `shared`
   (`share_reset_forward=True`), `unshared` (False), `on` (walk with every
-  feature on, as `playground_compare.py`'s ours_on);
+  feature on, as `playground_compare.py`'s ours_on), `on_shared` (`on`
+  with `share_reset_forward=True`);
 * with `--reset NAME` (`composed` or a variant), that environment's batched
   reset, `vmap(env.reset)` from fresh keys (reported per call, as one
   'control step'): what the same-step auto-reset adds to a step in which
@@ -68,11 +69,14 @@ def _make_envs(task, variants, impl='jax'):
       envs[name] = common.make_env(
           task, **{**kwargs, 'time_limit': inf}, observables=False
       )
-    elif name == 'on':
+    elif name in ('on', 'on_shared'):
       if task != 'walk':
-        raise ValueError("The 'on' variant is the walk task's.")
+        raise ValueError(f"The '{name}' variant is the walk task's.")
       envs[name] = common.make_env(
-          task, impl=impl, time_limit=kwargs['time_limit']
+          task,
+          impl=impl,
+          time_limit=kwargs['time_limit'],
+          **({'share_reset_forward': True} if name == 'on_shared' else {}),
       )
     elif name in ('shared', 'unshared'):
       envs[name] = common.make_env(
