@@ -378,11 +378,16 @@ def _shared(pred):
 def _shared_rule(axis_size, in_batched, pred):
   del axis_size
   if in_batched[0]:
-    raise ValueError(
-        'run_unless needs a condition shared by the batch (a loop counter), '
-        'not a per-world one.'
-    )
+    _refuse_per_world('run_unless', 'a loop counter')
   return pred, False
+
+
+def _refuse_per_world(combinator, shared):
+  """Raises: `combinator` was given a per-world condition under `vmap`."""
+  raise ValueError(
+      f'{combinator} needs a condition shared by the batch ({shared}), not '
+      'a per-world one.'
+  )
 
 
 @jax.custom_batching.custom_vmap
@@ -400,10 +405,9 @@ def _per_world(pred, operand):
 def _per_world_rule(axis_size, in_batched, pred, operand):
   pred_batched, operand_batched = in_batched
   if pred_batched:
-    raise ValueError(
-        'once_or_never needs a predicate shared by the batch (a loop '
-        'counter, or control_flow.batch_any of a per-world flag), not a '
-        'per-world one.'
+    _refuse_per_world(
+        'once_or_never',
+        'a loop counter, or control_flow.batch_any of a per-world flag',
     )
   pred, operand = _batch_all(
       axis_size, (pred, operand), (pred_batched, operand_batched)

@@ -29,6 +29,7 @@ from mjx_composer.observation import fake_physics
 from mjx_composer.observation import updater as updater_lib
 from mjx_composer.observation.observable import base
 from mjx_composer.variation import base as variation_base
+from tests import jaxprs
 
 N_SUB_STEPS = 5
 NUM_CONTROL_STEPS = 200
@@ -786,19 +787,6 @@ def test_noise_independent_of_other_observables():
   np.testing.assert_array_equal(reference, with_extra)
 
 
-def _fold_ins(jaxpr) -> int:
-  """`random_fold_in` equations in a jaxpr, nested ones included."""
-  count = 0
-  for eqn in jaxpr.eqns:
-    count += eqn.primitive.name == 'random_fold_in'
-    for param in eqn.params.values():
-      for sub in param if isinstance(param, (list, tuple)) else (param,):
-        sub = getattr(sub, 'jaxpr', sub)
-        if hasattr(sub, 'eqns'):
-          count += _fold_ins(sub)
-  return count
-
-
 def test_corruptor_keys_are_the_documented_folds_from_one_hash():
   # The sample at timestamp t of observable `name` is corrupted with
   # fold_in(fold_in(key, t), stable_id(f'{name}#0')) (0: the corruptor's
@@ -826,7 +814,7 @@ def test_corruptor_keys_are_the_documented_folds_from_one_hash():
     np.testing.assert_array_equal(observation[name], [expected], err_msg=name)
   jaxpr = jax.make_jaxpr(lambda k: updater.reset(physics, k))(key)
   # One fold for the timestamp, one for the three observables.
-  assert _fold_ins(jaxpr.jaxpr) == 2
+  assert jaxprs.count(jaxpr.jaxpr, 'random_fold_in') == 2
 
 
 def test_same_observations_in_a_batch_as_in_one_world():

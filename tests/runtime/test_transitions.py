@@ -24,6 +24,7 @@ from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
 from tests import conftest
+from tests import jaxprs
 from tests import test_environment
 
 
@@ -403,17 +404,8 @@ def test_the_separate_step_branches_only_inside_its_reset(
   raw = jax.make_jaxpr(jax.vmap(lambda d: mjx.step(model, d)))(
       jax.tree.map(lambda x: jnp.stack([x, x]), mjx.make_data(model))
   ).jaxpr
-  assert _while_loops(scan.params['jaxpr'].jaxpr) == _while_loops(raw) > 0
-
-
-def _while_loops(jaxpr):
-  """The `while` loops of a jaxpr, at any depth."""
-  count = 0
-  for eqn in jaxpr.eqns:
-    count += eqn.primitive.name == 'while'
-    for param in eqn.params.values():
-      for sub in param if isinstance(param, (tuple, list)) else (param,):
-        sub = getattr(sub, 'jaxpr', sub)
-        if hasattr(sub, 'eqns'):
-          count += _while_loops(sub)
-  return count
+  assert (
+      jaxprs.count(scan.params['jaxpr'].jaxpr, 'while')
+      == (jaxprs.count(raw, 'while'))
+      > 0
+  )

@@ -18,20 +18,12 @@ from mjx_composer.variation import distributions
 from mjx_composer.variation import noises
 from mjx_composer.variation import structures
 from mjx_composer.variation import variation_broadcaster
+from tests import jaxprs
 
 
 def _draws(jaxpr) -> int:
   """PRNG calls (random_bits, or threefry for raw keys) in a jaxpr."""
-  count = 0
-  for eqn in jaxpr.eqns:
-    if eqn.primitive.name in ('random_bits', 'threefry2x32'):
-      count += 1
-    for param in eqn.params.values():
-      for sub in param if isinstance(param, (list, tuple)) else (param,):
-        sub = getattr(sub, 'jaxpr', sub)  # a ClosedJaxpr's
-        if hasattr(sub, 'eqns'):
-          count += _draws(sub)
-  return count
+  return jaxprs.count(jaxpr, 'random_bits', 'threefry2x32')
 
 
 def _one_by_one(variations, keys, initials, currents):
