@@ -42,6 +42,22 @@ jax.config.update(
     os.environ['JAX_DISABLE_MOST_OPTIMIZATIONS'] not in ('', '0', 'false'),
 )
 
+# Python's cyclic garbage collector, tuned for tracing. A trace builds a
+# large graph of objects (equations, tracers, abstract values) that lives
+# until the trace ends, and CPython runs a full collection, which walks
+# every tracked object of the process, each time the objects that outlived
+# younger collections have grown by a quarter: a trace walks its own
+# growing graph again and again and reclaims almost nothing (reference
+# counting frees the rest). Most of the suite's time is tracing (its
+# compiled programs load from the persistent cache); with CPython's
+# thresholds, collections took 16% of two of its heaviest files. Full
+# collections a hundred times rarer, and the imported modules frozen out of
+# them, leave the young generations collected as before;
+# `_free_compiled_programs` still collects everything after each module.
+gc.collect()
+gc.freeze()
+gc.set_threshold(700, 10, 1000)
+
 
 @pytest.fixture(autouse=True)
 def _optimized_compiles(request):
