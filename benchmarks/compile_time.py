@@ -33,6 +33,13 @@ JSON, per program: trace times under the traced function's name, lowering
 and compile times under the module's, e.g. `jit(_fun)` for Brax's pmapped
 training epoch).
 
+`--xla-phases` also records where XLA's compile time goes, from XLA's own
+timers (which it prints where `TF_CPP_VMODULE` asks for them,
+`XLA_TIMER_ENV`): `xla_hlo_passes_s`, its HLO optimization passes, and
+`xla_backend_s`, its code generation (LLVM IR; on a GPU, also the PTX
+assembled into kernels, on several threads). Each program then runs in its
+own process (not with `--in-process`).
+
 Threefry is lowered as JAX's GPU kernel (`prng_lowering.enable()`), as our
 scripts compile; `MJX_COMPOSER_THREEFRY_KERNEL=0` measures without it.
 
@@ -113,6 +120,39 @@ _SIZE_KEYS = (
     'hlo_instructions',
     'hlo_while_loops',
 )
+
+
+# XLA's own timers of the two phases of a compilation, which it prints to
+# stderr where `TF_CPP_VMODULE` asks for them (`--xla-phases`): the HLO
+# optimization passes, and the backend (LLVM IR, and on a GPU its PTX
+# assembled into kernels). Patterns for XLA's GPU and CPU compilers.
+XLA_TIMER_ENV = {
+    'TF_CPP_MIN_LOG_LEVEL': '0',
+    'TF_CPP_VMODULE': 'gpu_compiler=1,cpu_compiler=1',
+}
+_XLA_PHASE_KEYS = ('xla_hlo_passes_s', 'xla_backend_s')
+_XLA_TIMERS = (
+    ('xla_hlo_passes_s', r'GpuCompiler::RunHloPasses for (\S+) time: '),
+    ('xla_backend_s', r'GpuCompiler::RunBackend for (\S+) time: '),
+    ('xla_hlo_passes_s', r'Running HLO passes on \[(\S+)\] for CPU time: '),
+    ('xla_backend_s', r'Compiling \[(\S+)\] for CPU using JIT time: '),
+)
+_XLA_UNITS = {'us': 1e-6, 'ms': 1e-3, 's': 1.0, 'min': 60.0, 'h': 3600.0}
+
+
+def xla_phases(log: str, module: str) -> dict:
+  """Seconds of each phase of compiling `module` ('jit_rollout'), read from
+  XLA's timer lines in `log`; the longest where it compiled more than once
+  (the measured program, not a small one of the same name). A phase whose
+  line is missing is left out."""
+  phases = {}
+  for key, prefix in _XLA_TIMERS:
+    pattern = re.compile(prefix + r'([\d.]+) (us|ms|s|min|h)\b')
+    for m in pattern.finditer(log):
+      if m.group(1) == module:
+        seconds = float(m.group(2)) * _XLA_UNITS[m.group(3)]
+        phases[key] = max(phases.get(key, 0.0), seconds)
+  return phases
 
 
 def _disable_persistent_cache():
@@ -278,6 +318,8 @@ def measure(fn, args):
   row['compile_s'] = time.perf_counter() - t0
   row['total_s'] = (row['trace_s'] or 0.0) + row['lower_s'] + row['compile_s']
   row.update(program_sizes(jaxpr, lowered, compiled))
+  module = re.search(r'module @(\S+)', lowered.as_text())
+  row['module'] = module.group(1) if module else None
   return row
 
 
@@ -545,25 +587,55 @@ def run_one(
   return row
 
 
-def run_worker(script, args):
+def run_worker(script, args, phases=False):
   """`python script --worker ROW_JSON *args` in a fresh process: its row.
 
   The worker measures and writes its row (a dict) to ROW_JSON; returns
-  None when the process fails (its output says why).
+  None when the process fails (its output says why). With `phases`, the
+  worker prints XLA's compile timers, and the row gets the measured
+  program's (`xla_phases`); the worker's other output passes through.
   """
   with tempfile.TemporaryDirectory() as tmp:
     path = os.path.join(tmp, 'row.json')
     cmd = [sys.executable, os.path.abspath(script), '--worker', path, *args]
-    if subprocess.run(cmd, check=False).returncode:
+    if not phases:
+      if subprocess.run(cmd, check=False).returncode:
+        return None
+      with open(path) as f:
+        return json.load(f)
+    done = subprocess.run(
+        cmd,
+        check=False,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=dict(os.environ, **XLA_TIMER_ENV),
+    )
+    # XLA's INFO lines ('I1130 02:38:04.2 ...') stay out of the output.
+    sys.stderr.write(
+        ''.join(
+            line
+            for line in done.stderr.splitlines(keepends=True)
+            if not re.match(r'I\d{4} ', line)
+        )
+    )
+    if done.returncode:
       return None
     with open(path) as f:
-      return json.load(f)
+      row = json.load(f)
+    row.update(xla_phases(done.stderr, row.get('module')))
+    return row
 
 
 def _run_isolated(
-    task, program, worlds, steps, share_reset_forward=None, reset_forward=None
+    task,
+    program,
+    worlds,
+    steps,
+    share_reset_forward=None,
+    reset_forward=None,
+    phases=False,
 ):
-  """`run_one` in a fresh Python process."""
+  """`run_one` in a fresh Python process (`run_worker`)."""
   args = ['--tasks', task, '--programs', program, '--steps', str(steps)]
   if worlds is not None:
     args += ['--worlds', str(worlds)]
@@ -571,7 +643,7 @@ def _run_isolated(
     args += ['--share-reset-forward', 'on' if share_reset_forward else 'off']
   if reset_forward is not None:
     args += ['--reset-forward', reset_forward]
-  return run_worker(__file__, args)
+  return run_worker(__file__, args, phases)
 
 
 # -- report ------------------------------------------------------------------
@@ -596,7 +668,7 @@ def ratios(rows):
       if not c or not r:
         continue
       row = {'task': task, 'program': composed}
-      for key in _TIME_KEYS + _SIZE_KEYS + ('wall_s',):
+      for key in _TIME_KEYS + _XLA_PHASE_KEYS + _SIZE_KEYS + ('wall_s',):
         row[key] = _ratio(c.get(key), r.get(key))
       out.append(row)
   return out
@@ -731,6 +803,12 @@ def main(argv=None):
       metavar='N',
       help="print each program's N largest named scopes (jaxpr equations)",
   )
+  parser.add_argument(
+      '--xla-phases',
+      action='store_true',
+      help="also record XLA's time in its HLO passes and its backend, from "
+      'its own timers (each program in its own process)',
+  )
   parser.add_argument('--worker', metavar='ROW_JSON', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
   share = common.share_reset_forward(args)
@@ -748,6 +826,10 @@ def main(argv=None):
     return 0
 
   if args.in_process:
+    if args.xla_phases:
+      parser.error(
+          '--xla-phases needs a process per program (not --in-process)'
+      )
     _disable_persistent_cache()
   rows, failed = [], []
   pairs = measured_programs(args.tasks, programs)
@@ -756,7 +838,14 @@ def main(argv=None):
     if args.in_process:
       row = run_one(task, program, args.worlds, args.steps, *env_options)
     else:
-      row = _run_isolated(task, program, args.worlds, args.steps, *env_options)
+      row = _run_isolated(
+          task,
+          program,
+          args.worlds,
+          args.steps,
+          *env_options,
+          phases=args.xla_phases,
+      )
     if row is None:
       print(f'{task}: {program} FAILED (see above)', flush=True)
       failed.append(f'{task}/{program}')
@@ -765,7 +854,13 @@ def main(argv=None):
       print(
           f'{task}: {program:<9} trace {_fmt(row.get("trace_s"), ".2f")} s, '
           f'lower {row["lower_s"]:.2f} s, compile {row["compile_s"]:.2f} s'
-          + (f', wall {row["wall_s"]:.1f} s' if 'wall_s' in row else ''),
+          + (f', wall {row["wall_s"]:.1f} s' if 'wall_s' in row else '')
+          + (
+              f' (XLA: HLO passes {row["xla_hlo_passes_s"]:.2f} s, backend '
+              f'{row["xla_backend_s"]:.2f} s)'
+              if 'xla_backend_s' in row and 'xla_hlo_passes_s' in row
+              else ''
+          ),
           flush=True,
       )
     # After every program: a run stopped by a time limit keeps what it

@@ -1,7 +1,11 @@
-"""benchmarks/compile_time.py without compiling: tasks, programs, ratios."""
+"""benchmarks/compile_time.py without compiling its programs: tasks, programs,
+ratios, and the XLA timers it reads."""
 
 import argparse
 import json
+import os
+import subprocess
+import sys
 
 import jax
 import pytest
@@ -139,8 +143,8 @@ def test_the_record_is_written_after_every_program(tmp_path, monkeypatch):
   out = tmp_path / 'record.json'
   seen = []
 
-  def fake_run(task, program, *args):
-    del args
+  def fake_run(task, program, *args, **kwargs):
+    del args, kwargs
     if program == 'reset':
       return None  # a failed worker
     if program == 'raw_reset':  # the run is stopped before its last program
@@ -161,3 +165,43 @@ def test_the_record_is_written_after_every_program(tmp_path, monkeypatch):
   assert record['failed'] == ['reach/reset']
   assert record['unfinished'] == ['reach/raw_reset']
   assert json.loads(out.read_text()) == record  # nothing written after
+
+
+def test_xla_phases_read_the_measured_programs_timers():
+  log = '\n'.join(
+      [
+          'I1130 02:38:14.23 gpu_compiler.cc:2345] GpuCompiler::RunHloPasses for'
+          ' jit_rollout time: 21.3 s (21317585 us) (cumulative: 31.6 s)',
+          'I1130 02:38:14.23 gpu_compiler.cc:2345] GpuCompiler::RunHloPasses for'
+          ' jit_rollout time: 3.12 ms (3125 us)',  # a small one of that name
+          'I1130 02:38:14.23 gpu_compiler.cc:3017] GpuCompiler::RunBackend for'
+          ' jit_convert time: 9.66 ms (9656 us)',
+          'I1130 02:38:14.23 gpu_compiler.cc:3017] GpuCompiler::RunBackend for'
+          ' jit_rollout time: 1.5 min (90000000 us)',
+      ]
+  )
+  assert compile_time.xla_phases(log, 'jit_rollout') == {
+      'xla_hlo_passes_s': 21.3,
+      'xla_backend_s': 90.0,
+  }
+  assert not compile_time.xla_phases(log, 'jit_reset')
+
+
+def test_xla_phases_match_what_this_xla_prints(tmp_path):
+  script = tmp_path / 'compile.py'
+  script.write_text(
+      'import jax, jax.numpy as jnp\n'
+      'def program(x):\n'
+      '  return jnp.sin(x) * 2\n'
+      'jax.jit(program).lower(1.0).compile()\n'
+  )
+  done = subprocess.run(
+      [sys.executable, str(script)],
+      check=True,
+      capture_output=True,
+      text=True,
+      env=dict(os.environ, **compile_time.XLA_TIMER_ENV),
+  )
+  phases = compile_time.xla_phases(done.stderr, 'jit_program')
+  assert set(phases) == {'xla_hlo_passes_s', 'xla_backend_s'}, done.stderr
+  assert all(0 < s < 60 for s in phases.values())
