@@ -318,8 +318,10 @@ def measure(fn, args):
   row['compile_s'] = time.perf_counter() - t0
   row['total_s'] = (row['trace_s'] or 0.0) + row['lower_s'] + row['compile_s']
   row.update(program_sizes(jaxpr, lowered, compiled))
-  module = re.search(r'module @(\S+)', lowered.as_text())
-  row['module'] = module.group(1) if module else None
+  # The module's name ('jit_rollout'), as XLA's timers name it.
+  row['module'] = (
+      lowered.compiler_ir('stablehlo').operation.attributes['sym_name'].value
+  )
   return row
 
 
@@ -598,31 +600,27 @@ def run_worker(script, args, phases=False):
   with tempfile.TemporaryDirectory() as tmp:
     path = os.path.join(tmp, 'row.json')
     cmd = [sys.executable, os.path.abspath(script), '--worker', path, *args]
-    if not phases:
-      if subprocess.run(cmd, check=False).returncode:
-        return None
-      with open(path) as f:
-        return json.load(f)
     done = subprocess.run(
         cmd,
         check=False,
-        stderr=subprocess.PIPE,
+        stderr=subprocess.PIPE if phases else None,
         text=True,
-        env=dict(os.environ, **XLA_TIMER_ENV),
+        env=dict(os.environ, **XLA_TIMER_ENV) if phases else None,
     )
-    # XLA's INFO lines ('I1130 02:38:04.2 ...') stay out of the output.
-    sys.stderr.write(
-        ''.join(
-            line
-            for line in done.stderr.splitlines(keepends=True)
-            if not re.match(r'I\d{4} ', line)
-        )
-    )
+    if phases:  # XLA's INFO lines ('I1130 02:38:04.2 ...') stay out
+      sys.stderr.write(
+          ''.join(
+              line
+              for line in done.stderr.splitlines(keepends=True)
+              if not re.match(r'I\d{4} ', line)
+          )
+      )
     if done.returncode:
       return None
     with open(path) as f:
       row = json.load(f)
-    row.update(xla_phases(done.stderr, row.get('module')))
+    if phases:
+      row.update(xla_phases(done.stderr, row.get('module')))
     return row
 
 
