@@ -428,23 +428,13 @@ class Variator:
 
 
 def invalid_draw(values, bounds) -> jax.Array:
-  """A bool scalar: some value breaks its binding's bound.
-
-  The values that share a bound and a shape are checked together, stacked
-  (one row each, scalars as rows of one): the program holds one reduction
-  per group, not a chain of checks per binding, which XLA would copy into
-  every fusion that reads the flag.
-  """
-  groups = {}
+  """A bool scalar: some value breaks its binding's bound."""
+  invalid = jnp.zeros((), bool)
   for value, bound in zip(values, bounds):
-    row = jnp.atleast_1d(jnp.asarray(value))
-    groups.setdefault((bound, row.shape, row.dtype), []).append(row)
-  if not groups:
-    return jnp.zeros((), bool)
-  valid = [
-      bound.valid(jnp.stack(rows)) for (bound, _, _), rows in groups.items()
-  ]
-  return jnp.logical_not(jnp.all(jnp.stack(valid)))
+    invalid = jnp.logical_or(
+        invalid, jnp.logical_not(bound.valid(jnp.asarray(value)))
+    )
+  return invalid
 
 
 def _constant_value(variation):

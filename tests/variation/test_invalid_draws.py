@@ -22,7 +22,6 @@ from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
 from mjx_composer.variation import noises
 from mjx_composer.variation import physics_variator
-from mjx_composer.variation import variator_base
 
 _J = mujoco.mjtJoint
 _G = mujoco.mjtGeom
@@ -382,54 +381,6 @@ def test_bounds():
   # A compiled value that breaks its bound (an infinite plane) relaxes it.
   assert attributes.bound_for(size, [0, 0, 0.1]) is attributes.NONNEGATIVE
   assert attributes.bound_for(attributes.POSITIVE, -1.0) is attributes.FINITE
-
-
-# Values of several bindings, valid, with their bounds: scalars and arrays
-# that share a bound and a shape (checked together), and sizes (whose bound
-# reads each value's first entry).
-_VALID_DRAW = (
-    (np.float32(1.0), attributes.POSITIVE),
-    (np.float32(2.0), attributes.POSITIVE),
-    (np.float32(0.0), attributes.NONNEGATIVE),
-    (np.array([0.1, 0.0, 0.0], np.float32), attributes.SIZE),
-    (np.array([0.2, 0.1, 0.0], np.float32), attributes.SIZE),
-    (np.array([0.5, 0.5, 0.1], np.float32), attributes.NONNEGATIVE),
-    (np.array([-1.0, 2.0, 0.0, 0.0, 0.0, 0.0], np.float32), attributes.FINITE),
-    (np.array([0.3, 0.4], np.float32), attributes.UNIT_INTERVAL),
-)
-
-
-def _each_value_alone(values, bounds):
-  """The reference: some value, checked on its own, breaks its bound."""
-  return any(not bound.valid(value) for value, bound in zip(values, bounds))
-
-
-def _breaks(value, bound, entry):
-  """`value` with `entry` set to one that breaks `bound` (NaN for FINITE)."""
-  broken = np.array(value, copy=True).reshape(-1)
-  broken[entry] = np.nan if bound is attributes.FINITE else -1.0
-  return broken.reshape(np.shape(value))
-
-
-def test_invalid_draw_checks_each_value_against_its_own_bound():
-  values, bounds = map(list, zip(*_VALID_DRAW))
-  invalid = jax.jit(lambda v: variator_base.invalid_draw(v, bounds))
-  assert not _each_value_alone(values, bounds)
-  assert not bool(invalid(values))
-  # Break one entry of one value at a time: every value, first and last
-  # entries (a size's first entry breaks `> 0` at 0 too).
-  cases = []
-  for i, (value, bound) in enumerate(_VALID_DRAW):
-    for entry in {0, np.size(value) - 1}:
-      cases.append((i, _breaks(value, bound, entry)))
-    if bound is attributes.SIZE:
-      cases.append((i, np.array([0.0, 0.1, 0.1], np.float32)))
-  for i, broken in cases:
-    drawn = list(values)
-    drawn[i] = broken
-    assert _each_value_alone(drawn, bounds), (i, broken)
-    assert bool(invalid(drawn)), (i, broken)
-  assert not bool(variator_base.invalid_draw([], []))
 
 
 # -- a world whose every attempt fails ------------------------------------------
