@@ -37,8 +37,10 @@ training epoch).
 timers (which it prints where `TF_CPP_VMODULE` asks for them,
 `XLA_TIMER_ENV`): `xla_hlo_passes_s`, its HLO optimization passes, and
 `xla_backend_s`, its code generation (LLVM IR; on a GPU, also the PTX
-assembled into kernels, on several threads). Each program then runs in its
-own process (not with `--in-process`).
+assembled into kernels, on several threads), and `xla_passes`, its slowest
+HLO passes with their seconds (`xla_passes()`; the ten slowest of each
+program are printed). Each program then runs in its own process (not with
+`--in-process`).
 
 Threefry is lowered as JAX's GPU kernel (`prng_lowering.enable()`), as our
 scripts compile; `MJX_COMPOSER_THREEFRY_KERNEL=0` measures without it.
@@ -128,7 +130,7 @@ _SIZE_KEYS = (
 # assembled into kernels). Patterns for XLA's GPU and CPU compilers.
 XLA_TIMER_ENV = {
     'TF_CPP_MIN_LOG_LEVEL': '0',
-    'TF_CPP_VMODULE': 'gpu_compiler=1,cpu_compiler=1',
+    'TF_CPP_VMODULE': 'gpu_compiler=1,cpu_compiler=1,hlo_pass_pipeline=1',
 }
 _XLA_PHASE_KEYS = ('xla_hlo_passes_s', 'xla_backend_s')
 _XLA_TIMERS = (
@@ -153,6 +155,47 @@ def xla_phases(log: str, module: str) -> dict:
         seconds = float(m.group(2)) * _XLA_UNITS[m.group(3)]
         phases[key] = max(phases.get(key, 0.0), seconds)
   return phases
+
+
+# XLA's timer of each HLO pass (`hlo_pass_pipeline=1`), and the line that
+# opens each pipeline: 'I1130 04:31:08.39 32641 hlo_pass_pipeline.cc:303]
+# Running HLO pass pipeline on module jit_rollout: simplification', then
+# '... HLO pass: algsimp time: 8 us (8 us) ...' on the same thread.
+_PIPELINE = re.compile(
+    r'I\d{4} \S+\s+(\d+) hlo_pass_pipeline\.cc:\d+\] Running HLO pass '
+    r'pipeline on module (\S+): (.*)$'
+)
+_PASS = re.compile(
+    r'I\d{4} \S+\s+(\d+) hlo_pass_pipeline\.cc:\d+\] HLO pass: (\S+) '
+    r'time: ([\d.]+) (us|ms|s|min|h)\b'
+)
+XLA_PASS_ROWS = 20  # passes kept per program in the JSON
+
+
+def xla_passes(log: str, module: str, n: int = XLA_PASS_ROWS) -> dict:
+  """XLA's `n` slowest HLO passes compiling `module`, in seconds, from the
+  pass timers in `log`: `{'<pipeline>: <pass>': seconds}`, slowest first,
+  each pass's time summed over its runs in that pipeline (a pipeline that
+  runs passes to a fixed point runs them many times). A pass line belongs
+  to the pipeline its thread opened last. A pipeline run as a pass of
+  another (e.g. 'simplification: simplification', the fixed point of the
+  simplification passes) counts the time of its own passes too.
+  """
+  pipeline = {}  # thread -> (module, pipeline)
+  seconds = collections.Counter()
+  for line in log.splitlines():
+    opened = _PIPELINE.match(line)
+    if opened:
+      thread, name, pipe = opened.groups()
+      pipeline[thread] = (name, pipe)
+      continue
+    timed = _PASS.match(line)
+    if timed:
+      thread, name, value, unit = timed.groups()
+      owner, pipe = pipeline.get(thread, (None, None))
+      if owner == module:
+        seconds[f'{pipe}: {name}'] += float(value) * _XLA_UNITS[unit]
+  return {name: round(s, 6) for name, s in seconds.most_common(n)}
 
 
 def _disable_persistent_cache():
@@ -621,6 +664,7 @@ def run_worker(script, args, phases=False):
       row = json.load(f)
     if phases:
       row.update(xla_phases(done.stderr, row.get('module')))
+      row['xla_passes'] = xla_passes(done.stderr, row.get('module'))
     return row
 
 
@@ -683,6 +727,16 @@ def print_scopes(rows, n):
     print(f'\n{r["task"]} / {r["program"]}: jaxpr equations by scope')
     for path, count in scopes:
       print(f'  {count:>7,}  {path or "(no scope)"}')
+
+
+def print_passes(rows, n):
+  """Each program's `n` slowest HLO passes (`xla_passes`)."""
+  for r in rows:
+    passes = list(r.get('xla_passes', {}).items())[:n]
+    if passes:
+      print(f'\n{r["task"]} / {r["program"]}: XLA\'s slowest HLO passes')
+      for name, seconds in passes:
+        print(f'  {seconds:8.2f} s  {name}')
 
 
 def print_tables(rows, ratio_rows):
@@ -878,6 +932,8 @@ def main(argv=None):
   print_tables(rows, ratio_rows)
   if args.scopes:
     print_scopes(rows, args.scopes)
+  if args.xla_phases:
+    print_passes(rows, 10)
   if failed:
     print(f'\nFAILED: {", ".join(failed)}')
   return 1 if failed else 0

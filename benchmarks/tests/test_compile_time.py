@@ -187,6 +187,33 @@ def test_xla_phases_read_the_measured_programs_timers():
   assert not compile_time.xla_phases(log, 'jit_reset')
 
 
+def test_xla_passes_sum_each_pass_of_the_measured_program_by_thread():
+  line = 'I1130 04:31:08.39 {} hlo_pass_pipeline.cc:{}] {}'.format
+  log = '\n'.join(
+      [
+          line(7, 303, 'Running HLO pass pipeline on module jit_rollout: simp'),
+          line(7, 176, 'HLO pass: algsimp time: 2.5 s (2500000 us) (cum: 1)'),
+          # Another program compiled on another thread meanwhile.
+          line(9, 303, 'Running HLO pass pipeline on module jit_reset: simp'),
+          line(9, 176, 'HLO pass: algsimp time: 40 s (40000000 us)'),
+          line(7, 176, 'HLO pass: algsimp time: 500 ms (500000 us)'),
+          line(7, 176, 'HLO pass: dce time: 20 us (20 us)'),
+          line(7, 303, 'Running HLO pass pipeline on module jit_rollout: fuse'),
+          line(7, 176, 'HLO pass: fusion time: 1.5 min (90000000 us)'),
+          'I1130 04:31:08.39 7 gpu_compiler.cc:2345] HLO pass: x time: 9 s',
+      ]
+  )
+  assert compile_time.xla_passes(log, 'jit_rollout') == {
+      'fuse: fusion': 90.0,
+      'simp: algsimp': 3.0,
+      'simp: dce': 0.00002,
+  }
+  assert compile_time.xla_passes(log, 'jit_rollout', n=1) == {
+      'fuse: fusion': 90.0
+  }
+  assert compile_time.xla_passes(log, 'jit_reset') == {'simp: algsimp': 40.0}
+
+
 def test_xla_phases_match_what_this_xla_prints(tmp_path):
   script = tmp_path / 'compile.py'
   script.write_text(
@@ -205,3 +232,7 @@ def test_xla_phases_match_what_this_xla_prints(tmp_path):
   phases = compile_time.xla_phases(done.stderr, 'jit_program')
   assert set(phases) == {'xla_hlo_passes_s', 'xla_backend_s'}, done.stderr
   assert all(0 < s < 60 for s in phases.values())
+  # Its passes, which run within its HLO passes' time.
+  passes = compile_time.xla_passes(done.stderr, 'jit_program', n=1000)
+  assert any(name.endswith(': algsimp') for name in passes), passes
+  assert 0 < max(passes.values()) <= phases['xla_hlo_passes_s']
