@@ -232,7 +232,7 @@ def test_xla_phases_match_what_this_xla_prints(tmp_path):
   phases = compile_time.xla_phases(done.stderr, 'jit_program')
   assert set(phases) == {'xla_hlo_passes_s', 'xla_backend_s'}, done.stderr
   assert all(0 < s < 60 for s in phases.values())
-  # Its passes, which run within its HLO passes' time.
+  # Its passes, each within its compile's time.
   passes = compile_time.xla_passes(done.stderr, 'jit_program', n=1000)
   assert any(name.endswith(': algsimp') for name in passes), passes
-  assert 0 < max(passes.values()) <= phases['xla_hlo_passes_s']
+  assert 0 < max(passes.values()) <= sum(phases.values())
