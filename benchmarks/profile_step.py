@@ -10,7 +10,9 @@ a Perfetto trace) one call of `--steps` control steps of:
   `no_obs` (no time limit, every observable disabled), `shared`
   (`share_reset_forward=True`), `unshared` (False), `on` (walk with every
   feature on, as `playground_compare.py`'s ours_on), `on_shared` (`on`
-  with `share_reset_forward=True`);
+  with `share_reset_forward=True`), and for walk `playground_compare.py`'s
+  `only_<features>` programs (e.g. `only_noise+delay+history+randomize+groups`,
+  with its suffixes such as `_shared`);
 * with `--reset NAME` (`composed` or a variant), that environment's batched
   reset, `vmap(env.reset)` from fresh keys (reported per call, as one
   'control step'): what the same-step auto-reset adds to a step in which
@@ -82,6 +84,11 @@ def _make_envs(task, variants, impl='jax'):
       envs[name] = common.make_env(
           task, **kwargs, share_reset_forward=name == 'shared'
       )
+    elif name.startswith('only_') and task == 'walk':
+      import playground_compare  # pylint: disable=g-import-not-at-top
+
+      name = playground_compare.program_name(name)
+      envs[name] = playground_compare.env_variants([name], impl=impl)[name]
     else:
       raise ValueError(f'Unknown variant {name!r}.')
   return envs
