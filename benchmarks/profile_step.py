@@ -25,7 +25,10 @@ Every kernel's device time is attributed to the innermost scope of the JAX
 name stack it came from that names a piece of the program (an MJX function
 such as `collision` or `solve`, or one of ours such as `updater`), and the
 table compares the scopes' totals per control step between each program and
-raw. Walk defaults to `walk.PLAYGROUND_EQUIVALENT` (noise, delay, history,
+raw. A kernel is traced with the HLO instruction it ran, or, where it ran in
+a CUDA graph (XLA's command buffers), with the buffer: it is then found by its
+own name, the instruction's (`_instruction`); kernels that no instruction
+names (the graph's copies) count as '(none)'. Walk defaults to `walk.PLAYGROUND_EQUIVALENT` (noise, delay, history,
 randomization, pushes and fall terminations off, the 'policy' group only),
 the configuration `playground_compare.py` calls ours_off.
 
@@ -123,6 +126,7 @@ _GENERIC = frozenset(
         'fori_loop',
         'while_loop',
         'reset_program',
+        'eval_jaxpr',
     )
 )
 
@@ -155,6 +159,22 @@ def _op_names(hlo_text):
   return dict(re.findall(pattern, hlo_text, re.M))
 
 
+def _instruction(event, op_names):
+  """The HLO instruction a kernel event ran: its `hlo_op`, or for a kernel
+  that ran in a CUDA graph (whose `hlo_op` names the command buffer,
+  'command_buffer_12'), the instruction the kernel is named after
+  ('loop_add_fusion_2' for 'loop_add_fusion.2'); None for an event that
+  names no instruction."""
+  op = event.get('args', {}).get('hlo_op')
+  if op is None or op in op_names:
+    return op
+  name = event.get('name', '')
+  for candidate in (name, re.sub(r'_(\d+)$', r'.\1', name)):
+    if candidate in op_names:
+      return candidate
+  return op
+
+
 def _kernel_times(trace_dir, op_names):
   """Device microseconds per outer and inner scope; kernels per inner scope."""
   events = common.perfetto_events(trace_dir)
@@ -167,7 +187,7 @@ def _kernel_times(trace_dir, op_names):
   for e in events:
     if e.get('ph') != 'X' or e.get('pid') not in rows:
       continue
-    op = e.get('args', {}).get('hlo_op')
+    op = _instruction(e, op_names)
     if op is None:
       continue
     first, last = _scope(op_names.get(op, op))
