@@ -140,6 +140,8 @@ _XLA_TIMERS = (
     ('xla_backend_s', r'Compiling \[(\S+)\] for CPU using JIT time: '),
 )
 _XLA_UNITS = {'us': 1e-6, 'ms': 1e-3, 's': 1.0, 'min': 60.0, 'h': 3600.0}
+# A timer's duration, '21.3 s': its value and its unit (`_XLA_UNITS`).
+_DURATION = r'([\d.]+) (us|ms|s|min|h)\b'
 
 
 def xla_phases(log: str, module: str) -> dict:
@@ -149,7 +151,7 @@ def xla_phases(log: str, module: str) -> dict:
   line is missing is left out."""
   phases = {}
   for key, prefix in _XLA_TIMERS:
-    pattern = re.compile(prefix + r'([\d.]+) (us|ms|s|min|h)\b')
+    pattern = re.compile(prefix + _DURATION)
     for m in pattern.finditer(log):
       if m.group(1) == module:
         seconds = float(m.group(2)) * _XLA_UNITS[m.group(3)]
@@ -161,14 +163,11 @@ def xla_phases(log: str, module: str) -> dict:
 # opens each pipeline: 'I1130 04:31:08.39 32641 hlo_pass_pipeline.cc:303]
 # Running HLO pass pipeline on module jit_rollout: simplification', then
 # '... HLO pass: algsimp time: 8 us (8 us) ...' on the same thread.
+_PASS_LOG = r'I\d{4} \S+\s+(\d+) hlo_pass_pipeline\.cc:\d+\] '  # its thread
 _PIPELINE = re.compile(
-    r'I\d{4} \S+\s+(\d+) hlo_pass_pipeline\.cc:\d+\] Running HLO pass '
-    r'pipeline on module (\S+): (.*)$'
+    _PASS_LOG + r'Running HLO pass pipeline on module (\S+): (.*)$'
 )
-_PASS = re.compile(
-    r'I\d{4} \S+\s+(\d+) hlo_pass_pipeline\.cc:\d+\] HLO pass: (\S+) '
-    r'time: ([\d.]+) (us|ms|s|min|h)\b'
-)
+_PASS = re.compile(_PASS_LOG + r'HLO pass: (\S+) time: ' + _DURATION)
 XLA_PASS_ROWS = 20  # passes kept per program in the JSON
 
 
@@ -858,8 +857,9 @@ def main(argv=None):
   parser.add_argument(
       '--xla-phases',
       action='store_true',
-      help="also record XLA's time in its HLO passes and its backend, from "
-      'its own timers (each program in its own process)',
+      help="also record XLA's time in its HLO passes and its backend, and "
+      'its slowest HLO passes, from its own timers (each program in its own '
+      'process)',
   )
   parser.add_argument('--worker', metavar='ROW_JSON', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)

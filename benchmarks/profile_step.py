@@ -28,9 +28,10 @@ table compares the scopes' totals per control step between each program and
 raw. A kernel is traced with the HLO instruction it ran, or, where it ran in
 a CUDA graph (XLA's command buffers), with the buffer: it is then found by its
 own name, the instruction's (`_instruction`); kernels that no instruction
-names (the graph's copies) count as '(none)'. Walk defaults to `walk.PLAYGROUND_EQUIVALENT` (noise, delay, history,
-randomization, pushes and fall terminations off, the 'policy' group only),
-the configuration `playground_compare.py` calls ours_off.
+names (the graph's copies) count as '(none)'. Walk defaults to
+`walk.PLAYGROUND_EQUIVALENT` (noise, delay, history, randomization, pushes
+and fall terminations off, the 'policy' group only), the configuration
+`playground_compare.py` calls ours_off.
 
     python benchmarks/profile_step.py --task walk --worlds 8192
 
