@@ -25,8 +25,6 @@ combinators keep the work conditional without conditionals:
 
 from __future__ import annotations
 
-import math
-
 import jax
 import jax.numpy as jnp
 
@@ -119,11 +117,7 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
     )
     if chunk is not None and chunk < axis_size:
       out = _reset_in_chunks(
-          done,
-          reset,
-          (stepped,) if restarts_stepped else operands,
-          stepped,
-          chunk,
+          done, reset, None if restarts_stepped else operands, stepped, chunk
       )
     else:
       out = _reset_at_most_once(done, select, operands, stepped)
@@ -151,95 +145,55 @@ def _reset_in_chunks(done, reset, operands, stepped, chunk):
   """`select(done, vmap(reset)(*operands), stepped)`, `chunk` worlds at a time.
 
   The done worlds come first in a stable order of the batch; each loop
-  iteration gathers the next `chunk` of them (rows of one array per dtype,
-  `_Rows`, so that a gather and a scatter are a few kernels, not one per
-  leaf), resets them and scatters the results back. Slots past the last
-  done world are computed and discarded. The loop runs
+  iteration gathers the next `chunk` of them, resets them and scatters the
+  results into the state it carries, leaf by leaf, in place: the program
+  holds the batch's state once, plus one chunk's reset (gathering every
+  leaf into rows of one array per dtype would be fewer kernels, but
+  copies the whole state at every step, loop or not). Slots past the last
+  done world are computed and dropped. The loop runs
   `ceil(done worlds / chunk)` times, none when no world is done.
+
+  Args:
+    done: `(batch,)` flags.
+    reset: the reset of one world.
+    operands: its batched arguments; None where the reset restarts the
+      stepped state itself (then each chunk reads its rows from the carried
+      state: rows not yet reset are the stepped ones).
+    stepped: the batched state the resets replace.
+    chunk: worlds reset together.
   """
   n = done.shape[0]
   order = jnp.argsort(jnp.logical_not(done), stable=True)  # done first
   count = jnp.sum(done.astype(jnp.int32))
-  out_rows = _Rows(stepped)
-  operand_rows = _Rows(operands)
 
   def body(loop):
-    start, packed = loop
+    start, state = loop
     # The last chunk slides back to stay inside the batch; the worlds it
-    # covers again were reset already and are masked out.
+    # covers again were reset already and are dropped.
     first = jnp.minimum(start, n - chunk)
     index = jax.lax.dynamic_slice(order, (first,), (chunk,))
     position = first + jnp.arange(chunk)
-    fresh = jax.vmap(reset)(*operand_rows.take(index))
+    keep = (position >= start) & (position < count)
+    rows = jax.tree.map(
+        lambda x: x[index], (state,) if operands is None else operands
+    )
+    fresh = jax.vmap(reset)(*rows)
+    # A dropped slot scatters to row `n`, out of bounds: dropped. The
+    # chunk's indices are distinct (a slice of a permutation).
+    target = jnp.where(keep, index, n)
     # `select` (traced first, by `custom_vmap`) has checked that the reset
     # returns what the step does, leaf for leaf: the same layout.
-    fresh_rows = _Rows(fresh)
-    keep = (position >= start) & (position < count)
-    packed = {
-        dtype: rows.at[index].set(
-            jnp.where(keep[:, None], fresh_rows.packed[dtype], rows[index])
-        )
-        for dtype, rows in packed.items()
-    }
-    return start + chunk, packed
+    state = jax.tree.map(
+        lambda x, new: x.at[target].set(new, mode='drop'), state, fresh
+    )
+    return start + chunk, state
 
-  _, packed = jax.lax.while_loop(
+  _, state = jax.lax.while_loop(
       lambda loop: loop[0] < count,
       body,
-      (jnp.zeros((), jnp.int32), out_rows.packed),
+      (jnp.zeros((), jnp.int32), stepped),
   )
-  return out_rows.unpack(packed)
-
-
-class _Rows:
-  """A batched tree as one `(batch, width)` array per dtype, and back.
-
-  PRNG key leaves travel as their key data.
-  """
-
-  def __init__(self, tree):
-    leaves, self._treedef = jax.tree.flatten(tree)
-    self._impls = [
-        jax.random.key_impl(x)
-        if jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
-        else None
-        for x in leaves
-    ]
-    raw = [
-        jax.random.key_data(x) if impl is not None else x
-        for x, impl in zip(leaves, self._impls)
-    ]
-    self._shapes = [x.shape[1:] for x in raw]
-    self._groups = {}
-    for i, x in enumerate(raw):
-      self._groups.setdefault(jnp.dtype(x.dtype), []).append(i)
-    self.packed = {
-        dtype: jnp.concatenate(
-            [raw[i].reshape(raw[i].shape[0], -1) for i in members], axis=1
-        )
-        for dtype, members in self._groups.items()
-    }
-
-  def take(self, index):
-    """The tree of the rows `index`."""
-    return self.unpack({d: rows[index] for d, rows in self.packed.items()})
-
-  def unpack(self, packed):
-    """The tree of `packed` (arrays laid out as `self.packed`)."""
-    leaves = [None] * len(self._shapes)
-    for dtype, members in self._groups.items():
-      rows = packed[dtype]
-      offset = 0
-      for i in members:
-        shape = self._shapes[i]
-        size = math.prod(shape)
-        x = rows[:, offset : offset + size].reshape((rows.shape[0],) + shape)
-        offset += size
-        impl = self._impls[i]
-        leaves[i] = (
-            x if impl is None else jax.random.wrap_key_data(x, impl=impl)
-        )
-    return jax.tree.unflatten(self._treedef, leaves)
+  return state
 
 
 def loop_with_reset(n, body, wants_reset, carry, operands, extra=1):
