@@ -43,7 +43,7 @@ def make_env(
     auto_reset='same_step',
     max_reset_attempts=None,
     share_reset_forward=None,
-    auto_reset_batch=None,
+    auto_reset_batch='auto',
     impl='jax',
     naconmax=None,
     njmax=None,
@@ -61,7 +61,7 @@ def make_env(
     auto_reset: the `Environment`'s auto-reset mode.
     max_reset_attempts: passed to the `Environment` when given.
     share_reset_forward: passed to the `Environment` when given.
-    auto_reset_batch: passed to the `Environment` when given.
+    auto_reset_batch: the `Environment`'s `ExecutionOptions` field.
     reset_forward, substep_sensors: `ExecutionOptions` fields, passed
       when given.
     impl, naconmax, njmax: the physics implementation ('jax', 'warp', or

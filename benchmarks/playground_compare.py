@@ -29,8 +29,10 @@ loads) for `--steps` control steps of 5 physics steps, held actions:
               on several (e.g. only_fall+randomize);
 * <ours>_chunk<K>: on request, any of ours with `auto_reset_batch=K`
               (e.g. ours_on_chunk512): the worlds whose episodes end are
-              reset K at a time, not with the whole batch, so the step
-              program's restart holds K worlds' temporaries.
+              reset K at a time, so the step program's restart holds K
+              worlds' temporaries (the default, 'auto', resets an eighth of
+              a batch of 1,024 worlds or more); `_chunkall` with
+              `auto_reset_batch=None`, the whole batch's reset.
 
 For each: control steps per second (median of `--repeats` calls), the first
 call's seconds (trace, lower and XLA compile of the rollout, and of the
@@ -162,8 +164,8 @@ SUFFIXES = {
     SHARED: dict(share_reset_forward=True),
     ALL_SENSORS: dict(substep_sensors='all'),
 }
-# `_chunk<K>`: `auto_reset_batch=K`.
-_CHUNK = re.compile(r'_chunk([1-9][0-9]*)$')
+# `_chunk<K>`: `auto_reset_batch=K`; `_chunkall`: None (the whole batch).
+_CHUNK = re.compile(r'_chunk([1-9][0-9]*|all)$')
 
 
 def split_suffixes(name):
@@ -180,7 +182,8 @@ def split_suffixes(name):
     chunk = _CHUNK.search(name)
     if chunk:
       name = name[: chunk.start()]
-      kwargs['auto_reset_batch'] = int(chunk.group(1))
+      size = chunk.group(1)
+      kwargs['auto_reset_batch'] = None if size == 'all' else int(size)
       stripped = True
   return name, kwargs
 
@@ -193,14 +196,15 @@ def program_name(name):
   sub-step loop), e.g. `ours_on_shared`; and in `_all_sensors`: with
   `substep_sensors='all'` (every sub-step computes the sensors, as
   `mjx.step` does), e.g. `ours_off_all_sensors`; and in `_chunk<K>`: with
-  `auto_reset_batch=K` (not with `_shared`), e.g. `ours_on_chunk512`.
+  `auto_reset_batch=K` (not with `_shared`), e.g. `ours_on_chunk512`, or
+  `_chunkall`: with `auto_reset_batch=None` (the whole batch's reset).
   """
   if name.startswith(('playground', 'raw')):
     if name in ('playground', 'playground_trained', 'raw'):
       return name
     raise argparse.ArgumentTypeError(f'unknown program {name!r}')
   base, kwargs = split_suffixes(name)
-  if kwargs.get('share_reset_forward') and 'auto_reset_batch' in kwargs:
+  if kwargs.get('share_reset_forward') and kwargs.get('auto_reset_batch'):
     raise argparse.ArgumentTypeError(
         f'{name!r}: auto_reset_batch needs the separate restart'
     )
@@ -215,7 +219,7 @@ def program_name(name):
       'playground_trained, raw, '
       "or only_ followed by features joined by '+' from "
       f'{", ".join((*FEATURES, "groups"))}; ours\' may end in '
-      f'{", ".join(SUFFIXES)} and _chunk<K>'
+      f'{", ".join(SUFFIXES)} and _chunk<K> or _chunkall'
   )
 
 

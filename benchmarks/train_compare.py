@@ -185,7 +185,8 @@ def parse_args(argv=None):
       default=None,
       metavar='K',
       help='ours: ExecutionOptions(auto_reset_batch=K) (worlds that end '
-      "reset K at a time; impl='jax' only); default: the whole batch",
+      "reset K at a time; impl='jax' only); default: the Environment's "
+      "('auto')",
   )
   parser.add_argument(
       '--max-wall-s',

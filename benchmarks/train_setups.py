@@ -195,10 +195,9 @@ def ours_environment(name, time_limit, args):
     return playground_compare.env_variants(
         [name], share_reset_forward=args.share_reset_forward
     )[name]
-  options = dict(
-      share_reset_forward=args.share_reset_forward,
-      auto_reset_batch=args.auto_reset_batch,
-  )
+  options = dict(share_reset_forward=args.share_reset_forward)
+  if args.auto_reset_batch is not None:
+    options['auto_reset_batch'] = args.auto_reset_batch
   if name == 'ours_off':
     return common.make_walk_like_playground(time_limit, **options)
   return registry.make_environment(

@@ -271,8 +271,10 @@ class Environment:
     return self._options.share_reset_forward
 
   @property
-  def auto_reset_batch(self) -> int | None:
-    """How many ended worlds reset together under `jax.vmap` (None: all)."""
+  def auto_reset_batch(self) -> int | str | None:
+    """How many ended worlds reset together under `jax.vmap`, as resolved
+    for the device (`ExecutionOptions.auto_reset_batch`): K, 'auto' (an
+    eighth of a batch of 1,024 worlds or more) or None (the whole batch)."""
     return self._options.auto_reset_batch
 
   @property

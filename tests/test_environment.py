@@ -938,6 +938,11 @@ def test_auto_reset_batch_refusals():
     composer.ExecutionOptions(auto_reset_batch=4, share_reset_forward=True)
   with pytest.raises(ValueError, match="needs impl='jax'"):
     composer.ExecutionOptions(auto_reset_batch=4, impl='warp')
+  with pytest.raises(ValueError, match="positive integer, 'auto' or None"):
+    composer.ExecutionOptions(auto_reset_batch='half')
+  # 'auto' leaves the fused restart and Warp the whole batch's reset.
+  composer.ExecutionOptions(auto_reset_batch='auto', share_reset_forward=True)
+  composer.ExecutionOptions(auto_reset_batch='auto', impl='warp')
 
 
 # -- fixed_initial_state -------------------------------------------------------
@@ -1081,12 +1086,19 @@ def test_options_are_resolved_for_the_device():
         options=composer.ExecutionOptions(naconmax=64, njmax=32)
     )
   # On this CPU the default is 'jax', where Warp's buffer sizes are ignored.
+  # The fused restart resets the whole batch: 'auto' resolves to None.
   assert env.options == composer.ExecutionOptions(
-      impl='jax', share_reset_forward=True
+      impl='jax', share_reset_forward=True, auto_reset_batch=None
   )
   assert env.impl == env.options.impl
   assert env.share_reset_forward == env.options.share_reset_forward
   assert env.auto_reset == 'next_step' and env.auto_reset_batch is None
+  # The separate restart keeps 'auto', resolved by each batch's size.
+  separate = conftest.make_swing_env(
+      options=composer.ExecutionOptions(share_reset_forward=False)
+  )
+  assert separate.auto_reset_batch == separate.options.auto_reset_batch
+  assert separate.auto_reset_batch == 'auto'
 
 
 @pytest.mark.parametrize('name', sorted(_OPTION_VALUES))

@@ -46,6 +46,10 @@ def test_suffixes_are_environment_arguments():
       'ours_on',
       dict(share_reset_forward=True),
   )
+  assert playground_compare.split_suffixes('ours_on_chunkall') == (
+      'ours_on',
+      dict(auto_reset_batch=None),
+  )
 
 
 def test_a_shared_program_fuses_the_restart_whatever_the_default():

@@ -57,8 +57,9 @@ class Built:
     spec: the composed spec that was compiled.
     mj_model: the compiled host model.
     backend: the MJX implementation's `Backend`.
-    options: the `ExecutionOptions` as resolved (`impl` and
-      `share_reset_forward` chosen; Warp's sizes None where ignored).
+    options: the `ExecutionOptions` as resolved (`impl`,
+      `share_reset_forward` and `auto_reset_batch` chosen; Warp's sizes
+      None where ignored).
     control_timestep: seconds per control step.
     episode: the `EpisodeRules`.
     updater: the observation `Updater`.
@@ -130,12 +131,13 @@ def build(
   # This process's first device: MJX's default, `jax.devices()[0]`, is
   # another process's on every host but the first.
   device = jax.local_devices()[0]
-  # The fused restart and the chunked reset run on 'jax' only.
+  # The fused restart and the gathered reset run on 'jax' only.
   candidates = backend_lib.resolve(
       options.impl,
       device,
       share_reset_forward=(
-          options.share_reset_forward or options.auto_reset_batch is not None
+          options.share_reset_forward
+          or options_lib.gathers_resets(options.auto_reset_batch)
       ),
   )
   drawn = random_state.get_state()
@@ -206,14 +208,22 @@ def _build_on(
   )
   share_reset_forward = options.share_reset_forward
   if share_reset_forward is None:
-    share_reset_forward = options.auto_reset_batch is None and (
-        backend.default_share_reset_forward(device)
-    )
+    share_reset_forward = not options_lib.gathers_resets(
+        options.auto_reset_batch
+    ) and backend.default_share_reset_forward(device)
+  # 'auto' gathers the ended worlds only where the restart runs apart from
+  # the sub-steps, on MJX's JAX implementation.
+  auto_reset_batch = options.auto_reset_batch
+  if auto_reset_batch == 'auto' and (
+      share_reset_forward or backend.name != 'jax'
+  ):
+    auto_reset_batch = None
   sized = backend.sized_buffers
   resolved = dataclasses.replace(
       options,
       impl=backend.name,
       share_reset_forward=bool(share_reset_forward),
+      auto_reset_batch=auto_reset_batch,
       # Ignored where the default builds on 'jax'.
       naconmax=options.naconmax if sized else None,
       njmax=options.njmax if sized else None,
@@ -276,7 +286,7 @@ def _build_on(
       transitions,
       auto_reset=options.auto_reset,
       fuse=resolved.share_reset_forward and transitions.can_fuse_restart(),
-      chunk=options.auto_reset_batch,
+      chunk=resolved.auto_reset_batch,
   )
   # What the programs' shapes depend on (the reset's shapes and the
   # per-world model fields its hooks write, the reset's stage of the

@@ -82,6 +82,32 @@ def _out_batched(out):
   )
 
 
+# `select_reset(chunk=AUTO_CHUNK)`: a batch of at least `AUTO_CHUNK_MIN_BATCH`
+# worlds resets its done worlds an `AUTO_CHUNK_FRACTION`th of the batch at a
+# time; a smaller one, whole. A chunk's reset is what the step program's
+# peak memory holds beyond the step's own (its forward pass's buffers, a
+# randomized model's derivations): an eighth of the batch's, where most
+# steps end few episodes, and a step in which every episode ends (a time
+# limit reached together) runs eight chunks. Below about a thousand worlds
+# the whole batch's reset is small beside the rest of the process.
+AUTO_CHUNK = 'auto'
+AUTO_CHUNK_FRACTION = 8
+AUTO_CHUNK_MIN_BATCH = 1024
+
+
+def chunk_size(chunk, batch: int) -> int | None:
+  """The worlds `select_reset(chunk=chunk)` resets together in a batch of
+  `batch` worlds: `chunk` (an integer, or `AUTO_CHUNK`) as resolved, None
+  for the whole batch (`chunk` None, or no smaller than the batch)."""
+  if chunk == AUTO_CHUNK:
+    if batch < AUTO_CHUNK_MIN_BATCH:
+      return None
+    chunk = -(-batch // AUTO_CHUNK_FRACTION)
+  if chunk is None or chunk >= batch:
+    return None
+  return int(chunk)
+
+
 def select_reset(done, reset_fn, operands, stepped, chunk=None):
   """`reset_fn(*operands)` where `done`, else `stepped`.
 
@@ -90,12 +116,13 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
   resets only when some world is done. With `chunk=None` (or a chunk no
   smaller than the batch) it computes the whole batch's resets (a loop of
   at most one iteration, run when `any(done)`), then selects per world.
-  With a smaller `chunk`, it gathers the done worlds into batches of
-  `chunk` worlds, resets those and scatters them back (`_reset_in_chunks`):
-  a step in which a few of many worlds end pays for a reset of `chunk`
-  worlds, not of all. Results are the same either way, to float rounding
-  (XLA may order a sum differently for another batch size). The reset is
-  traced once and reused by every path.
+  With a smaller `chunk` (an integer, or `AUTO_CHUNK`: `chunk_size`), it
+  gathers the done worlds into batches of `chunk` worlds, resets those and
+  scatters them back (`_reset_in_chunks`): a step in which a few of many
+  worlds end pays for a reset of `chunk` worlds, not of all, and the
+  program holds one chunk's reset. Results are the same either way, to
+  float rounding (XLA may order a sum differently for another batch size).
+  The reset is traced once and reused by every path.
   """
   reset = trace_once(reset_fn, *operands)
   # A restart resets the stepped state itself: then the loop below reads it
@@ -115,9 +142,10 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
     done, operands, stepped = _batch_all(
         axis_size, (done, operands, stepped), in_batched
     )
-    if chunk is not None and chunk < axis_size:
+    size = chunk_size(chunk, axis_size)
+    if size is not None:
       out = _reset_in_chunks(
-          done, reset, None if restarts_stepped else operands, stepped, chunk
+          done, reset, None if restarts_stepped else operands, stepped, size
       )
     else:
       out = _reset_at_most_once(done, select, operands, stepped)

@@ -61,6 +61,11 @@ def warp_fns(warp_env):
   }
 
 
+def test_warp_resets_the_whole_batch(warp_env):
+  # Its contact buffer is shared by the batch: 'auto' gathers nothing.
+  assert warp_env.auto_reset_batch is None
+
+
 @pytest.fixture(scope='module')
 def jax_env():
   # As test_tasks_reach.py builds it: the same reset program.

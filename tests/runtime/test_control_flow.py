@@ -3,6 +3,7 @@ shared-condition loops of the fused restart (`batch_any`, `once_or_never`)
 and its conditional (`run_unless`).
 """
 
+import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -155,6 +156,39 @@ def test_select_reset_in_chunks_equals_the_per_world_select(chunk):
         if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
           a, b = jax.random.key_data(a), jax.random.key_data(b)
         np.testing.assert_array_equal(a, b)
+
+
+def test_auto_chunks_are_an_eighth_of_a_large_batch():
+  assert control_flow.chunk_size('auto', 1023) is None
+  assert control_flow.chunk_size('auto', 1024) == 128
+  assert control_flow.chunk_size('auto', 8193) == 1025
+  assert control_flow.chunk_size(5, 7) == 5
+  assert control_flow.chunk_size(7, 7) is None
+  assert control_flow.chunk_size(None, 4096) is None
+
+
+@pytest.mark.parametrize('n, gathers', [(1024, True), (1023, False)])
+def test_auto_chunk_gathers_the_done_worlds_of_a_large_batch(n, gathers):
+  """'auto' scatters chunks of a batch of 1,024 worlds into the state and
+  selects the whole batch's resets below it, with the same results."""
+  keys = jax.random.split(jax.random.key(0), n)
+  stepped = jax.vmap(_mixed_reset)(jax.random.split(jax.random.key(1), n))
+  done = jnp.arange(n) % 3 == 1
+
+  def step(chunk, done, key, stepped):
+    return control_flow.select_reset(done, _mixed_reset, (key,), stepped, chunk)
+
+  auto = jax.vmap(functools.partial(step, 'auto'))
+  jaxpr = str(jax.make_jaxpr(auto)(done, keys, stepped))
+  assert ('scatter' in jaxpr) == gathers
+  whole = jax.jit(jax.vmap(functools.partial(step, None)))(done, keys, stepped)
+  for a, b in zip(
+      jax.tree.leaves(jax.jit(auto)(done, keys, stepped)),
+      jax.tree.leaves(whole),
+  ):
+    if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
+      a, b = jax.random.key_data(a), jax.random.key_data(b)
+    np.testing.assert_array_equal(a, b)
 
 
 def test_select_reset_in_chunks_traces_the_reset_once():
