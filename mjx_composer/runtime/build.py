@@ -212,10 +212,10 @@ def _build_on(
         options.auto_reset_batch
     ) and backend.default_share_reset_forward(device)
   # 'auto' gathers the ended worlds only where the restart runs apart from
-  # the sub-steps, on MJX's JAX implementation.
+  # the sub-steps and a batch's worlds can be gathered.
   auto_reset_batch = options.auto_reset_batch
   if auto_reset_batch == 'auto' and (
-      share_reset_forward or backend.name != 'jax'
+      share_reset_forward or backend.batch_shared_data
   ):
     auto_reset_batch = None
   sized = backend.sized_buffers

@@ -93,10 +93,9 @@ class ExecutionOptions:
       a step in which some worlds' episodes end, those worlds are gathered
       into batches of K, reset and scattered back
       (`control_flow.select_reset`), so the step pays for K resets, not for
-      all, and its program holds the buffers of K worlds' resets: on one
-      H200 (walk with every feature, 8,192 worlds) K = 1,024 peaked at 1.33
-      GB against 1.52 GB for the whole batch, within 0.2% of its speed
-      (docs/performance.md). 'auto' (default): an eighth of the batch, for
+      all, and its program holds the buffers of K worlds' resets, not the
+      whole batch's: less peak memory at the same speed where few worlds
+      end (docs/performance.md). 'auto' (default): an eighth of the batch, for
       batches of 1,024 worlds or more (`control_flow.chunk_size`); the
       whole batch for smaller ones, for the fused restart and on
       impl='warp'. None: the reset of the whole batch is computed wherever
