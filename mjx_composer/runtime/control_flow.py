@@ -191,8 +191,14 @@ def _reset_in_chunks(done, reset, operands, stepped, chunk):
     chunk: worlds reset together.
   """
   n = done.shape[0]
-  order = jnp.argsort(jnp.logical_not(done), stable=True)  # done first
-  count = jnp.sum(done.astype(jnp.int32))
+  flags = done.astype(jnp.int32)
+  count = jnp.sum(flags)
+  # The batch's order with the done worlds first, each part in batch order:
+  # a stable argsort, computed by counting instead (XLA's GSPMD partitioner,
+  # which compiles `shard_map` programs for several GPUs, fails on a sort
+  # inside one).
+  rank = jnp.where(done, jnp.cumsum(flags), count + jnp.cumsum(1 - flags)) - 1
+  order = jnp.zeros(n, jnp.int32).at[rank].set(jnp.arange(n, dtype=jnp.int32))
 
   def body(loop):
     start, state = loop

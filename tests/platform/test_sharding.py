@@ -91,11 +91,11 @@ class _VariedSwing(conftest.SwingTask):
     return super().initialize_episode(physics, key)
 
 
-def _make_env():
+def _make_env(**options):
   return composer.Environment(
       _VariedSwing(),
       time_limit=_TIME_LIMIT,
-      options=composer.ExecutionOptions(auto_reset='same_step'),
+      options=composer.ExecutionOptions(auto_reset='same_step', **options),
   )
 
 
@@ -223,6 +223,14 @@ def _worker_meshes(out):
       }
       for name, text in lowered_reset.items()
   }
+  # The 2-device step of a restart that gathers the ended worlds two at a
+  # time (`auto_reset_batch`, the default on large batches), with GSPMD: a
+  # sort in it aborted GSPMD's compile.
+  os.environ[partitioner.PARTITIONER_ENV] = 'gspmd'
+  trajectories['2_gspmd_chunks'], reports['2_gspmd_chunks'], _ = _trajectory(
+      _make_env(auto_reset_batch=2), mesh, _first_host_key()
+  )
+  del os.environ[partitioner.PARTITIONER_ENV]
 
   mesh = sharding.world_mesh()
   # A list of devices makes the same mesh, so the programs compiled above
@@ -579,6 +587,21 @@ def test_gspmd_compiles_the_same_worlds(meshes):
   assert meshes['reports']['2_gspmd']['not_world_sharded'] == []
   counts = meshes['reports']['2_gspmd']['collectives']
   assert not any(counts.values()), counts
+
+
+def test_gspmd_compiles_a_restart_in_chunks(meshes):
+  # Every episode ends at the second step: each device restarts its four
+  # worlds two at a time.
+  _assert_same(
+      meshes['trajectories'][1],
+      meshes['trajectories']['2_gspmd_chunks'],
+      False,
+      'GSPMD on 2 devices, restarts in chunks',
+  )
+  report = meshes['reports']['2_gspmd_chunks']
+  assert report['not_world_sharded'] == []
+  for program, counts in report['collectives'].items():
+    assert not any(counts.values()), (program, counts)
 
 
 def test_states_stay_sharded_over_the_world_axis(meshes):
