@@ -27,8 +27,9 @@ world is done. Partitioned, each such predicate is an all-reduce across the
 devices, at every solver iteration, and every device iterates until the
 slowest world on any device has converged; and a restart that gathers the
 ended worlds (`ExecutionOptions.auto_reset_batch`, by default on batches of
-1,024 worlds or more) gathers them from every device. Under `shard_map` each device
-decides for its own worlds, and the compiled programs hold no collective.
+1,024 worlds or more) gathers them from every device. Under `shard_map` each
+device decides for its own worlds, and the compiled programs hold no
+collective.
 A world's values do not depend on these decisions (converged worlds and
 worlds that are not done pass through unchanged), so the trajectories are
 the same either way; `tests/platform/test_sharding.py` checks them across 1, 2 and 4

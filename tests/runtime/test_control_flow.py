@@ -4,6 +4,7 @@ and its conditional (`run_unless`).
 """
 
 import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
