@@ -53,8 +53,7 @@ jax.config.update(
 # thresholds, collections took 16% of two of its heaviest files. Full
 # collections a hundred times rarer, and the imported modules frozen out of
 # them, leave the young generations collected as before;
-# `_free_compiled_programs` still collects everything after each module,
-# then freezes what survived.
+# `_free_compiled_programs` still collects everything after each module.
 gc.collect()
 gc.freeze()
 gc.set_threshold(700, 10, 1000)
@@ -85,10 +84,6 @@ def _free_compiled_programs():
   yield
   jax.clear_caches()
   gc.collect()
-  # What survives (the imported modules, the test modules collected after
-  # the freeze above) lives to the end of the run: frozen, later
-  # collections do not walk it again.
-  gc.freeze()
 
 
 # -- the cache's use, reported at the end of the run -------------------------
