@@ -242,6 +242,10 @@ def train(config, run, resume=False, log=print) -> dict:
         f'step {total:>12,}  return {row["eval_return"]:9.3f} ± '
         f'{row["eval_return_std"]:.3f}  {row["wall_s"]:8.1f}s{eta}'
     )
+    if not step:
+      # Brax compiles its training step at its first call, after this
+      # evaluation: the next evaluation's time holds that compile.
+      log(f'Compiling the training step before the first epoch ({cached}).')
     if step and config.video_every and not index % config.video_every:
       path = os.path.join(run.video_dir, f'eval_step_{total:012d}.mp4')
       policy = (done['make_policy'], done['params'])
@@ -254,8 +258,8 @@ def train(config, run, resume=False, log=print) -> dict:
   cached = 'loaded from the compilation cache next time'
   cached = cached if cache else 'the compilation cache is off'
   log(
-      'Compiling the evaluation and the training step before the first '
-      f'evaluation (minutes on a CPU; {cached}).'
+      'Compiling the evaluation before the first evaluation (minutes on a '
+      f'CPU; {cached}).'
   )
   try:
     with partitioner.scope(jax.local_devices()[:devices]):

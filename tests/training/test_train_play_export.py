@@ -203,9 +203,12 @@ def test_resume_continues_the_step_count_schedule_and_parameters(trained):
 
 def test_progress_says_what_compiles_and_when_it_ends(trained):
   out = trained['first_out']
-  compiling = out.index('Compiling the evaluation and the training step')
+  compiling = out.index('Compiling the evaluation before the first')
   lines = [l for l in out.splitlines() if l.startswith('step ')]
   assert compiling < out.index(lines[0])
+  # Brax compiles the training step after the first evaluation.
+  training = out.index('Compiling the training step before the first epoch')
+  assert out.index(lines[0]) < training < out.index(lines[1])
   assert 'nan' not in out.lower()
   # The ETA comes from the training rate after the first epoch (whose time
   # holds the compile): at step 80, from the epoch 40 -> 80.
