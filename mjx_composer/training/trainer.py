@@ -220,6 +220,9 @@ def train(config, run, resume=False, log=print) -> dict:
     if step:  # process 0 only: Brax calls the others at step 0 alone
       checkpoints.save_params(run, offset + int(step), params)
 
+  cached = 'loaded from the compilation cache next time'
+  cached = cached if cache else 'the compilation cache is off'
+
   def progress(step, metrics):
     if restored is not None and step == 0:
       return  # the checkpoint's step has its evaluation already
@@ -255,8 +258,6 @@ def train(config, run, resume=False, log=print) -> dict:
       fps = 1.0 / env.control_timestep()
       done['videos'].append(video.write_mp4(path, frames, fps=fps))
 
-  cached = 'loaded from the compilation cache next time'
-  cached = cached if cache else 'the compilation cache is off'
   log(
       'Compiling the evaluation before the first evaluation (minutes on a '
       f'CPU; {cached}).'
