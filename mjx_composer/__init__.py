@@ -5,7 +5,10 @@ entities on MjSpec, compose them under a task, and get pure, batched
 `reset(key)` / `step(state, action)` functions from `Environment`.
 """
 
+import importlib
 import importlib.metadata
+import importlib.util
+import typing
 
 # The distribution's name (pyproject.toml's `[project] name`).
 _DISTRIBUTION = 'mjx-composer'
@@ -28,76 +31,92 @@ def _version() -> str:
     return _UNINSTALLED_VERSION
 
 
-def _import_mjx_quietly():
-  """Imports `mujoco.mjx` without its Warp probe's output.
+# The package's public names (composer's) and the modules that define
+# them. They import on first use (`__getattr__`): importing MJX and the
+# package's modules takes seconds, which a program that only configures JAX
+# (`platform.configure`) or reads `__version__` need not wait for.
+_PUBLIC_NAMES = {
+    'Arena': 'mjx_composer.arena',
+    'SENSOR_SITES_GROUP': 'mjx_composer.constants',
+    'cached_property': 'mjx_composer.define',
+    'observable': 'mjx_composer.define',
+    'Entity': 'mjx_composer.entity',
+    'ModelWrapperEntity': 'mjx_composer.entity',
+    'EpisodeInitializationError': 'mjx_composer.environment',
+    'Environment': 'mjx_composer.environment',
+    'ExecutionOptions': 'mjx_composer.environment',
+    'HOOK_NAMES': 'mjx_composer.environment',
+    'State': 'mjx_composer.environment',
+    'StepType': 'mjx_composer.environment',
+    'HostEnvironment': 'mjx_composer.host.host_environment',
+    'Initializer': 'mjx_composer.initializer',
+    'FreePropObservableMixin': 'mjx_composer.observation',
+    'ObservationGroup': 'mjx_composer.observation',
+    'ObservationPadding': 'mjx_composer.observation',
+    'Observables': 'mjx_composer.observation',
+    'Physics': 'mjx_composer.physics',
+    'Robot': 'mjx_composer.robot',
+    'NullTask': 'mjx_composer.task',
+    'Task': 'mjx_composer.task',
+}
 
-  On first import, MJX tries to import its optional Warp backend and prints
-  "Failed to import warp: ..." and "Failed to import mujoco_warp: ..." to
-  stdout when it is absent. Those two lines go to this package's logger at
-  DEBUG level instead; any other output is passed through. Asking MJX for the
-  Warp backend (`impl='warp'`) still raises MJX's own error.
-  """
-  # pylint: disable=g-import-not-at-top
-  import contextlib
-  import io
-  import logging
-  import sys
+if typing.TYPE_CHECKING:  # the same names, for static tools (and the docs)
+  # pylint: disable=g-import-not-at-top,unused-import
+  from mjx_composer.arena import Arena
+  from mjx_composer.constants import SENSOR_SITES_GROUP
+  from mjx_composer.define import cached_property
+  from mjx_composer.define import observable
+  from mjx_composer.entity import Entity
+  from mjx_composer.entity import ModelWrapperEntity
+  from mjx_composer.environment import EpisodeInitializationError
+  from mjx_composer.environment import Environment
+  from mjx_composer.environment import ExecutionOptions
+  from mjx_composer.environment import HOOK_NAMES
+  from mjx_composer.environment import State
+  from mjx_composer.environment import StepType
+  from mjx_composer.host.host_environment import HostEnvironment
+  from mjx_composer.initializer import Initializer
+  from mjx_composer.observation import FreePropObservableMixin
+  from mjx_composer.observation import ObservationGroup
+  from mjx_composer.observation import ObservationPadding
+  from mjx_composer.observation import Observables
+  from mjx_composer.physics import Physics
+  from mjx_composer.robot import Robot
+  from mjx_composer.task import NullTask
+  from mjx_composer.task import Task
 
-  if 'mujoco.mjx.warp' in sys.modules:
-    return  # Already imported (and printed, if it did) before us.
-  captured = io.StringIO()
-  try:
-    with contextlib.redirect_stdout(captured):
-      import mujoco.mjx  # pylint: disable=unused-import
-  finally:
-    for line in captured.getvalue().splitlines(keepends=True):
-      if line.startswith(
-          ('Failed to import warp:', 'Failed to import mujoco_warp:')
-      ):
-        logging.getLogger(__name__).debug(
-            'MJX Warp backend unavailable: %s', line.rstrip()
-        )
-      else:
-        sys.stdout.write(line)
+__all__ = sorted(_PUBLIC_NAMES)
 
 
-_import_mjx_quietly()
+def __getattr__(name: str):
+  """A public name (`_PUBLIC_NAMES`) or a subpackage, imported on first use."""
+  if name in _PUBLIC_NAMES:
+    value = getattr(importlib.import_module(_PUBLIC_NAMES[name]), name)
+  elif not name.startswith('__') and importlib.util.find_spec(
+      f'{__name__}.{name}'
+  ):
+    value = importlib.import_module(f'{__name__}.{name}')
+  else:
+    raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+  globals()[name] = value
+  return value
 
-# pylint: disable=g-import-not-at-top,wrong-import-position
-from mjx_composer.arena import Arena
-from mjx_composer.constants import SENSOR_SITES_GROUP
-from mjx_composer.define import cached_property
-from mjx_composer.define import observable
-from mjx_composer.entity import Entity
-from mjx_composer.entity import ModelWrapperEntity
-from mjx_composer.environment import EpisodeInitializationError
-from mjx_composer.environment import Environment
-from mjx_composer.environment import ExecutionOptions
-from mjx_composer.environment import HOOK_NAMES
-from mjx_composer.environment import State
-from mjx_composer.environment import StepType
-from mjx_composer.host.host_environment import HostEnvironment
-from mjx_composer.initializer import Initializer
-from mjx_composer import initializers
-from mjx_composer import observation
-from mjx_composer.observation import FreePropObservableMixin
-from mjx_composer.observation import ObservationGroup
-from mjx_composer.observation import ObservationPadding
-from mjx_composer.observation import Observables
-from mjx_composer.physics import Physics
-from mjx_composer.robot import Robot
-from mjx_composer.task import NullTask
-from mjx_composer.task import Task
+
+def __dir__():
+  return sorted(set(globals()) | set(_PUBLIC_NAMES))
+
 
 __version__ = _version()
 
-# Cholesky without jaxlib's LAPACK kernel on the CPU, which can deadlock.
-from mjx_composer import platform  # pylint: disable=g-bad-import-order
+# pylint: disable=g-import-not-at-top,wrong-import-position
+# Cholesky without jaxlib's LAPACK kernel on the CPU, which can deadlock;
+# MJX, when it is imported, quietly and with what this package adds to it.
+from mjx_composer import platform
 
 platform.safe_defaults()
 
 # The bundled content's old paths (`mjx_composer.entities`, `.tasks` and
 # `.locomotion`, now in `mjx_composer.suite`), for this release.
-from mjx_composer.suite import old_paths  # pylint: disable=g-bad-import-order
+from mjx_composer.suite import old_paths
 
 old_paths.install()

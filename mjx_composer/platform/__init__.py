@@ -6,7 +6,8 @@ MJX's JAX code computes, for a MuJoCo Warp model; `shared_buffers`, tree
 operations that keep Warp's batch-shared `Data` buffers whole), a batch of
 worlds over devices (`sharding`, `partitioner`), the JAX settings the
 package's entry points switch on (`compilation_cache`, `prng_lowering`,
-`cpu_linalg`; all three at once: `configure`), and the modules that use
+`cpu_linalg`; all three at once: `configure`), how MJX is imported
+(`mjx_import`: quietly, completed by `internals`), and the modules that use
 other packages' private internals (`internals`: MJX and MuJoCo Warp;
 `internals_jax`: JAX; `internals_numpy`: NumPy's random module).
 
@@ -20,7 +21,7 @@ import os
 
 from mjx_composer.platform import compilation_cache as _compilation_cache
 from mjx_composer.platform import cpu_linalg as _cpu_linalg
-from mjx_composer.platform import internals as _internals
+from mjx_composer.platform import mjx_import as _mjx_import
 from mjx_composer.platform import prng_lowering as _prng_lowering
 
 
@@ -85,15 +86,15 @@ def safe_defaults() -> None:
   single Cholesky on the CPU may run slower than with LAPACK; switch it off
   with the environment variable or `cpu_linalg.enable(enabled=False)`.
 
-  Also MJX's missing ray-geom functions (`internals.add_missing_ray_functions`:
-  a touch sensor on a cylinder site), with MuJoCo's semantics, and errors
-  that say what to use where a dm_control idiom meets MJX's classes
-  (`internals.explain_dm_control_idioms`: indexing or iterating
-  `physics.data.contact`, `physics.model.ptr`).
+  And MJX, when it is first imported (now, if it was before), quietly and
+  with what this package adds to it (`mjx_import.install`): MJX's missing
+  ray-geom functions (a touch sensor on a cylinder site), with MuJoCo's
+  semantics, and errors that say what to use where a dm_control idiom meets
+  MJX's classes (indexing or iterating `physics.data.contact`,
+  `physics.model.ptr`).
 
   The other settings of `configure` change speed, not correctness, and
   write to disk (the cache): a user asks for them.
   """
-  _internals.add_missing_ray_functions()
-  _internals.explain_dm_control_idioms()
+  _mjx_import.install()
   _cpu_linalg.enable()
