@@ -6,7 +6,8 @@ MJX's JAX code computes, for a MuJoCo Warp model; `shared_buffers`, tree
 operations that keep Warp's batch-shared `Data` buffers whole), a batch of
 worlds over devices (`sharding`, `partitioner`), the JAX settings the
 package's entry points switch on (`compilation_cache`, `prng_lowering`,
-`cpu_linalg`; all three at once: `configure`), how MJX is imported
+`cpu_linalg`; all three at once: `configure`), the analyses' answers kept
+beside the compiled programs (`answer_cache`), how MJX is imported
 (`mjx_import`: quietly, completed by `internals`), and the modules that use
 other packages' private internals (`internals`: MJX and MuJoCo Warp;
 `internals_jax`: JAX; `internals_numpy`: NumPy's random module).

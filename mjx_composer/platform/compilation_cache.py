@@ -23,6 +23,9 @@ JAX's own settings win: if a cache folder is already configured
 ...)`) or JAX's cache is disabled (`JAX_ENABLE_COMPILATION_CACHE=false`),
 `enable()` changes nothing.
 
+The same folder keeps the answers of the analyses that trace MJX's forward
+pass, in a subfolder (`answer_cache`).
+
 A library import never calls `enable()`: importing `mjx_composer` leaves the
 JAX configuration as it is.
 

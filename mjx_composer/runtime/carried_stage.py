@@ -218,7 +218,7 @@ def finish(model, data, name, step_forward):
 
 
 # `_stage_io`'s answers, for every environment of a model.
-_STAGE_IO = data_reads.PerStructure()
+_STAGE_IO = data_reads.PerStructure('carried_stage.stage_io')
 
 
 def _stage_io(model, data, name) -> tuple[frozenset[str], frozenset[str]]:

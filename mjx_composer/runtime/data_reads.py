@@ -23,6 +23,7 @@ import dataclasses
 import jax
 import numpy as np
 
+from mjx_composer.platform import answer_cache
 from mjx_composer.platform import internals_jax
 
 
@@ -89,27 +90,68 @@ def structure_key(tree) -> tuple:
 
 class PerStructure:
   """Answers of traces that depend on what they trace only through its
-  `structure_key`, each computed once per key in this process.
+  `structure_key`, each computed once per key in this process, and kept on
+  disk for later processes where the compilation cache is on
+  (`platform.answer_cache`).
 
   Every environment of a model asks the same few questions of MJX's forward
   pass (what a stage reads and writes), and environments of one model ask
   them again: each trace of a stage takes a fraction of a second, of the
-  full forward pass seconds. The oldest answers are dropped past
-  `max_entries`.
+  full forward pass seconds. The oldest answers in memory are dropped past
+  `max_entries`. An answer is a frozenset of strings or a tuple of them
+  (what a JSON file can hold as such).
   """
 
-  def __init__(self, max_entries: int = 256):
+  def __init__(self, kind: str | None = None, max_entries: int = 256):
+    """`kind`: which analysis asks, unique to it (part of the disk key);
+    None keeps the answers in memory only."""
+    self._kind = kind
     self._answers = {}
     self._max_entries = max_entries
 
   def __call__(self, key, compute):
-    """The answer for `key` (a tuple that holds `structure_key`s), from
-    `compute()` the first time."""
+    """The answer for `key` (a tuple that holds `structure_key`s): from
+    memory, else from disk, else from `compute()`."""
     if key not in self._answers:
       if len(self._answers) >= self._max_entries:
         self._answers.pop(next(iter(self._answers)))
-      self._answers[key] = compute()
+      self._answers[key] = self._kept_or_computed(key, compute)
     return self._answers[key]
+
+  def _kept_or_computed(self, key, compute):
+    name = None
+    if self._kind is not None and answer_cache.folder() is not None:
+      name = answer_cache.question_digest(self._kind, key)
+    if name is not None:
+      kept = _decoded(answer_cache.load(name))
+      if kept is not None:
+        return kept
+    answer = compute()
+    if name is not None:
+      answer_cache.store(name, _encoded(answer))
+    return answer
+
+
+def _encoded(answer):
+  """`answer` (frozensets of strings, tuples of them) as JSON data."""
+  if isinstance(answer, frozenset):
+    return {'set': sorted(answer)}
+  return {'tuple': [_encoded(x) for x in answer]}
+
+
+def _decoded(value):
+  """`_encoded`'s answer back, or None where `value` is not one."""
+  if not isinstance(value, dict) or len(value) != 1:
+    return None
+  ((kind, items),) = value.items()
+  if not isinstance(items, list):
+    return None
+  if kind == 'set' and all(isinstance(x, str) for x in items):
+    return frozenset(items)
+  if kind == 'tuple':
+    parts = [_decoded(x) for x in items]
+    return None if any(p is None for p in parts) else tuple(parts)
+  return None
 
 
 @dataclasses.dataclass(frozen=True)

@@ -148,7 +148,7 @@ def forward(stage, model, data, sensors=True):
 
 # `written`'s answers: every environment of a model asks for the same few
 # stages (the reset's choice, the control step's).
-_WRITTEN = data_reads.PerStructure()
+_WRITTEN = data_reads.PerStructure('reset_forward.written')
 
 
 def written(
