@@ -4,10 +4,13 @@
 import json
 import sys
 
+import jax
 import pytest
 
 from mjx_composer.platform import answer_cache
+from mjx_composer.runtime import carried_stage
 from mjx_composer.runtime import data_reads
+from mjx_composer.runtime import reset_forward
 from tests import conftest
 
 
@@ -103,10 +106,19 @@ def test_the_digest_changes_with_the_code(tmp_path, monkeypatch):
     sys.modules.pop('traced_package', None)
 
 
-# Builds the tests' swing environment, traces its batched reset and step,
-# and reports how many answers it computed, those kept, and the programs.
+def _swing_step_program():
+  """The tests' swing environment's batched step, traced: its jaxpr's text."""
+  env = conftest.make_swing_env(time_limit=0.05)
+  keys = jax.random.split(jax.random.key(0), 2)
+  states = jax.eval_shape(jax.vmap(env.reset), keys)
+  actions = jax.ShapeDtypeStruct((2,) + env.action_spec().shape, 'float32')
+  return str(jax.make_jaxpr(jax.vmap(env.step))(states, actions))
+
+
+# In a fresh process whose compilation cache is $MJX_COMPOSER_CACHE_DIR:
+# the analyses it computed, and `_swing_step_program()`.
 _SCRIPT = """
-import json, os, sys
+import json
 
 from mjx_composer.runtime import data_reads
 computed = []
@@ -116,29 +128,45 @@ def counted(self, key, compute):
       self, key, lambda: computed.append(self._kind) or compute())
 data_reads.PerStructure._kept_or_computed = counted
 
-import jax
-from mjx_composer.platform import answer_cache
 from tests import conftest  # configures the compilation cache, as tests do
-
-env = conftest.make_swing_env(time_limit=0.05)
-keys = jax.random.split(jax.random.key(0), 2)
-states = jax.eval_shape(jax.vmap(env.reset), keys)
-actions = jax.ShapeDtypeStruct((2,) + env.action_spec().shape, 'float32')
-step = jax.make_jaxpr(jax.vmap(env.step))(states, actions)
-print(json.dumps({
-    'computed': computed,
-    'kept': len(os.listdir(answer_cache.folder())),
-    'step': str(step),
-}))
+from tests.platform import test_answer_cache
+program = test_answer_cache._swing_step_program()
+print(json.dumps({'computed': computed, 'step': program}))
 """
 
 
-def test_a_second_process_traces_no_analysis_and_the_same_program(tmp_path):
-  first = conftest.run_script(_SCRIPT, None, tmp_path, drop=_CACHE_VARS)
-  second = conftest.run_script(_SCRIPT, None, tmp_path, drop=_CACHE_VARS)
-  assert first['computed'] and first['kept'] == len(first['computed'])
-  assert second['computed'] == []
-  assert second['step'] == first['step']
+def test_a_later_process_traces_no_analysis_and_the_same_program(
+    tmp_path, monkeypatch
+):
+  cache = tmp_path / 'cache'
+  folder = cache / answer_cache.FOLDER
+  monkeypatch.setattr(answer_cache, 'folder', lambda: str(folder))
+  # This process's analyses, with nothing in memory, computed and kept.
+  computed = []
+  for module, name in (
+      (reset_forward, '_WRITTEN'),
+      (carried_stage, '_STAGE_IO'),
+  ):
+    kind = getattr(module, name)._kind  # pylint: disable=protected-access
+    fresh = data_reads.PerStructure(kind)
+    monkeypatch.setattr(
+        module,
+        name,
+        lambda key, compute, fresh=fresh: fresh(
+            key, lambda: computed.append(key) or compute()
+        ),
+    )
+  program = _swing_step_program()
+  assert computed and len(list(folder.glob('*.json'))) == len(computed)
+  later = conftest.run_script(
+      _SCRIPT,
+      None,
+      tmp_path,
+      drop=_CACHE_VARS,
+      env={'MJX_COMPOSER_CACHE_DIR': str(cache)},
+  )
+  assert later['computed'] == []
+  assert later['step'] == program
 
 
 _CACHE_VARS = (
