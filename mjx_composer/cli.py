@@ -30,7 +30,6 @@ import jax
 import jax.numpy as jnp
 import tqdm
 
-from mjx_composer import environment
 from mjx_composer import platform
 from mjx_composer.suite.tasks import registry
 
@@ -192,6 +191,8 @@ def demo_parser():
 
 def demo(argv=None):
   """`mjx-composer demo`: runs a registered task with a random policy."""
+  from mjx_composer import environment  # pylint: disable=g-import-not-at-top
+
   _import_flagged(argv)
   parser = demo_parser()
   args = parser.parse_args(argv)

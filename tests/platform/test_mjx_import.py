@@ -130,3 +130,20 @@ def test_static_tools_see_the_names_served():
       for alias in node.names
   }
   assert seen == composer._PUBLIC_NAMES  # pylint: disable=protected-access
+
+
+_LIST_SCRIPT = """
+import contextlib, io, json, sys
+from mjx_composer import cli
+
+with contextlib.redirect_stdout(io.StringIO()) as listed:
+  cli.main(['list'])
+print(json.dumps({
+    'mjx': 'mujoco.mjx' in sys.modules, 'listed': listed.getvalue()}))
+"""
+
+
+def test_listing_the_tasks_imports_no_mjx(tmp_path):
+  report = conftest.run_script(_LIST_SCRIPT, None, tmp_path)
+  assert not report['mjx']
+  assert report['listed'].splitlines()[0].startswith('reach ')

@@ -40,7 +40,7 @@ The bundled tasks (reach, push, walk, joystick, joystick_rough,
 joystick_terrain, walk_terrain) are registered when this module is
 imported, but their modules are imported only when a task is built: building
 the walk task does not import the Go1's, and `mjx-composer list` imports
-none.
+none of them, nor MJX.
 """
 
 from __future__ import annotations
@@ -48,12 +48,14 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import importlib.metadata
+import typing
 from typing import Any, Callable, Iterable, Mapping
 
-from mjx_composer import environment as environment_lib
-from mjx_composer import task as task_lib
+if typing.TYPE_CHECKING:  # imported where used: listing tasks loads no MJX
+  from mjx_composer import environment as environment_lib
+  from mjx_composer import task as task_lib
 
-TaskFactory = Callable[..., task_lib.Task]
+TaskFactory = Callable[..., 'task_lib.Task']
 ENTRY_POINT_GROUP = 'mjx_composer.tasks'
 
 
@@ -302,6 +304,8 @@ def describe(name: str) -> str:
 
 def make_task(name: str, **overrides) -> task_lib.Task:
   """A new `Task` of `name`: its factory called with its kwargs + `overrides`."""
+  from mjx_composer import task as task_lib  # pylint: disable=g-import-not-at-top,redefined-outer-name
+
   registered = entry(name)
   task = registered.factory(**{**registered.kwargs, **overrides})
   if not isinstance(task, task_lib.Task):
@@ -332,6 +336,8 @@ def make_environment(
   Raises:
     UnknownTaskError: for a name that is not registered.
   """
+  from mjx_composer import environment as environment_lib  # pylint: disable=g-import-not-at-top,redefined-outer-name
+
   return environment_lib.Environment(
       make_task(name), time_limit=time_limit, options=options, **kwargs
   )
