@@ -15,8 +15,8 @@ package and of MJX, and the versions of Python, JAX, jaxlib and MuJoCo.
 Editing either package, or upgrading one, asks afresh. The answers are
 JSON data (sets of field names), never code; a file that cannot be read or
 decoded is ignored, and written afresh by the analysis that follows. The
-folder is created private (mode 0700), inside the compilation cache's
-folder, which `compilation_cache.enable` refuses where others can write.
+folder is created private (mode 0700), and neither it nor the compilation
+cache's folder is used where others could write to it (`folder`).
 """
 
 from __future__ import annotations
@@ -44,11 +44,25 @@ _SOURCE_PACKAGES = ('mjx_composer', 'mujoco.mjx')
 _VERSIONED = ('jax', 'jaxlib', 'mujoco', 'mujoco-mjx')
 
 
-def folder() -> str | None:
-  """Where answers are kept, or None where the compilation cache is off."""
-  if not compilation_cache.is_enabled():
+def folder(cache_dir: str | None = None) -> str | None:
+  """Where answers are kept: `FOLDER` inside `cache_dir` (default: JAX's
+  compilation cache folder, where the cache is on). None where there is no
+  such folder, or where it or `FOLDER` could be written by others
+  (`compilation_cache.unsafe_folder_reason`): an answer planted there
+  would change what the programs compute."""
+  if cache_dir is None:
+    if not compilation_cache.is_enabled():
+      return None
+    cache_dir = jax.config.jax_compilation_cache_dir
+  where = os.path.join(cache_dir, FOLDER)
+  try:
+    if compilation_cache.unsafe_folder_reason(cache_dir):
+      return None
+    if os.path.isdir(where) and compilation_cache.unsafe_folder_reason(where):
+      return None
+  except OSError:
     return None
-  return os.path.join(jax.config.jax_compilation_cache_dir, FOLDER)
+  return where
 
 
 @functools.cache

@@ -175,3 +175,16 @@ _CACHE_VARS = (
     'JAX_COMPILATION_CACHE_DIR',
     'JAX_ENABLE_COMPILATION_CACHE',
 )
+
+
+def test_a_folder_others_can_write_keeps_nothing(tmp_path):
+  cache = tmp_path / 'cache'
+  (cache / answer_cache.FOLDER).mkdir(parents=True, mode=0o700)
+  cache.chmod(0o700)
+  assert answer_cache.folder(str(cache)) == str(cache / answer_cache.FOLDER)
+  (cache / answer_cache.FOLDER).chmod(0o770)
+  assert answer_cache.folder(str(cache)) is None
+  (cache / answer_cache.FOLDER).chmod(0o700)
+  cache.chmod(0o777)
+  assert answer_cache.folder(str(cache)) is None
+  assert answer_cache.folder(str(tmp_path / 'missing')) is None
