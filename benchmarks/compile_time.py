@@ -627,6 +627,7 @@ def run_one(
       threefry_gpu_kernel=threefry_kernel,
       share_reset_forward=env.share_reset_forward,
       reset_forward_stage=env.reset_forward_stage,
+      stored_restart=env.stored_restart,
   )
   return row
 

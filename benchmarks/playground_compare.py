@@ -159,10 +159,12 @@ FEATURES = {
 
 SHARED = '_shared'
 ALL_SENSORS = '_all_sensors'
+NO_STORE = '_nostore'
 # Suffixes of ours' programs, each an `Environment` argument.
 SUFFIXES = {
     SHARED: dict(share_reset_forward=True),
     ALL_SENSORS: dict(substep_sensors='all'),
+    NO_STORE: dict(stored_restart='never'),
 }
 # `_chunk<K>`: `auto_reset_batch=K`; `_chunkall`: None (the whole batch).
 _CHUNK = re.compile(r'_chunk([1-9][0-9]*|all)$')
@@ -195,7 +197,10 @@ def program_name(name):
   `share_reset_forward=True` (the restart of ended episodes fused into the
   sub-step loop), e.g. `ours_on_shared`; and in `_all_sensors`: with
   `substep_sensors='all'` (every sub-step computes the sensors, as
-  `mjx.step` does), e.g. `ours_off_all_sensors`; and in `_chunk<K>`: with
+  `mjx.step` does), e.g. `ours_off_all_sensors`; and in `_nostore`: with
+  `stored_restart='never'` (the step program runs the reset where it would
+  restore a copy of the first state), e.g. `ours_off_nostore`; and in
+  `_chunk<K>`: with
   `auto_reset_batch=K` (not with `_shared`), e.g. `ours_on_chunk512`, or
   `_chunkall`: with `auto_reset_batch=None` (the whole batch's reset).
   """
@@ -464,6 +469,8 @@ def main():
       row[name]['control_steps_per_s'] = (
           worlds * args.steps / row[name]['seconds_per_call']
       )
+      if name in envs:  # whether its restart restores the first state
+        row[name]['stored_restart'] = envs[name].stored_restart
       print(
           f'{worlds:>6} worlds: {name} '
           f'{row[name]["control_steps_per_s"]:,.0f} control steps/s, '

@@ -315,6 +315,14 @@ class Environment:
     return self._transitions.carried_stage
 
   @property
+  def stored_restart(self) -> bool:
+    """Whether an auto-reset restores a copy of the world's first state
+    instead of running the reset (`ExecutionOptions.stored_restart`,
+    `mjx_composer.runtime.stored_restart`). Found by tracing the reset on
+    first use."""
+    return self._transitions.stored_restart is not None
+
+  @property
   def random_state(self):
     return self._random_state
 
@@ -396,7 +404,7 @@ class Environment:
 
   def reset(self, key) -> State:
     """Starts an episode for one world. Pure; jit and vmap it."""
-    return self._transitions.reset(arguments.as_key(key))
+    return self._transitions.begin(arguments.as_key(key))
 
   def step(self, state: State, action) -> State:
     """Advances one world by one control step. Pure; jit and vmap it.

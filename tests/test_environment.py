@@ -1054,6 +1054,7 @@ _OPTION_VALUES = {
     'substep_sensors': 'all',
     'dirty_forward': 'never',
     'carry_stage': 'never',
+    'stored_restart': 'never',
 }
 
 
@@ -1191,7 +1192,13 @@ def test_arguments_are_composers_in_composers_order():
 
 
 class _Transitions:
-  """A stand-in whose step programs say which they are."""
+  """A stand-in whose step programs say which they are; its restarts run the
+  reset (`stored_restart`: None)."""
+
+  stored_restart = None
+
+  def __init__(self, stored_restart_mode='never'):
+    self.stored_restart_mode = stored_restart_mode
 
   def reset_or_step(self, state, action):
     return 'reset_or_step'
@@ -1221,3 +1228,14 @@ def test_the_step_program_is_chosen_once(auto_reset, fuse):
     }
     # pylint: enable=protected-access
     assert program.func is separate[auto_reset]
+
+
+@pytest.mark.parametrize('auto_reset', ['next_step', 'same_step'])
+def test_a_restart_that_cannot_be_restored_runs_the_reset(auto_reset):
+  # stored_restart='auto' asks, when the step is traced, whether the
+  # restart may restore the first state; where not, the fused step runs.
+  program = auto_reset_lib.step_program(
+      _Transitions('auto'), auto_reset=auto_reset, fuse=True, chunk=None
+  )
+  expected = {'next_step': 'reset_or_step', 'same_step': 'step_and_restart'}
+  assert program(None, None) == expected[auto_reset]

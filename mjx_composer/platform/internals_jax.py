@@ -2,7 +2,8 @@
 
 The package needs a few things that JAX does not export: a lowering rule of
 JAX's Cholesky primitive (`cpu_linalg`), JAX's dead-code elimination of a
-jaxpr (`runtime.data_reads`), JAX's partitioner setting (`partitioner`),
+jaxpr (`runtime.data_reads`) and its partial evaluation
+(`runtime.stored_restart`), JAX's partitioner setting (`partitioner`),
 the barrier of JAX's coordination service (`training`), the entries of
 JAX's persistent compilation cache (`compilation_cache`), and it puts back
 `jax.device_put_replicated` for Brax (`adapters.brax`). This module, with
@@ -29,7 +30,7 @@ try:  # JAX's own configuration objects, beside the public `jax.config`.
 except ImportError:  # pragma: no cover - a JAX that moved it
   _jax_config = None
 
-try:  # JAX's dead-code elimination of a jaxpr: not a public API.
+try:  # JAX's dead-code elimination and partial evaluation of a jaxpr.
   from jax._src.interpreters import partial_eval as _partial_eval
 except ImportError:  # pragma: no cover - a JAX that moved it
   _partial_eval = None
@@ -294,3 +295,13 @@ def shardy_partitioner_state():
 # `runtime.data_reads` uses to tell which `mjx.Data` fields a traced function
 # reads (without it, every field counts as read).
 dce_jaxpr: Callable[..., Any] | None = getattr(_partial_eval, 'dce_jaxpr', None)
+
+# `jax._src.interpreters.partial_eval.partial_eval_jaxpr_nounits`, or None on
+# a JAX without it: a jaxpr split by data dependence on some of its inputs
+# into the part computable without them and the rest (and the intermediate
+# values the rest needs, its residuals), what `runtime.stored_restart` uses
+# to tell which leaves of a reset depend on its key (without it, every
+# restart runs the reset).
+partial_eval_jaxpr_nounits: Callable[..., Any] | None = getattr(
+    _partial_eval, 'partial_eval_jaxpr_nounits', None
+)

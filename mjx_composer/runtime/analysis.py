@@ -18,7 +18,9 @@ values:
 * `carried_stage`: whether the control step computes that stage at the end
   of every physics step and carries it to the next, instead of recomputing
   it after its last (`runtime.carried_stage`), and `carried`, what it hands
-  on to the sensors of the last sub-step.
+  on to the sensors of the last sub-step;
+* `stored_restart`: whether an auto-reset restores a copy of the world's
+  first state instead of running the reset (`runtime.stored_restart`).
 
 Each runs on first use (building stays cheap for an environment that is
 never traced) or all at once (`analyse`), and answers the same whenever it
@@ -40,6 +42,7 @@ from mjx_composer.runtime import carried_stage as carried_stage_lib
 from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import reset_forward as reset_forward_lib
+from mjx_composer.runtime import stored_restart as stored_restart_lib
 from mjx_composer.runtime import substep_sensors as substep_sensors_lib
 
 # Where the declared per-world model fields come from, in
@@ -56,6 +59,9 @@ class ResetShapes:
     failures: the shape of the failed attempts' count.
     state: the shapes of the reset's `State`.
     writers: `{model field: the initialize_episode hooks that write it}`.
+    physics_drawn: whether the physics an initialization attempt leaves
+      (its data, whether it failed) may depend on its key (dead-code
+      elimination of the attempt's jaxpr; True where it cannot tell).
     step_writers: `{model field: the step hooks that write it}`
       (`hooks.EnvironmentHooks.step_model_field_writers`).
   """
@@ -64,6 +70,7 @@ class ResetShapes:
   failures: Any
   state: Any
   writers: dict
+  physics_drawn: bool = True
   step_writers: dict = dataclasses.field(default_factory=dict)
 
 
@@ -83,7 +90,8 @@ class Analysis:
 
     `reset_shapes` (the reset's `initialize_episode` hooks and the step
     hooks, traced abstractly), `reset_forward`, `sensors_once_per_step`,
-    `step_forward`, `carried_stage` and `carried` (their readers' jaxprs). They read
+    `step_forward`, `carried_stage` and `carried` (their readers' jaxprs),
+    `stored_restart` (the reset's jaxpr). They read
     shapes only, so they answer the same whenever they run; running them at
     build keeps their traces out of the first trace of `reset` or `step`. Raises what tracing
     those hooks raises.
@@ -95,6 +103,7 @@ class Analysis:
         'step_forward',
         'carried_stage',
         'carried',
+        'stored_restart',
     ):
       getattr(self, analysis)
     return self
@@ -139,7 +148,9 @@ class Analysis:
       )
       return carry, carry.initialization_failed.astype(jnp.int32)
 
-    carry, failures = jax.eval_shape(initialize, keys_lib.key_shape())
+    attempt, (carry, failures) = jax.make_jaxpr(initialize, return_shape=True)(
+        keys_lib.key_shape()
+    )
 
     def first(carry, failures, key):
       physics = self._t.restore(carry)
@@ -148,7 +159,16 @@ class Analysis:
       )
 
     state = jax.eval_shape(first, carry, failures, keys_lib.key_shape())
-    return ResetShapes(carry, failures, state, writers)
+    physics = (carry.data, carry.initialization_failed, failures)
+    return ResetShapes(
+        carry,
+        failures,
+        state,
+        writers,
+        physics_drawn=data_reads.depends_on_inputs(
+            attempt, (carry, failures), physics
+        ),
+    )
 
   def per_world_model_fields(self) -> dict[str, tuple[str, ...]]:
     """`{model field: what made it per-world}`: the `initialize_episode`
@@ -264,3 +284,9 @@ class Analysis:
     """`carried_stage` with what it hands on to the last sub-step's sensors
     (`carried_stage.of`), or None."""
     return carried_stage_lib.of(self._t)
+
+  @functools.cached_property
+  def stored_restart(self) -> stored_restart_lib.Plan | None:
+    """How an auto-reset restores a copy of the world's first state, or None
+    where it runs the reset (`stored_restart.plan`)."""
+    return stored_restart_lib.plan(self._t)

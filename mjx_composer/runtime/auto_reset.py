@@ -11,7 +11,11 @@ before anything is traced:
   (`ExecutionOptions.share_reset_forward`, where the model allows it:
   `Transitions.can_fuse_restart`), or separately, selected per world by
   `control_flow.select_reset` (`ExecutionOptions.auto_reset_batch` worlds
-  at a time under `jax.vmap`, or the whole batch).
+  at a time under `jax.vmap`, or the whole batch);
+* whether the restart restores a copy of the world's first state instead
+  (`ExecutionOptions.stored_restart`, where `Transitions.stored_restart`
+  allows it: an analysis of the reset's jaxpr, run when the step is first
+  traced).
 
 `step_program` makes that choice once; every program it returns is a pure
 function `(state, action) -> State` of one world with the same results (to
@@ -26,6 +30,7 @@ from typing import Callable
 import jax
 
 from mjx_composer.runtime import control_flow
+from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import state as state_lib
 
@@ -50,6 +55,14 @@ def step_program(
   Returns:
     `(state, action) -> State`, pure; the action already checked.
   """
+  running = _running_reset(transitions, auto_reset, fuse, chunk)
+  if transitions.stored_restart_mode == 'never':
+    return running
+  return functools.partial(_restoring, transitions, auto_reset, running)
+
+
+def _running_reset(transitions, auto_reset, fuse, chunk):
+  """The step whose restart runs the reset."""
   if auto_reset == 'next_step':
     if fuse:
       return transitions.reset_or_step
@@ -57,6 +70,28 @@ def step_program(
   if fuse:
     return transitions.step_and_restart
   return functools.partial(_step_then_restart, transitions, chunk)
+
+
+def _restoring(transitions, auto_reset, running, state, action):
+  """The step whose restart restores a copy of the world's first state,
+  where `Transitions.stored_restart` allows it; else `running`.
+
+  The keys are `running`'s: next-step's reset takes `reset_key` and its
+  discarded step `step_key` (`keys.next_step_keys`), same-step's restart
+  the stepped state's key.
+  """
+  plan = transitions.stored_restart
+  if plan is None:
+    return running(state, action)
+  if auto_reset == 'next_step':
+    reset_key, step_key = keys_lib.next_step_keys(state.key)
+    stepped = transitions.step(state.replace(key=step_key), action)
+    return control_flow.tree_select(
+        state.last(), plan.restore(reset_key, state), stepped
+    )
+  stepped = transitions.step(state, action)
+  restarted = episode_lib.reporting(plan.restore(stepped.key, stepped), stepped)
+  return control_flow.tree_select(stepped.last(), restarted, stepped)
 
 
 def _step_or_reset(transitions, chunk, state, action):

@@ -280,6 +280,7 @@ def _build_on(
       substep_sensors=options.substep_sensors,
       dirty_forward=options.dirty_forward,
       carry_stage=options.carry_stage,
+      stored_restart_mode=options.stored_restart,
   )
   # `can_fuse_restart` is a fact of the host model: decide here, once.
   step = auto_reset_lib.step_program(

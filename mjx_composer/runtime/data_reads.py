@@ -1,4 +1,4 @@
-"""What a traced function reads of an `mjx.Data`.
+"""What a traced function reads of an `mjx.Data`, and of its inputs.
 
 A reset's forward pass needs to compute only what is read of the new state
 before the next physics step (`reset_forward.py`). This module answers that
@@ -199,6 +199,24 @@ def reads(fn, data, *args) -> Reads:
         dict(zip(closed.jaxpr.constvars, closed.consts)),
     )
   return Reads(frozenset(used), sensordata)
+
+
+def depends_on_inputs(closed, outputs, selected) -> bool:
+  """Whether the leaves `selected` of `outputs`, the result of the
+  `ClosedJaxpr` `closed`, may depend on any of its inputs.
+
+  By dead-code elimination, as `reads`: a leaf a branch or loop passes
+  through depends on all of the branch's or loop's inputs. True where this
+  JAX has no dead-code elimination to call.
+  """
+  if internals_jax.dce_jaxpr is None:
+    return True
+  wanted = {id(leaf) for leaf in jax.tree.leaves(selected)}
+  used_outputs = [id(leaf) in wanted for leaf in jax.tree.leaves(outputs)]
+  _, used_inputs = internals_jax.dce_jaxpr(
+      closed.jaxpr, used_outputs, instantiate=False
+  )
+  return any(used_inputs)
 
 
 # Primitives whose parameter holds a sub-jaxpr called with the operands in

@@ -14,6 +14,8 @@ key gives the same trajectory whatever the batch size:
 * a next-step auto-reset splits the LAST state's key in two
   (`next_step_keys`): the reset's, and the step's whose result is
   discarded;
+* with `fixed_initial_state`, every episode of a world starts from the key
+  of its first, kept in the world's persistent entries (`INITIAL_KEY`);
 * each hook participant folds in the stable id of its identity
   (`hook_keys`), so that overriding one more hook never changes another
   owner's draws.
@@ -27,6 +29,9 @@ import jax
 import jax.numpy as jnp
 
 from mjx_composer.utils import stable_id as stable_id_lib
+
+# The persistent entry holding a world's first key (`fixed_initial_state`).
+INITIAL_KEY = 'environment/initial_key'
 
 
 def key_shape() -> jax.ShapeDtypeStruct:

@@ -7,7 +7,8 @@ Every option chooses between programs that compute the same episodes (to
 float rounding where a field says so): when an ended episode restarts, which
 MJX implementation runs the physics, how a restart shares the step's forward
 pass, what a reset's forward pass computes, how often the sensors are
-computed; one, `dirty_forward`, chooses which state the acceleration stage
+computed, whether a restart restores a copy of the first state; one,
+`dirty_forward`, chooses which state the acceleration stage
 read after a control step belongs to (the trajectories are the same, to float
 rounding). The task and `Environment`'s composer arguments say what the
 episodes are. The options are checked when they are made, except for what
@@ -30,6 +31,7 @@ ResetForward = Literal['observed', 'full']
 SubstepSensors = Literal['read', 'all']
 DirtyForward = Literal['composer', 'never']
 CarryStage = Literal['auto', 'never']
+StoredRestart = Literal['auto', 'never']
 
 
 @dataclasses.dataclass(frozen=True)
@@ -154,6 +156,19 @@ class ExecutionOptions:
       stage). A reset then computes at least that stage. 'never': every
       physics step is `mjx.step`, and the control step recomputes the
       stage after its last.
+    stored_restart: 'auto' (default): where every restart of a world is
+      its first reset's function of the episode's key (the world carries
+      no per-world model fields, persistent entries or scheduled hooks)
+      and what depends on that key needs nothing else (e.g. the pose every
+      episode starts from is fixed, or `fixed_initial_state` repeats the
+      first episode's key), each world keeps a copy of its first state
+      (`State.stored_first`) and an auto-reset restores it, computing from
+      the key only what depends on it (`runtime.stored_restart`;
+      `Environment.stored_restart` says whether): the step program holds
+      no reset, and a restart costs a select, for one more copy of the
+      state in every world's memory (as Playground's training wrapper
+      keeps). The episodes are the same. 'never': the step program runs
+      the reset.
 
   Raises:
     ValueError: for a value outside a field's choices, or options that
@@ -173,6 +188,7 @@ class ExecutionOptions:
   substep_sensors: SubstepSensors = 'read'
   dirty_forward: DirtyForward = 'composer'
   carry_stage: CarryStage = 'auto'
+  stored_restart: StoredRestart = 'auto'
 
   def __post_init__(self):
     if isinstance(self.per_world_model_fields, str):
@@ -189,6 +205,7 @@ class ExecutionOptions:
     _check_choice('substep_sensors', self.substep_sensors, ('read', 'all'))
     _check_choice('dirty_forward', self.dirty_forward, ('composer', 'never'))
     _check_choice('carry_stage', self.carry_stage, ('auto', 'never'))
+    _check_choice('stored_restart', self.stored_restart, ('auto', 'never'))
     impl_choice.check_impl(self.impl, 'ExecutionOptions(impl=...)')
     impl_choice.check_buffer_arguments(
         self.impl, self.naconmax, self.njmax, requested=self.impl

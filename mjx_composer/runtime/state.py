@@ -79,6 +79,10 @@ class State(physics_lib.WorldFields):
       `init_failed`; and the task's `get_metrics`.
     episode: the running `Episode` counters.
     key: the world's PRNG key for what comes next.
+    stored_first: what the world's auto-resets restore of its first state,
+      where `fixed_initial_state` makes every episode start as the first
+      and the reset reads nothing else the world carries
+      (`runtime.stored_restart`); else None (no leaves).
   """
 
   obs_state: Any
@@ -92,6 +96,7 @@ class State(physics_lib.WorldFields):
   metrics: dict
   episode: Episode
   key: jax.Array
+  stored_first: Any = struct.field(default=None, kw_only=True)
 
   @property
   def steps(self) -> jax.Array:

@@ -17,7 +17,8 @@ module is what runs on the device for one world, in composer's order:
 
 Each expensive piece (the `initialize_episode` hooks, `mjx.step`) is traced
 once and appears once in the lowered program. The auto-reset that shares
-the step's forward pass is `fused_restart`.
+the step's forward pass is `fused_restart`; the one that restores a stored
+first state instead of running the reset is `stored_restart`.
 
 What shapes the programs (the fields the reset's and the step's hooks make
 per-world, the reset's and the step's stages of the forward pass, whether
@@ -49,6 +50,7 @@ from mjx_composer.runtime import hooks as hooks_lib
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import reset_forward as reset_forward_lib
 from mjx_composer.runtime import state as state_lib
+from mjx_composer.runtime import stored_restart as stored_restart_lib
 from mjx_composer.runtime import substep_sensors as substep_sensors_lib
 
 
@@ -82,10 +84,6 @@ def _named_scope(method):
   return scoped
 
 
-# The persistent entry holding a world's first key (`fixed_initial_state`).
-INITIAL_KEY = 'environment/initial_key'
-
-
 @dataclasses.dataclass(frozen=True)
 class Transitions:
   """Reset and step of one world (see `Environment` for their contract).
@@ -106,7 +104,7 @@ class Transitions:
       the step hooks).
     fixed_initial_state: every episode of a world starts from the key of its
       first (`reset(key)`), kept in its persistent entries
-      (`INITIAL_KEY`), and every initialization attempt uses that episode's
+      (`keys.INITIAL_KEY`), and every initialization attempt uses that episode's
       key: composer's `fixed_initial_state`.
     substep_sensors: 'read' (`step` computes the sensors once per control
       step where nothing between its sub-steps reads them,
@@ -119,6 +117,8 @@ class Transitions:
     carry_stage: 'auto' (`step`'s physics steps compute the end-of-step
       stage at their end and start from it, where `carried_stage.carries`
       allows) or 'never'.
+    stored_restart_mode: 'auto' (an auto-reset restores a copy of the
+      world's first state where `stored_restart.plan` allows) or 'never'.
   """
 
   initial: physics_lib.Physics
@@ -134,6 +134,7 @@ class Transitions:
   substep_sensors: str = 'all'
   dirty_forward: str = 'composer'
   carry_stage: str = 'auto'
+  stored_restart_mode: str = 'auto'
 
   @functools.cached_property
   def backend(self) -> backend_lib.Backend:
@@ -226,16 +227,28 @@ class Transitions:
       )
       return self.first_state(physics, carry, failures, keys)
 
+  def begin(self, key) -> state_lib.State:
+    """A world's first episode: `reset(key)`, with the copy of its first
+    state that its auto-resets restore where they may (`stored_restart`)."""
+    plan = self.stored_restart
+    return self.reset(key) if plan is None else plan.first(self.reset, key)
+
   def restart(self, stepped: state_lib.State) -> state_lib.State:
     """Same-step auto-reset: the next episode, reporting the ended one."""
     return episode_lib.reporting(
         self.reset(stepped.key, previous=stepped), stepped
     )
 
+  @property
+  def stored_restart(self) -> stored_restart_lib.Plan | None:
+    """How an auto-reset restores the world's first state, or None where it
+    runs the reset (`Analysis.stored_restart`)."""
+    return self.analysis.stored_restart
+
   def episode_key(self, key, previous):
     """The key an episode starts from: `key`, or the world's first one."""
     if self.fixed_initial_state and previous is not None:
-      return previous.persistent[INITIAL_KEY]
+      return previous.persistent[keys_lib.INITIAL_KEY]
     return key
 
   def start_carry(self, previous, key=None) -> physics_lib.PhysicsCarry:
@@ -247,7 +260,9 @@ class Transitions:
     start = self.initial.carry(())
     if previous is None:
       if self.fixed_initial_state:
-        start = start.replace(persistent={**start.persistent, INITIAL_KEY: key})
+        start = start.replace(
+            persistent={**start.persistent, keys_lib.INITIAL_KEY: key}
+        )
       return start
     # An auto-reset keeps the world's model and persistent entries.
     return start.replace(
@@ -595,16 +610,19 @@ class Transitions:
             self.updater.get_observation(obs_state),
             action_nonfinite,
         ),
+        stored_first=state.stored_first,
     )
 
 
-def _state(physics, fields, obs_state, key, episode_fields):
+def _state(physics, fields, obs_state, key, episode_fields, stored_first=None):
   """The `State` of `physics` with its observation state and the episode's
-  fields (`EpisodeRules.start` or `end_of_step`: the observation included)."""
+  fields (`EpisodeRules.start` or `end_of_step`: the observation included),
+  and the world's copy of its first state (`stored_restart`)."""
   return state_lib.State(
       **physics.world_fields(fields),
       obs_state=obs_state,
       key=key,
+      stored_first=stored_first,
       **episode_fields,
   )
 

@@ -78,3 +78,21 @@ def test_fields_read_follow_dependences(model):
     return read, ignored
 
   assert data_reads.reads(fn, data, 1.0).fields == {'xpos', 'cvel'}
+
+
+def test_depends_on_inputs_follows_the_selected_outputs():
+  def fn(key, x):
+    drawn = jax.random.uniform(key, (2,))
+    return {'drawn': drawn, 'fixed': jnp.ones(3), 'moved': x + 1.0}
+
+  closed, out = jax.make_jaxpr(fn, return_shape=True)(
+      jax.random.key(0), jnp.zeros(2)
+  )
+  assert not data_reads.depends_on_inputs(closed, out, out['fixed'])
+  assert data_reads.depends_on_inputs(closed, out, out['drawn'])
+  assert data_reads.depends_on_inputs(closed, out, out['moved'])
+  # A branch passes on the dependence of its operands.
+  closed, out = jax.make_jaxpr(
+      lambda x: jax.lax.cond(x > 0, lambda: 1.0, lambda: 2.0), return_shape=True
+  )(1.0)
+  assert data_reads.depends_on_inputs(closed, out, out)

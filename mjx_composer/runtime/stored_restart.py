@@ -1,0 +1,140 @@
+"""The auto-reset restored from a copy of the world's first state.
+
+An auto-reset runs `Transitions.reset(key, previous)`, which reads of the
+world's last state only what the world carries across episodes (its model
+fields, persistent entries and scheduled hooks, `Transitions.start_carry`)
+and, with `fixed_initial_state`, its first key (`keys.INITIAL_KEY`). Where
+a world carries nothing else, every restart is the function of the
+episode's key that its first reset was, and what of it does not depend on
+the key is the same at every restart. Where that includes the physics the
+episode starts from (its `mjx.Data`: the pose is fixed, or
+`fixed_initial_state` gives every episode the first one's key), the step
+program restores a copy of it instead of holding the reset (the
+`initialize_episode` hooks, the reset's stage of the forward pass, the
+first observation), as Playground's training wrapper restores the state of
+its last reset: a smaller program, and a restart that costs a select, for
+one more copy of the state in every world (`State.stored_first`). What
+depends on the key (the key the next step takes, a drawn target or
+command, observation noise) is computed from the key at every restart, as
+the reset computes it. The episodes are the same
+(`tests/runtime/test_stored_restart.py`).
+
+`plan` decides once per environment, from the reset's jaxpr, split by JAX's
+partial evaluation into what depends on the key and what does not (with the
+values the first part needs of the second: its residuals, stored with the
+copy). A world's first reset runs the two parts in turn (`Plan.first`);
+its restarts run only the first (`Plan.restore`). The reset runs instead
+where the physics an episode starts from depends on its key (a drawn pose,
+a randomized model), where the world carries model fields, persistent
+entries or scheduled hooks, with `ExecutionOptions(stored_restart='never')`,
+and on a backend whose data holds buffers shared by the batch
+(`Backend.batch_shared_data`), which one world's copy cannot hold.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import jax
+import jax.extend.core as jax_core
+
+from mjx_composer.platform import internals_jax
+from mjx_composer.runtime import keys as keys_lib
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+  """Where each leaf of a restarted `State` comes from.
+
+  Attributes:
+    treedef: the structure of a reset's `State` (`stored_first` None).
+    stored: the leaves a world's first state hands on to its restarts.
+    computed: the leaves each restart computes from its key.
+    known: None where `stored` are every leaf (`fixed_initial_state`);
+      else a `ClosedJaxpr` without inputs that computes `stored`'s leaves
+      (in that order), then the residuals `unknown` takes (the reset's
+      values it needs that do not depend on the key).
+    unknown: a `ClosedJaxpr` of the residuals and the key that computes
+      `computed`'s leaves, in that order.
+  """
+
+  treedef: Any
+  stored: tuple[int, ...]
+  computed: tuple[int, ...] = ()
+  known: Any = None
+  unknown: Any = None
+
+  def first(self, reset, key):
+    """A world's first state, `reset(key)`, with its copy for the restarts
+    (`State.stored_first`: the stored leaves, then the residuals)."""
+    if self.known is None:
+      leaves = jax.tree.leaves(reset(key))
+      return self._assemble(tuple(leaves[i] for i in self.stored), key)
+    return self._assemble(tuple(jax_core.jaxpr_as_fun(self.known)()), key)
+
+  def restore(self, key, last):
+    """What `Transitions.reset(key, previous=last)` computes."""
+    return self._assemble(last.stored_first, key)
+
+  def _assemble(self, kept, key):
+    leaves = [None] * self.treedef.num_leaves
+    n = len(self.stored)
+    for i, leaf in zip(self.stored, kept[:n]):
+      leaves[i] = leaf
+    if self.computed:
+      values = jax_core.jaxpr_as_fun(self.unknown)(
+          *kept[n:], *jax.tree.leaves(key)
+      )
+      for i, leaf in zip(self.computed, values):
+        leaves[i] = leaf
+    state = jax.tree.unflatten(self.treedef, leaves)
+    return state.replace(stored_first=tuple(kept))
+
+
+def carries_nothing(state) -> bool:
+  """Whether a world in `state` (shapes suffice) carries nothing across
+  episodes that its reset reads but its first key."""
+  return (
+      not state.model_fields
+      and set(state.persistent) <= {keys_lib.INITIAL_KEY}
+      and not state.scheduled_hooks
+  )
+
+
+def plan(transitions) -> Plan | None:
+  """The `Plan` of `transitions`' auto-reset, or None where it runs the
+  reset (module docstring)."""
+  shapes = transitions.analysis.reset_shapes
+  if (
+      transitions.stored_restart_mode == 'never'
+      or transitions.backend.batch_shared_data
+      or not carries_nothing(shapes.state)
+      # Found without another trace: the attempt's physics depends on the
+      # episode's key (which `fixed_initial_state` makes the first's).
+      or (shapes.physics_drawn and not transitions.fixed_initial_state)
+  ):
+    return None
+  key = keys_lib.key_shape()
+  closed, state = jax.make_jaxpr(transitions.reset, return_shape=True)(key)
+  treedef = jax.tree.structure(state)
+  if transitions.fixed_initial_state:  # every episode is the first
+    return Plan(treedef, stored=tuple(range(treedef.num_leaves)))
+  if internals_jax.partial_eval_jaxpr_nounits is None:
+    return None
+  known, unknown, on_key, _ = internals_jax.partial_eval_jaxpr_nounits(
+      closed, [True] * len(jax.tree.leaves(key)), instantiate=False
+  )
+  paths = [
+      jax.tree_util.keystr(path)
+      for path, _ in jax.tree_util.tree_flatten_with_path(state)[0]
+  ]
+  if any(u and path.startswith('.data.') for u, path in zip(on_key, paths)):
+    return None  # the physics each episode starts from is drawn
+  return Plan(
+      treedef,
+      stored=tuple(i for i, u in enumerate(on_key) if not u),
+      computed=tuple(i for i, u in enumerate(on_key) if u),
+      known=known,
+      unknown=unknown,
+  )
