@@ -159,16 +159,17 @@ class ExecutionOptions:
     stored_restart: 'auto' (default): where every restart of a world is
       its first reset's function of the episode's key (the world carries
       no per-world model fields, persistent entries or scheduled hooks)
-      and what depends on that key needs nothing else (e.g. the pose every
-      episode starts from is fixed, or `fixed_initial_state` repeats the
-      first episode's key), each world keeps a copy of its first state
-      (`State.stored_first`) and an auto-reset restores it, computing from
-      the key only what depends on it (`runtime.stored_restart`;
+      and the physics the episode starts from does not depend on that key
+      (the pose is fixed, or `fixed_initial_state` repeats the first
+      episode's key), an auto-reset restores that physics and computes
+      from the key only what depends on it (`runtime.stored_restart`;
       `Environment.stored_restart` says whether): the step program holds
-      no reset, and a restart costs a select, for one more copy of the
-      state in every world's memory (as Playground's training wrapper
-      keeps). The episodes are the same. 'never': the step program runs
-      the reset.
+      no reset, and a restart costs a select. What does not depend on the
+      key is computed once on the host's CPU when the first program is
+      traced; with `fixed_initial_state`, each world keeps a copy of its
+      first state instead (`State.stored_first`). The episodes are the
+      same, to float rounding in the derived fields of a first state.
+      'never': the step program runs the reset.
 
   Raises:
     ValueError: for a value outside a field's choices, or options that

@@ -79,10 +79,10 @@ class State(physics_lib.WorldFields):
       `init_failed`; and the task's `get_metrics`.
     episode: the running `Episode` counters.
     key: the world's PRNG key for what comes next.
-    stored_first: what the world's auto-resets restore of its first state,
-      where `fixed_initial_state` makes every episode start as the first
-      and the reset reads nothing else the world carries
-      (`runtime.stored_restart`); else None (no leaves).
+    stored_first: the copy of the world's first state that its
+      auto-resets restore, where `fixed_initial_state` makes every episode
+      start as the first and the reset reads nothing else the world
+      carries (`runtime.stored_restart`); else None (no leaves).
   """
 
   obs_state: Any

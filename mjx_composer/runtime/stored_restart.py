@@ -1,4 +1,4 @@
-"""The auto-reset restored from a copy of the world's first state.
+"""The auto-reset that restores the world's first state instead of a reset.
 
 An auto-reset runs `Transitions.reset(key, previous)`, which reads of the
 world's last state only what the world carries across episodes (its model
@@ -9,26 +9,32 @@ episode's key that its first reset was, and what of it does not depend on
 the key is the same at every restart. Where that includes the physics the
 episode starts from (its `mjx.Data`: the pose is fixed, or
 `fixed_initial_state` gives every episode the first one's key), the step
-program restores a copy of it instead of holding the reset (the
-`initialize_episode` hooks, the reset's stage of the forward pass, the
-first observation), as Playground's training wrapper restores the state of
-its last reset: a smaller program, and a restart that costs a select, for
-one more copy of the state in every world (`State.stored_first`). What
-depends on the key (the key the next step takes, a drawn target or
-command, observation noise) is computed from the key at every restart, as
-the reset computes it. The episodes are the same
-(`tests/runtime/test_stored_restart.py`).
+program restores it instead of holding the reset (the `initialize_episode`
+hooks, the reset's stage of the forward pass, the first observation), as
+Playground's training wrapper restores the state of its last reset: a
+smaller program, and a restart that costs a select. What depends on the
+key (the key the next step takes, a drawn target or command, observation
+noise) is computed from the key at every restart, as the reset computes
+it. The episodes are the same, to float rounding in the derived fields of
+the first state (`tests/runtime/test_stored_restart.py`).
 
 `plan` decides once per environment, from the reset's jaxpr, split by JAX's
 partial evaluation into what depends on the key and what does not (with the
-values the first part needs of the second: its residuals, stored with the
-copy). A world's first reset runs the two parts in turn (`Plan.first`);
-its restarts run only the first (`Plan.restore`). The reset runs instead
-where the physics an episode starts from depends on its key (a drawn pose,
-a randomized model), where the world carries model fields, persistent
-entries or scheduled hooks, with `ExecutionOptions(stored_restart='never')`,
-and on a backend whose data holds buffers shared by the batch
-(`Backend.batch_shared_data`), which one world's copy cannot hold.
+values the first part needs of the second: its residuals). What does not
+depend on the key is the same for every world: it is computed once, on the
+host's CPU, and both a world's first reset and its restarts take those
+values (`Plan.first`, `Plan.restore`). With `fixed_initial_state` it
+depends on the world's first key: each world keeps a copy of its first
+state (`State.stored_first`, one more state in memory, as Playground's
+wrapper keeps), which its restarts restore.
+
+The reset runs instead where the physics an episode starts from depends on
+its key (a drawn pose, a randomized model), where the world carries model
+fields, persistent entries or scheduled hooks, where the part that does not
+depend on the key has effects (a debug print would run once, not at every
+reset), with `ExecutionOptions(stored_restart='never')`, and on a backend
+whose data holds buffers shared by the batch (`Backend.batch_shared_data`),
+which one world's copy cannot hold.
 """
 
 from __future__ import annotations
@@ -38,6 +44,8 @@ from typing import Any
 
 import jax
 import jax.extend.core as jax_core
+import jax.numpy as jnp
+import numpy as np
 
 from mjx_composer.platform import internals_jax
 from mjx_composer.runtime import keys as keys_lib
@@ -49,12 +57,13 @@ class Plan:
 
   Attributes:
     treedef: the structure of a reset's `State` (`stored_first` None).
-    stored: the leaves a world's first state hands on to its restarts.
+    stored: the leaves every restart of a world takes from its first state.
     computed: the leaves each restart computes from its key.
-    known: None where `stored` are every leaf (`fixed_initial_state`);
-      else a `ClosedJaxpr` without inputs that computes `stored`'s leaves
-      (in that order), then the residuals `unknown` takes (the reset's
-      values it needs that do not depend on the key).
+    constants: None where each world keeps its `stored` leaves
+      (`fixed_initial_state`: they depend on its first key); else their
+      values, the same for every world, then the residuals `unknown` takes
+      (the reset's values it needs that do not depend on the key), as
+      NumPy arrays computed once on the host.
     unknown: a `ClosedJaxpr` of the residuals and the key that computes
       `computed`'s leaves, in that order.
   """
@@ -62,34 +71,38 @@ class Plan:
   treedef: Any
   stored: tuple[int, ...]
   computed: tuple[int, ...] = ()
-  known: Any = None
+  constants: tuple[np.ndarray, ...] | None = None
   unknown: Any = None
 
   def first(self, reset, key):
-    """A world's first state, `reset(key)`, with its copy for the restarts
-    (`State.stored_first`: the stored leaves, then the residuals)."""
-    if self.known is None:
-      leaves = jax.tree.leaves(reset(key))
-      return self._assemble(tuple(leaves[i] for i in self.stored), key)
-    return self._assemble(tuple(jax_core.jaxpr_as_fun(self.known)()), key)
+    """A world's first state, `reset(key)`; with `fixed_initial_state`, with
+    the copy its restarts restore (`State.stored_first`)."""
+    if self.constants is not None:
+      return self._assemble(self.constants, key)
+    leaves = jax.tree.leaves(reset(key))
+    kept = tuple(leaves[i] for i in self.stored)
+    return self._assemble(kept, key).replace(stored_first=kept)
 
   def restore(self, key, last):
     """What `Transitions.reset(key, previous=last)` computes."""
-    return self._assemble(last.stored_first, key)
+    if self.constants is not None:
+      return self._assemble(self.constants, key)
+    return self._assemble(last.stored_first, key).replace(
+        stored_first=last.stored_first
+    )
 
   def _assemble(self, kept, key):
     leaves = [None] * self.treedef.num_leaves
     n = len(self.stored)
     for i, leaf in zip(self.stored, kept[:n]):
-      leaves[i] = leaf
+      leaves[i] = jnp.asarray(leaf)
     if self.computed:
       values = jax_core.jaxpr_as_fun(self.unknown)(
           *kept[n:], *jax.tree.leaves(key)
       )
       for i, leaf in zip(self.computed, values):
         leaves[i] = leaf
-    state = jax.tree.unflatten(self.treedef, leaves)
-    return state.replace(stored_first=tuple(kept))
+    return jax.tree.unflatten(self.treedef, leaves)
 
 
 def carries_nothing(state) -> bool:
@@ -131,10 +144,29 @@ def plan(transitions) -> Plan | None:
   ]
   if any(u and path.startswith('.data.') for u, path in zip(on_key, paths)):
     return None  # the physics each episode starts from is drawn
+  if known.effects:
+    return None  # e.g. a debug print: it runs at every reset, not once
   return Plan(
       treedef,
       stored=tuple(i for i, u in enumerate(on_key) if not u),
       computed=tuple(i for i, u in enumerate(on_key) if u),
-      known=known,
+      constants=_on_the_host(known),
       unknown=unknown,
   )
+
+
+def _on_the_host(closed) -> tuple[np.ndarray, ...]:
+  """The values of `closed`, a `ClosedJaxpr` without inputs, computed on
+  the host's CPU: a program as large as the reset, compiled once (JAX's
+  persistent compilation cache keeps it where it is on) so that no
+  device program holds it."""
+  cpu = jax.devices('cpu')[0]
+
+  def values(consts):
+    return jax_core.jaxpr_as_fun(jax_core.ClosedJaxpr(closed.jaxpr, consts))()
+
+  # Run now, also where a program is being traced (the first trace of a
+  # reset or step asks for the plan).
+  with jax.ensure_compile_time_eval():
+    consts = [jax.device_put(c, cpu) for c in closed.consts]
+    return tuple(np.asarray(v) for v in jax.jit(values)(consts))

@@ -75,7 +75,8 @@ def _env(task, auto_reset='same_step', stored='auto', **kwargs):
 
 def _episodes(env):
   """The first state and every stepped state of `_WORLDS` worlds under
-  per-world actions, as one batch with a leading step axis."""
+  per-world actions, as one batch with a leading step axis (without the
+  copies of the first state)."""
   actions = jnp.sin(
       jnp.arange(_STEPS * _WORLDS, dtype=jnp.float32).reshape(
           _STEPS, _WORLDS, 1
@@ -178,23 +179,20 @@ def test_the_step_program_holds_no_reset():
   assert restoring - alone < (running - alone) / 10, (alone, restoring, running)
 
 
-def test_the_copy_is_the_first_state():
+def test_what_the_key_does_not_draw_is_kept_once_on_the_host():
   env = _env(_FixedPoseSwing())
   state = jax.jit(env.reset)(jax.random.key(2))
   plan = env._transitions.stored_restart  # pylint: disable=protected-access
-  leaves = jax.tree.leaves(state.replace(stored_first=None))
-  # The stored leaves, then the values the key's part of the reset reads.
-  residuals = len(plan.unknown.jaxpr.invars) - 1
-  assert len(state.stored_first) == len(plan.stored) + residuals
-  for i, copy in zip(plan.stored, state.stored_first):
-    np.testing.assert_array_equal(_plain(copy), _plain(leaves[i]))
-  # What depends on the key is computed, not stored: the target and the
-  # key the next step takes.
+  # The same for every world: no copy in the state.
+  assert state.stored_first is None
+  leaves = jax.tree.leaves(state)
+  for i, value in zip(plan.stored, plan.constants):
+    np.testing.assert_array_equal(_plain(leaves[i]), value)
+  # What depends on the key is computed, not kept: the target and the key
+  # the next step takes; never the physics.
   paths = [
       jax.tree_util.keystr(path)
-      for path, _ in jax.tree_util.tree_flatten_with_path(
-          state.replace(stored_first=None)
-      )[0]
+      for path, _ in jax.tree_util.tree_flatten_with_path(state)[0]
   ]
   computed = {paths[i] for i in plan.computed}
   assert {".task_state['target']", '.key'} <= computed
@@ -218,6 +216,12 @@ def test_fixed_initial_state_restores_every_leaf():
   }
   plan = envs['auto']._transitions.stored_restart  # pylint: disable=protected-access
   assert plan is not None and not plan.computed
+  # Each world keeps its own first state, drawn from its first key.
+  state = jax.jit(envs['auto'].reset)(jax.random.key(2))
+  for copy, leaf in zip(
+      state.stored_first, jax.tree.leaves(state.replace(stored_first=None))
+  ):
+    np.testing.assert_array_equal(_plain(copy), _plain(leaf))
   # The swing task draws its pose: without fixed_initial_state it runs.
   assert not conftest.make_swing_env(time_limit=0.04).stored_restart
   restored, run = (_episodes(envs[stored]) for stored in ('auto', 'never'))
