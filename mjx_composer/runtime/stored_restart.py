@@ -63,7 +63,7 @@ class Plan:
       (`fixed_initial_state`: they depend on its first key); else their
       values, the same for every world, then the residuals `unknown` takes
       (the reset's values it needs that do not depend on the key), as
-      NumPy arrays computed once on the host.
+      NumPy arrays (`_HostKeys` for keys) computed once on the host.
     unknown: a `ClosedJaxpr` of the residuals and the key that computes
       `computed`'s leaves, in that order.
   """
@@ -94,8 +94,9 @@ class Plan:
   def _assemble(self, kept, key):
     leaves = [None] * self.treedef.num_leaves
     n = len(self.stored)
+    kept = [_on_the_device(leaf) for leaf in kept]
     for i, leaf in zip(self.stored, kept[:n]):
-      leaves[i] = jnp.asarray(leaf)
+      leaves[i] = leaf
     if self.computed:
       values = jax_core.jaxpr_as_fun(self.unknown)(
           *kept[n:], *jax.tree.leaves(key)
@@ -146,21 +147,28 @@ def plan(transitions) -> Plan | None:
     return None  # the physics each episode starts from is drawn
   if known.effects:
     return None  # e.g. a debug print: it runs at every reset, not once
+  constants = _on_the_host(known)
+  if constants is None:
+    return None
   return Plan(
       treedef,
       stored=tuple(i for i, u in enumerate(on_key) if not u),
       computed=tuple(i for i, u in enumerate(on_key) if u),
-      constants=_on_the_host(known),
+      constants=constants,
       unknown=unknown,
   )
 
 
-def _on_the_host(closed) -> tuple[np.ndarray, ...]:
+def _on_the_host(closed) -> tuple | None:
   """The values of `closed`, a `ClosedJaxpr` without inputs, computed on
   the host's CPU: a program as large as the reset, compiled once (JAX's
   persistent compilation cache keeps it where it is on) so that no
-  device program holds it."""
-  cpu = jax.devices('cpu')[0]
+  device program holds it. None where JAX has no CPU backend (e.g.
+  `JAX_PLATFORMS=cuda`)."""
+  try:
+    cpu = jax.devices('cpu')[0]
+  except RuntimeError:
+    return None
 
   def values(consts):
     return jax_core.jaxpr_as_fun(jax_core.ClosedJaxpr(closed.jaxpr, consts))()
@@ -169,4 +177,32 @@ def _on_the_host(closed) -> tuple[np.ndarray, ...]:
   # reset or step asks for the plan).
   with jax.ensure_compile_time_eval():
     consts = [jax.device_put(c, cpu) for c in closed.consts]
-    return tuple(np.asarray(v) for v in jax.jit(values)(consts))
+    return tuple(_HostKeys.of(v) for v in jax.jit(values)(consts))
+
+
+@dataclasses.dataclass(frozen=True)
+class _HostKeys:
+  """PRNG keys kept on the host: their data and implementation (NumPy has
+  no key type)."""
+
+  data: np.ndarray
+  impl: Any
+
+  @classmethod
+  def of(cls, value):
+    """`value` as NumPy, or as `_HostKeys` where it holds keys."""
+    if jnp.issubdtype(value.dtype, jax.dtypes.prng_key):
+      return cls(
+          np.asarray(jax.random.key_data(value)), jax.random.key_impl(value)
+      )
+    return np.asarray(value)
+
+
+def _on_the_device(value):
+  """A value a program takes: a traced one as it is, a host one as a
+  constant of the program."""
+  if isinstance(value, _HostKeys):
+    return jax.random.wrap_key_data(value.data, impl=value.impl)
+  if isinstance(value, np.ndarray):
+    return jnp.asarray(value)
+  return value

@@ -26,7 +26,12 @@ _STEPS = 10  # two episodes of 4 control steps and the next one's start
 
 
 class _FixedPoseSwing(conftest.SwingTask):
-  """Every episode starts from one pose; the target height is drawn."""
+  """Every episode starts from one pose; the target height is drawn. Its
+  task state holds a key that does not depend on the episode's (a value
+  NumPy cannot hold)."""
+
+  def initial_task_state(self):
+    return {'target': jnp.zeros(()), 'seed': jax.random.key(7)}
 
   def initialize_episode(self, physics, key):
     physics = physics.bind(self.pendulum.joint).set(qpos=jnp.array([0.5]))
@@ -187,7 +192,10 @@ def test_what_the_key_does_not_draw_is_kept_once_on_the_host():
   assert state.stored_first is None
   leaves = jax.tree.leaves(state)
   for i, value in zip(plan.stored, plan.constants):
-    np.testing.assert_array_equal(_plain(leaves[i]), value)
+    # Keys are kept as their data.
+    np.testing.assert_array_equal(
+        _plain(leaves[i]), getattr(value, 'data', value)
+    )
   # What depends on the key is computed, not kept: the target and the key
   # the next step takes; never the physics.
   paths = [
@@ -197,6 +205,9 @@ def test_what_the_key_does_not_draw_is_kept_once_on_the_host():
   computed = {paths[i] for i in plan.computed}
   assert {".task_state['target']", '.key'} <= computed
   assert not any(path.startswith('.data.') for path in computed)
+  np.testing.assert_array_equal(
+      _plain(state.task_state['seed']), _plain(jax.random.key(7))
+  )
 
 
 def test_fixed_initial_state_restores_every_leaf():
@@ -266,3 +277,16 @@ def test_carries_nothing_reads_the_carried_fields():
 def test_an_unknown_choice_is_refused():
   with pytest.raises(ValueError, match="stored_restart must be 'auto' or"):
     composer.ExecutionOptions(stored_restart='always')
+
+
+def test_without_a_cpu_backend_the_reset_runs(monkeypatch):
+  devices = jax.devices
+
+  def no_cpu(backend=None):
+    if backend == 'cpu':
+      raise RuntimeError('Unknown backend cpu')  # as with JAX_PLATFORMS=cuda
+    return devices(backend)
+
+  env = _env(_FixedPoseSwing())
+  monkeypatch.setattr(jax, 'devices', no_cpu)
+  assert not env.stored_restart
