@@ -76,16 +76,14 @@ def _restoring(transitions, auto_reset, running, state, action):
   """The step whose restart restores a copy of the world's first state,
   where `Transitions.stored_restart` allows it; else `running`.
 
-  The keys are `running`'s: next-step's reset takes `reset_key` and its
-  discarded step `step_key` (`keys.next_step_keys`), same-step's restart
-  the stepped state's key.
+  The keys are `running`'s: next-step's split by `_next_step`, same-step's
+  restart takes the stepped state's key.
   """
   plan = transitions.stored_restart
   if plan is None:
     return running(state, action)
   if auto_reset == 'next_step':
-    reset_key, step_key = keys_lib.next_step_keys(state.key)
-    stepped = transitions.step(state.replace(key=step_key), action)
+    reset_key, stepped = _next_step(transitions, state, action)
     return control_flow.tree_select(
         state.last(), plan.restore(reset_key, state), stepped
     )
@@ -101,8 +99,7 @@ def _step_or_reset(transitions, chunk, state, action):
   LAST (a select, not a branch); the reset is computed only when some world
   needs it.
   """
-  reset_key, step_key = keys_lib.next_step_keys(state.key)
-  stepped = transitions.step(state.replace(key=step_key), action)
+  reset_key, stepped = _next_step(transitions, state, action)
   return control_flow.select_reset(
       state.last(),
       transitions.reset,
@@ -110,6 +107,14 @@ def _step_or_reset(transitions, chunk, state, action):
       stepped,
       chunk=chunk,
   )
+
+
+def _next_step(transitions, state, action):
+  """`(reset_key, stepped)`: a next-step auto-reset's keys split from the
+  state's (`keys.next_step_keys`) and the step of the world, which a LAST
+  state's restart replaces."""
+  reset_key, step_key = keys_lib.next_step_keys(state.key)
+  return reset_key, transitions.step(state.replace(key=step_key), action)
 
 
 def _step_then_restart(transitions, chunk, state, action):

@@ -16,10 +16,9 @@ import pytest
 
 import mjx_composer as composer
 from mjx_composer.runtime import stored_restart
-from mjx_composer.variation import distributions
-from mjx_composer.variation import mjcf_variator
 from tests import conftest
 from tests import jaxprs
+from tests.runtime import test_transitions
 
 _WORLDS = 3
 _STEPS = 10  # two episodes of 4 control steps and the next one's start
@@ -50,21 +49,11 @@ class _CountingSwing(conftest.SwingTask):
     return physics.set_persistent('episodes', episodes + 1)
 
 
-class _RandomizedFixedPoseSwing(_FixedPoseSwing):
+class _RandomizedFixedPoseSwing(
+    test_transitions._RandomizedSwing, _FixedPoseSwing
+):
   """`_FixedPoseSwing` with the ball's size drawn per episode: a per-world
   model field."""
-
-  def __init__(self):
-    super().__init__()
-    self.variator = mjcf_variator.MJCFVariator()
-    self.variator.bind_attributes(
-        self.ball.geom, size=distributions.Uniform([0.03, 0, 0], [0.08, 0, 0])
-    )
-
-  def initialize_episode(self, physics, key):
-    variation_key, key = jax.random.split(key)
-    physics = self.variator.apply_variations(physics, variation_key)
-    return super().initialize_episode(physics, key)
 
 
 def _env(task, auto_reset='same_step', stored='auto', **kwargs):
