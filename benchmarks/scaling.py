@@ -48,9 +48,22 @@ scaling efficiency, N-device steps/s over N x 1-device steps/s (1.0: linear).
 It also counts the collective operations (all-reduce, all-gather, ...) in
 the compiled raw and composed programs. Results go to stdout and to `--out` as JSON.
 
+With `--profile`, one more call of each raw and composed program runs under
+`jax.profiler`, and each device's row of the trace gives where the devices'
+time goes (`device_busy`): per device, the microseconds its kernels ran
+(the union of their intervals over its streams), the kernels, and the span
+from its first kernel's start to its last one's end; with the unprofiled
+call's wall-clock time (`seconds_per_call`), `busy_fraction` = busy time
+over wall-clock time. A device that idles between kernels (waiting for the
+host to launch them, or for a loop's predicate to reach the host) shows a
+lower fraction on N devices than on one; a device that is slower per kernel
+shows more busy time for the same work.
+
     python benchmarks/scaling.py                     # 65,536 worlds
     python benchmarks/scaling.py --parts raw composed --worlds 32768
     python benchmarks/scaling.py --parts train --scaling strong weak
+    python benchmarks/scaling.py --parts raw composed --no-gspmd \
+        --scaling weak --profile           # where the devices' time goes
 
 On CPU, forced host devices make a quick check of the script:
 
@@ -59,6 +72,7 @@ On CPU, forced host devices make a quick check of the script:
 """
 
 import argparse
+import collections
 import functools
 import os
 import statistics
@@ -94,8 +108,62 @@ def collectives(compiled):
   }
 
 
-def time_raw(env, mesh, worlds, steps, repeats):
-  """Raw MJX physics steps/s on `mesh`."""
+def device_busy(events):
+  """Each device's kernel time in a Perfetto trace's `events`.
+
+  Returns `{device name: {'busy_us', 'kernels', 'span_us'}}` for every
+  process row of the trace that is a device ('/device:GPU:0'): the
+  microseconds in which at least one of its kernels ran (the union of their
+  intervals over all its streams, so overlapping kernels count once), how
+  many kernels ran, and the microseconds from the first kernel's start to
+  the last one's end. Empty where the trace has no device rows (a CPU).
+  """
+  process = common.metadata_names(events, 'process_name')
+  devices = {pid: name for pid, name in process.items() if '/device:' in name}
+  intervals = collections.defaultdict(list)
+  for e in events:
+    if e.get('ph') == 'X' and e.get('pid') in devices:
+      start = float(e.get('ts', 0))
+      intervals[e['pid']].append((start, start + float(e.get('dur', 0))))
+  busy = {}
+  for pid, spans in intervals.items():
+    spans.sort()
+    total, end = 0.0, -float('inf')
+    for start, stop in spans:
+      if start > end:
+        total += stop - start
+      elif stop > end:
+        total += stop - end
+      end = max(end, stop)
+    busy[devices[pid]] = {
+        'busy_us': total,
+        'kernels': len(spans),
+        'span_us': end - spans[0][0],
+    }
+  return dict(sorted(busy.items()))
+
+
+def profile_call(program, args, seconds):
+  """`device_busy` of one call of `program(*args)` under `jax.profiler`,
+  with each device's busy time over `seconds`, the unprofiled call's
+  wall-clock time (`busy_fraction`)."""
+  with tempfile.TemporaryDirectory() as trace_dir:
+    with jax.profiler.trace(trace_dir, create_perfetto_trace=True):
+      jax.block_until_ready(program(*args))
+    busy = device_busy(common.perfetto_events(trace_dir))
+  for row in busy.values():
+    row['busy_fraction'] = row['busy_us'] / (seconds * 1e6)
+  return {'seconds_per_call': seconds, 'devices': busy}
+
+
+def _timed(program, args, repeats, profile):
+  """`(seconds per call, profile or None)` of a rollout `program`."""
+  seconds = common.time_fn(program, args, repeats)
+  return seconds, profile_call(program, args, seconds) if profile else None
+
+
+def time_raw(env, mesh, worlds, steps, repeats, profile=False):
+  """Raw MJX physics steps/s on `mesh` (with `profile`, `profile_call`)."""
   n = env.n_sub_steps
   rollout = sharding.per_device(
       common.raw_rollout(env.mjx_model, n, steps, jit=False), mesh
@@ -103,12 +171,19 @@ def time_raw(env, mesh, worlds, steps, repeats):
   data = sharding.put_worlds(common.raw_data(env.mjx_model, worlds), mesh)
   actions = sharding.put_worlds(common.random_actions(env, worlds), mesh)
   counts = collectives(rollout.lower(data, actions).compile())
-  seconds = common.time_fn(rollout, (data, actions), repeats)
-  return {'steps_per_s': worlds * steps * n / seconds, 'collectives': counts}
+  seconds, profiled = _timed(rollout, (data, actions), repeats, profile)
+  return {
+      'steps_per_s': worlds * steps * n / seconds,
+      'collectives': counts,
+      **({'profile': profiled} if profiled else {}),
+  }
 
 
-def time_composed(env, mesh, worlds, steps, repeats, gspmd=False):
-  """Composed physics steps/s on `mesh`, and the program's collectives."""
+def time_composed(
+    env, mesh, worlds, steps, repeats, gspmd=False, profile=False
+):
+  """Composed physics steps/s on `mesh`, and the program's collectives
+  (with `profile`, `profile_call`)."""
   rollout = common.env_rollout(env, steps, jit=False)
   if gspmd:
     world = sharding.world_sharding(mesh)
@@ -126,10 +201,11 @@ def time_composed(env, mesh, worlds, steps, repeats, gspmd=False):
   actions = sharding.put_worlds(common.random_actions(env, worlds), mesh)
   # The same executable the timed calls use (jit reuses it: no recompile).
   counts = collectives(program.lower(states, actions).compile())
-  seconds = common.time_fn(program, (states, actions), repeats)
+  seconds, profiled = _timed(program, (states, actions), repeats, profile)
   return {
       'steps_per_s': worlds * steps * env.n_sub_steps / seconds,
       'collectives': counts,
+      **({'profile': profiled} if profiled else {}),
   }
 
 
@@ -279,6 +355,12 @@ def main():
       help='also time the composed rollout partitioned by XLA (jax.jit with '
       'shardings) on all devices',
   )
+  parser.add_argument(
+      '--profile',
+      action='store_true',
+      help='also profile one call of each raw and composed program: each '
+      "device's kernel time (`device_busy`)",
+  )
   parser.add_argument('--ppo-epochs', type=int, default=3)
   parser.add_argument('--ppo-steps-per-epoch', type=int, default=2)
   parser.add_argument('--ppo-unroll', type=int, default=10)
@@ -318,6 +400,13 @@ def main():
     results.setdefault(part, {})[key] = result
     rate = f'{result["steps_per_s"]:,.0f}' if result else 'failed'
     print(f'{part:>9} on {key} device(s): {rate} steps/s', flush=True)
+    profiled = (result or {}).get('profile') or {}
+    for name, row in profiled.get('devices', {}).items():
+      print(
+          f'{"":>9}   {name}: kernels busy {row["busy_fraction"]:.3f} of '
+          f'the call, {row["kernels"]:,} kernels',
+          flush=True,
+      )
 
   if 'train' in args.parts:
     # Before this process takes the devices' memory: each run is a process.
@@ -344,12 +433,23 @@ def main():
   for key, (count, worlds) in runs.items():
     mesh = sharding.world_mesh(local[:count])
     if 'raw' in args.parts:
-      record('raw', key, time_raw(env, mesh, worlds, args.steps, args.repeats))
+      record(
+          'raw',
+          key,
+          time_raw(env, mesh, worlds, args.steps, args.repeats, args.profile),
+      )
     if 'composed' in args.parts:
       record(
           'composed',
           key,
-          time_composed(env, mesh, worlds, args.steps, args.repeats),
+          time_composed(
+              env,
+              mesh,
+              worlds,
+              args.steps,
+              args.repeats,
+              profile=args.profile,
+          ),
       )
     if 'composed' in args.parts and args.gspmd and count > 1:
       # XLA's partitioning of one program; on one device it is the same
@@ -421,7 +521,8 @@ def summarize(results, n, scalings):
   """One row per part and scaling: its rates and efficiency on `n` devices.
 
   A part whose runs failed (None) is left out; with one device, the
-  one-device run stands for all.
+  one-device run stands for all. Where both runs were profiled, the row
+  also holds the least busy device's `busy_fraction` of each.
   """
   summary = []
   for part, runs in results.items():
@@ -430,17 +531,25 @@ def summarize(results, n, scalings):
       many = runs.get(_key(n, scaling)) if n > 1 else one
       if not one or not many:
         continue
-      summary.append(
-          {
-              'part': part,
-              'scaling': scaling,
-              'one_device': one['steps_per_s'],
-              'all_devices': many['steps_per_s'],
-              'devices': n,
-              'efficiency': many['steps_per_s'] / (n * one['steps_per_s']),
-          }
-      )
+      row = {
+          'part': part,
+          'scaling': scaling,
+          'one_device': one['steps_per_s'],
+          'all_devices': many['steps_per_s'],
+          'devices': n,
+          'efficiency': many['steps_per_s'] / (n * one['steps_per_s']),
+      }
+      if 'profile' in one and 'profile' in many:
+        row['busy_fraction_one_device'] = _least_busy(one['profile'])
+        row['busy_fraction_all_devices'] = _least_busy(many['profile'])
+      summary.append(row)
   return summary
+
+
+def _least_busy(profiled):
+  """The lowest `busy_fraction` of a `profile_call`'s devices, or None."""
+  fractions = [r['busy_fraction'] for r in profiled['devices'].values()]
+  return min(fractions) if fractions else None
 
 
 def _local_device_count():

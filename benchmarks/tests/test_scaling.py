@@ -1,4 +1,5 @@
-"""benchmarks/scaling.py without devices: the train part's runs and rates."""
+"""benchmarks/scaling.py without devices: the train part's runs and rates,
+and the devices' kernel time read from a profile."""
 
 import types
 
@@ -82,3 +83,66 @@ def test_runs_are_one_device_then_all_devices_per_scaling():
   assert scaling._runs(4, both) == {'1': (1, 1), '4': (4, 1), '4_weak': (4, 4)}
   # With one device there is nothing to scale to.
   assert scaling._runs(1, both) == {'1': (1, 1)}
+
+
+def _trace(kernels):
+  """Perfetto events: two device rows and a host row, and `kernels`, each
+  `(pid, tid, start, duration)`."""
+  names = {1: '/device:GPU:0', 2: '/device:GPU:1', 3: '/host:CPU'}
+  events = [
+      {'ph': 'M', 'name': 'process_name', 'pid': pid, 'args': {'name': n}}
+      for pid, n in names.items()
+  ]
+  for pid, tid, start, duration in kernels:
+    events.append(
+        {'ph': 'X', 'pid': pid, 'tid': tid, 'ts': start, 'dur': duration}
+    )
+  return events
+
+
+def test_a_devices_busy_time_counts_overlapping_kernels_once():
+  busy = scaling.device_busy(
+      _trace(
+          [
+              # GPU 0: two streams overlap on [5, 10), then a gap, then [20, 30)
+              # holding a kernel nested inside another.
+              (1, 7, 0.0, 10.0),
+              (1, 8, 5.0, 10.0),
+              (1, 7, 20.0, 10.0),
+              (1, 8, 22.0, 3.0),
+              # GPU 1: back to back.
+              (2, 7, 100.0, 4.0),
+              (2, 7, 104.0, 4.0),
+              # The host's events are not a device's.
+              (3, 1, 0.0, 1000.0),
+          ]
+      )
+  )
+  assert busy == {
+      '/device:GPU:0': {'busy_us': 25.0, 'kernels': 4, 'span_us': 30.0},
+      '/device:GPU:1': {'busy_us': 8.0, 'kernels': 2, 'span_us': 8.0},
+  }
+  assert scaling.device_busy(_trace([(3, 1, 0.0, 5.0)])) == {}
+
+
+def test_the_summary_holds_the_least_busy_devices_fraction():
+  def profiled(*fractions):
+    return {
+        'devices': {
+            f'/device:GPU:{i}': {'busy_fraction': f}
+            for i, f in enumerate(fractions)
+        }
+    }
+
+  results = {
+      'raw': {
+          '1': {'steps_per_s': 100.0, 'profile': profiled(0.9)},
+          '2': {'steps_per_s': 180.0, 'profile': profiled(0.8, 0.7)},
+      },
+      'ppo': {'1': {'steps_per_s': 10.0}, '2': {'steps_per_s': 20.0}},
+  }
+  raw, ppo = scaling.summarize(results, 2, ['strong'])
+  assert raw['busy_fraction_one_device'] == 0.9
+  assert raw['busy_fraction_all_devices'] == 0.7
+  assert raw['efficiency'] == pytest.approx(0.9)
+  assert 'busy_fraction_one_device' not in ppo
