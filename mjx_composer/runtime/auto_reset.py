@@ -18,8 +18,10 @@ before anything is traced:
   traced).
 
 `step_program` makes that choice once; every program it returns is a pure
-function `(state, action) -> State` of one world with the same results (to
-float rounding with `auto_reset_batch`).
+function `(state, action) -> State` of one world with the same results, to
+float rounding where XLA arranges the arithmetic differently (chunks of
+`auto_reset_batch`, the fused restart on a model with contacts, the stored
+restart's first state).
 """
 
 from __future__ import annotations

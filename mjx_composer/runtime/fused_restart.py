@@ -13,8 +13,12 @@ disabled. Two entry points:
 * `reset_or_step` (next-step auto-reset): `reset` where the state is LAST,
   else `step`.
 
-Both are bit-identical to the composition they replace
-(`tests/runtime/test_transitions.py`). They need an integrator that
+Both compute what the composition they replace computes, in another
+arrangement of the same operations: where XLA compiles the two programs'
+arithmetic alike, the states are bit-identical (the tests' swing task,
+`tests/runtime/test_transitions.py`); where it fuses a model's forward pass
+differently (the humanoid's contacts and constraint solver on a CPU), they
+agree to float rounding, which the solver's accelerations amplify. They need an integrator that
 `mjx.step` runs after `mjx.forward` (`substep_sensors.INTEGRATORS`), no
 muscles and no actuator gravity compensation (`can_fuse`).
 

@@ -82,9 +82,11 @@ class ExecutionOptions:
       stage where `carry_stage` applies): it compiles faster on a CPU; on a
       GPU it runs slower than the separate restart, with more memory
       (docs/performance.md). False runs the sub-steps as a `lax.scan` and
-      the restart separately. States are
-      bit-identical either way; a reward, computed in other fusions of the
-      compiled program, may differ in its last bits (a few ulps). Models
+      the restart separately. Both compute the same operations; where XLA
+      fuses them alike the states are bit-identical (the tests' models),
+      else (the humanoid's contacts and solver on a CPU) they agree to
+      float rounding, and a reward, computed in other fusions of the
+      compiled program, may differ in its last bits. Models
       the fused loop cannot run exactly (RK4, muscles, actuator gravity
       compensation) always take the separate restart. None (default): True on a CPU with impl='jax', where
       runs are short and compiling dominates; False elsewhere (and with
