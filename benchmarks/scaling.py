@@ -54,10 +54,9 @@ time goes (`device_busy`): per device, the microseconds its kernels ran
 (the union of their intervals over its streams), the kernels, and the span
 from its first kernel's start to its last one's end; with the unprofiled
 call's wall-clock time (`seconds_per_call`), `busy_fraction` = busy time
-over wall-clock time. A device that idles between kernels (waiting for the
-host to launch them, or for a loop's predicate to reach the host) shows a
-lower fraction on N devices than on one; a device that is slower per kernel
-shows more busy time for the same work.
+over wall-clock time. A device that idles between kernels more on N
+devices than on one shows a lower fraction there; a device that is slower
+per kernel shows more busy time for the same work.
 
     python benchmarks/scaling.py                     # 65,536 worlds
     python benchmarks/scaling.py --parts raw composed --worlds 32768
