@@ -18,9 +18,10 @@ arrangement of the same operations: where XLA compiles the two programs'
 arithmetic alike, the states are bit-identical (the tests' swing task,
 `tests/runtime/test_transitions.py`); where it fuses a model's forward pass
 differently (the humanoid's contacts and constraint solver on a CPU), they
-agree to float rounding, which the solver's accelerations amplify. They need an integrator that
-`mjx.step` runs after `mjx.forward` (`substep_sensors.INTEGRATORS`), no
-muscles and no actuator gravity compensation (`can_fuse`).
+agree to float rounding, which the solver's accelerations amplify. They
+need an integrator that `mjx.step` runs after `mjx.forward`
+(`substep_sensors.INTEGRATORS`), no muscles and no actuator gravity
+compensation (`can_fuse`).
 
 The loop, over `i`: iterations `0..n-1` are the sub-steps (before-substep
 hooks, forward pass, integrator, after-substep hooks and observation
