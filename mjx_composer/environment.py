@@ -210,8 +210,9 @@ class Environment:
   def options(self) -> ExecutionOptions:
     """The `ExecutionOptions` as resolved for this environment's device.
 
-    `impl` and `share_reset_forward` are the ones chosen (never None);
-    `naconmax` and `njmax` are None where they are ignored (on 'jax').
+    `impl`, `share_reset_forward` and `branches` are the ones chosen (never
+    None or 'auto'); `naconmax` and `njmax` are None where they are ignored
+    (on 'jax').
     """
     return self._options
 
@@ -276,6 +277,12 @@ class Environment:
     for the device (`ExecutionOptions.auto_reset_batch`): K, 'auto' (an
     eighth of a batch of 1,024 worlds or more) or None (the whole batch)."""
     return self._options.auto_reset_batch
+
+  @property
+  def branches(self) -> str:
+    """How the step skips what runs at some steps only: 'loop' or 'cond', as
+    resolved for the device (`ExecutionOptions.branches`)."""
+    return self._options.branches
 
   @property
   def reset_forward_stage(self) -> str:

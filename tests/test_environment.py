@@ -1191,35 +1191,42 @@ def test_arguments_are_composers_in_composers_order():
   assert env.time_limit == 0.05 and env.fixed_initial_state
 
 
+# The fused step program of each auto-reset mode (`Transitions`' method).
+_FUSED = {'next_step': 'reset_or_step', 'same_step': 'step_and_restart'}
+
+
 class _Transitions:
-  """A stand-in whose step programs say which they are; its restarts run the
-  reset (`stored_restart`: None)."""
+  """A stand-in whose step programs say which they are (and whether they
+  were asked for conditionals); its restarts run the reset
+  (`stored_restart`: None)."""
 
   stored_restart = None
 
   def __init__(self, stored_restart_mode='never'):
     self.stored_restart_mode = stored_restart_mode
 
-  def reset_or_step(self, state, action):
-    return 'reset_or_step'
+  def reset_or_step(self, state, action, conditional=False):
+    return 'reset_or_step', conditional
 
-  def step_and_restart(self, state, action):
-    return 'step_and_restart'
+  def step_and_restart(self, state, action, conditional=False):
+    return 'step_and_restart', conditional
 
 
 @pytest.mark.parametrize('auto_reset', ['next_step', 'same_step'])
 @pytest.mark.parametrize('fuse', [True, False])
-def test_the_step_program_is_chosen_once(auto_reset, fuse):
+@pytest.mark.parametrize('conditional', [True, False])
+def test_the_step_program_is_chosen_once(auto_reset, fuse, conditional):
   transitions = _Transitions()
   program = auto_reset_lib.step_program(
-      transitions, auto_reset=auto_reset, fuse=fuse, chunk=None
+      transitions,
+      auto_reset=auto_reset,
+      fuse=fuse,
+      chunk=None,
+      conditional=conditional,
   )
   if fuse:
-    fused = {
-        'next_step': transitions.reset_or_step,
-        'same_step': transitions.step_and_restart,
-    }
-    assert program == fused[auto_reset]
+    assert program.func == getattr(transitions, _FUSED[auto_reset])
+    assert program(None, None) == (_FUSED[auto_reset], conditional)
   else:
     # pylint: disable=protected-access
     separate = {
@@ -1228,6 +1235,7 @@ def test_the_step_program_is_chosen_once(auto_reset, fuse):
     }
     # pylint: enable=protected-access
     assert program.func is separate[auto_reset]
+    assert program.args == (transitions, None, conditional)
 
 
 @pytest.mark.parametrize('auto_reset', ['next_step', 'same_step'])
@@ -1237,5 +1245,4 @@ def test_a_restart_that_cannot_be_restored_runs_the_reset(auto_reset):
   program = auto_reset_lib.step_program(
       _Transitions('auto'), auto_reset=auto_reset, fuse=True, chunk=None
   )
-  expected = {'next_step': 'reset_or_step', 'same_step': 'step_and_restart'}
-  assert program(None, None) == expected[auto_reset]
+  assert program(None, None) == (_FUSED[auto_reset], False)

@@ -12,6 +12,10 @@ before anything is traced:
   `Transitions.can_fuse_restart`), or separately, selected per world by
   `control_flow.select_reset` (`ExecutionOptions.auto_reset_batch` worlds
   at a time under `jax.vmap`, or the whole batch);
+* whether the work that runs once in a step or not at all (the restart of
+  the batch, the fused loop's end of step and restart) is a conditional
+  (for a CPU) or a loop run once or never (for a GPU:
+  `control_flow.branch_once`);
 * whether the restart restores a copy of the world's first state instead
   (`ExecutionOptions.stored_restart`, where `Transitions.stored_restart`
   allows it: an analysis of the reset's jaxpr, run when the step is first
@@ -40,7 +44,12 @@ StepProgram = Callable[[state_lib.State, jax.Array], state_lib.State]
 
 
 def step_program(
-    transitions, *, auto_reset: str, fuse: bool, chunk: int | None
+    transitions,
+    *,
+    auto_reset: str,
+    fuse: bool,
+    chunk: int | None,
+    conditional: bool = False,
 ) -> StepProgram:
   """The step of one world with `auto_reset`'s restart of ended episodes.
 
@@ -53,25 +62,32 @@ def step_program(
     chunk: for the separate restart, how many ended worlds reset together
       under `jax.vmap` (`control_flow.select_reset`); None for the whole
       batch.
+    conditional: whether what runs once or never is a `lax.cond`
+      (`control_flow.run_if`, for a program compiled for a CPU) rather
+      than a loop (`control_flow.once_or_never`, for a GPU).
 
   Returns:
     `(state, action) -> State`, pure; the action already checked.
   """
-  running = _running_reset(transitions, auto_reset, fuse, chunk)
+  running = _running_reset(transitions, auto_reset, fuse, chunk, conditional)
   if transitions.stored_restart_mode == 'never':
     return running
   return functools.partial(_restoring, transitions, auto_reset, running)
 
 
-def _running_reset(transitions, auto_reset, fuse, chunk):
+def _running_reset(transitions, auto_reset, fuse, chunk, conditional):
   """The step whose restart runs the reset."""
   if auto_reset == 'next_step':
     if fuse:
-      return transitions.reset_or_step
-    return functools.partial(_step_or_reset, transitions, chunk)
+      return functools.partial(
+          transitions.reset_or_step, conditional=conditional
+      )
+    return functools.partial(_step_or_reset, transitions, chunk, conditional)
   if fuse:
-    return transitions.step_and_restart
-  return functools.partial(_step_then_restart, transitions, chunk)
+    return functools.partial(
+        transitions.step_and_restart, conditional=conditional
+    )
+  return functools.partial(_step_then_restart, transitions, chunk, conditional)
 
 
 def _restoring(transitions, auto_reset, running, state, action):
@@ -94,7 +110,7 @@ def _restoring(transitions, auto_reset, running, state, action):
   return control_flow.tree_select(stepped.last(), restarted, stepped)
 
 
-def _step_or_reset(transitions, chunk, state, action):
+def _step_or_reset(transitions, chunk, conditional, state, action):
   """Next-step auto-reset: a LAST state's world resets instead of stepping.
 
   The step is computed for every world and discarded where the state is
@@ -108,6 +124,7 @@ def _step_or_reset(transitions, chunk, state, action):
       (reset_key, state),
       stepped,
       chunk=chunk,
+      conditional=conditional,
   )
 
 
@@ -119,7 +136,7 @@ def _next_step(transitions, state, action):
   return reset_key, transitions.step(state.replace(key=step_key), action)
 
 
-def _step_then_restart(transitions, chunk, state, action):
+def _step_then_restart(transitions, chunk, conditional, state, action):
   """Same-step auto-reset: a world whose episode just ended restarts."""
   stepped = transitions.step(state, action)
   return control_flow.select_reset(
@@ -128,4 +145,5 @@ def _step_then_restart(transitions, chunk, state, action):
       (stepped,),
       stepped,
       chunk=chunk,
+      conditional=conditional,
   )

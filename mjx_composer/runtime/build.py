@@ -219,11 +219,15 @@ def _build_on(
   ):
     auto_reset_batch = None
   sized = backend.sized_buffers
+  branches = options.branches
+  if branches == 'auto':
+    branches = 'cond' if device.platform == 'cpu' else 'loop'
   resolved = dataclasses.replace(
       options,
       impl=backend.name,
       share_reset_forward=bool(share_reset_forward),
       auto_reset_batch=auto_reset_batch,
+      branches=branches,
       # Ignored where the default builds on 'jax'.
       naconmax=options.naconmax if sized else None,
       njmax=options.njmax if sized else None,
@@ -288,6 +292,7 @@ def _build_on(
       auto_reset=options.auto_reset,
       fuse=resolved.share_reset_forward and transitions.can_fuse_restart(),
       chunk=resolved.auto_reset_batch,
+      conditional=resolved.branches == 'cond',
   )
   # What the programs' shapes depend on (the reset's shapes and the
   # per-world model fields its hooks write, the reset's stage of the

@@ -12,6 +12,9 @@ combinators keep the work conditional without conditionals:
 * `run_unless`: `fn(x)` unless a predicate shared by the batch holds, for
   work that runs almost always: a `lax.cond`, whose predicate is read once
   where a loop that runs reads its condition twice;
+* `run_if`: what `once_or_never` computes, as a `lax.cond`: for a program
+  compiled for a CPU, where a conditional costs no host round trip and
+  XLA compiles it faster than a loop (`branch_once` picks one of the two);
 * `batch_any`: a flag that is shared by the batch under `vmap` (whether any
   world's is set), so that loops on it stay loops;
 * `select_reset`: a per-world select between a step's result and a reset,
@@ -108,7 +111,9 @@ def chunk_size(chunk, batch: int) -> int | None:
   return int(chunk)
 
 
-def select_reset(done, reset_fn, operands, stepped, chunk=None):
+def select_reset(
+    done, reset_fn, operands, stepped, chunk=None, conditional=False
+):
   """`reset_fn(*operands)` where `done`, else `stepped`.
 
   For one world this is a select. Under `jax.vmap` a select would compute the
@@ -122,7 +127,9 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
   worlds end pays for a reset of `chunk` worlds, not of all, and the
   program holds one chunk's reset. Results are the same either way, to
   float rounding (XLA may order a sum differently for another batch size).
-  The reset is traced once and reused by every path.
+  The reset is traced once and reused by every path. `conditional`: the
+  whole batch's reset runs in a `run_if`, not a `once_or_never`
+  (`branch_once`).
   """
   reset = trace_once(reset_fn, *operands)
   # A restart resets the stepped state itself: then the loop below reads it
@@ -148,21 +155,23 @@ def select_reset(done, reset_fn, operands, stepped, chunk=None):
           done, reset, None if restarts_stepped else operands, stepped, size
       )
     else:
-      out = _reset_at_most_once(done, select, operands, stepped)
+      out = _reset_at_most_once(
+          done, select, operands, stepped, branch_once(conditional)
+      )
     return out, _out_batched(out)
 
   return select_or_skip(done, operands, stepped)
 
 
-def _reset_at_most_once(done, select, operands, stepped):
+def _reset_at_most_once(done, select, operands, stepped, run_once):
   """`vmap(select)(done, operands, stepped)` where any world is done.
 
-  Else `stepped`. A loop that runs once or never (`once_or_never`), not a
-  `lax.cond`: with a conditional, the branch without resets copies the
-  whole state at every step.
+  Else `stepped`. `run_once`: `once_or_never` (a GPU: with a conditional,
+  the branch without resets copies the whole state at every step) or
+  `run_if` (a CPU).
   """
   with jax.named_scope('auto_reset'):
-    return once_or_never(
+    return run_once(
         jnp.any(done),
         lambda state: jax.vmap(select)(done, operands, state),
         stepped,
@@ -342,6 +351,27 @@ def once_or_never(pred, fn, operand):
   )[1]
 
 
+def run_if(pred, fn, operand):
+  """`fn(operand)` if `pred`, else `operand`: a `lax.cond`.
+
+  What `once_or_never` computes, for a `pred` shared by the batch (a loop
+  counter, `batch_any`; a per-world one is refused where the conditional
+  is batched). For a CPU: there a conditional reads its predicate without
+  a host round trip, and XLA's while-loop passes, which a loop run once or
+  never goes through with its whole body, cost more compile time than its
+  conditional passes (the walk task's step program compiles in about 0.8
+  of the time, and runs a little faster: docs/performance.md).
+  """
+  return jax.lax.cond(_shared(pred, 'run_if'), fn, lambda x: x, operand)
+
+
+def branch_once(conditional: bool):
+  """`run_if` where `conditional` (a program for a CPU), else
+  `once_or_never` (for a GPU): `(pred, fn, operand) -> fn(operand) or
+  operand`, for a `pred` shared by the batch."""
+  return run_if if conditional else once_or_never
+
+
 def run_unless(skip, fn, operand):
   """`operand` if `skip`, else `fn(operand)`: a `lax.cond`.
 
@@ -353,21 +383,25 @@ def run_unless(skip, fn, operand):
   A per-world `skip` is refused where the conditional is batched (it would
   turn into a select that runs `fn` for every world).
   """
-  return jax.lax.cond(_shared(skip), lambda x: x, fn, operand)
+  return jax.lax.cond(_shared(skip, 'run_unless'), lambda x: x, fn, operand)
 
 
-@jax.custom_batching.custom_vmap
-def _shared(pred):
-  """`pred`; refused under `jax.vmap` where it is batched."""
-  return pred
+def _shared(pred, combinator):
+  """`pred`; refused under `jax.vmap` where it is batched (in
+  `combinator`, named by the error)."""
 
+  @jax.custom_batching.custom_vmap
+  def shared(pred):
+    return pred
 
-@_shared.def_vmap
-def _shared_rule(axis_size, in_batched, pred):
-  del axis_size
-  if in_batched[0]:
-    _refuse_per_world('run_unless', 'a loop counter')
-  return pred, False
+  @shared.def_vmap
+  def _rule(axis_size, in_batched, pred):
+    del axis_size
+    if in_batched[0]:
+      _refuse_per_world(combinator, 'a loop counter, or batch_any')
+    return pred, False
+
+  return shared(pred)
 
 
 def _refuse_per_world(combinator, shared):

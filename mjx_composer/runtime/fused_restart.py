@@ -36,8 +36,9 @@ copy of the stage the sub-steps use, and `n + 1` runs the rest of its
 forward pass (the stage runs at every iteration: after the reset's
 forward pass it is computed and dropped); else it is iteration `n`. The
 parts that run at one iteration only are loops run once or never
-(`control_flow.once_or_never`) on conditions shared by the batch (the
-counter, `control_flow.batch_any`); the physics, which runs at every
+(`control_flow.once_or_never`; conditionals, `control_flow.run_if`, in a
+program for a CPU) on conditions shared by the batch (the counter,
+`control_flow.batch_any`); the physics, which runs at every
 iteration but `n` where a stage is carried, is a conditional on the counter
 (`control_flow.run_unless`). Nothing is computed for every world at every
 sub-step but the sub-step itself and selects on the counter.
@@ -78,25 +79,31 @@ def can_fuse(transitions) -> bool:
   return not np.any(m.jnt_actgravcomp)
 
 
-def step_and_restart(transitions, state, action) -> state_lib.State:
+def step_and_restart(
+    transitions, state, action, conditional=False
+) -> state_lib.State:
   """`step`, then `restart` where the episode ended (same-step auto-reset).
 
   The same as `select(last, restart(stepped), stepped)` of `stepped =
-  step(state, action)`.
+  step(state, action)`. `conditional`: the parts that run at one iteration
+  are `control_flow.run_if`s, not loops run once or never
+  (`control_flow.branch_once`: for a program compiled for a CPU).
   """
-  return _FusedLoop(transitions, state).run(state, action, None)
+  return _FusedLoop(transitions, state, conditional).run(state, action, None)
 
 
-def reset_or_step(transitions, state, action) -> state_lib.State:
+def reset_or_step(
+    transitions, state, action, conditional=False
+) -> state_lib.State:
   """`reset` where `state` is LAST, else `step` (next-step auto-reset).
 
   With `reset_key, step_key = keys.next_step_keys(state.key)`, the same as
   `select(state.last(), reset(reset_key, previous=state), step(state with
   step_key, action))`: a world that resets discards its sub-steps, as the
-  select does.
+  select does. `conditional`: as for `step_and_restart`.
   """
   reset_key, step_key = keys_lib.next_step_keys(state.key)
-  return _FusedLoop(transitions, state).run(
+  return _FusedLoop(transitions, state, conditional).run(
       state.replace(key=step_key), action, (reset_key, state)
   )
 
@@ -137,8 +144,9 @@ class _FusedLoop:
   `previous` (where it is LAST, with `reset_key`).
   """
 
-  def __init__(self, transitions, state):
+  def __init__(self, transitions, state, conditional):
     self._t = transitions
+    self._once = control_flow.branch_once(conditional)
     self._n = transitions.n_sub_steps
     self._fields = tuple(state.model_fields)
     self._integrate = substep_sensors.INTEGRATORS[
@@ -191,7 +199,7 @@ class _FusedLoop:
     # The restart's end first: it is the last reader of `ready` and of the
     # restart's forward pass, whose buffers the stage below may then
     # overwrite in place (else XLA copies them at every iteration).
-    stepped = control_flow.once_or_never(
+    stepped = self._once(
         i == self._restart_at,
         lambda stepped: self._finish_restart(
             ready, t.restore(carry), failures, stepped, next_reset
@@ -206,7 +214,7 @@ class _FusedLoop:
       # ends there), cheaper than a branch at every iteration.
       data, kept = t.end_substep(t.restore(carry).model, carry.data)
       carry = carry.replace(data=data)
-    carry, obs_state, stepped, failures = control_flow.once_or_never(
+    carry, obs_state, stepped, failures = self._once(
         i == n - 1,
         lambda loop: self._end_step(
             state, keys, next_reset, action_nonfinite, started, kept, loop
@@ -276,7 +284,7 @@ class _FusedLoop:
     carry, obs_state, stepped, failures = loop
     moved = t.after_physics(t.restore(carry), started, kept)
     stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)
-    carry, failures = control_flow.once_or_never(
+    carry, failures = self._once(
         control_flow.batch_any(self._reset_from(stepped, next_reset)[2]),
         lambda _: self._prepare_restart(stepped, next_reset),
         (carry, failures),

@@ -32,6 +32,7 @@ SubstepSensors = Literal['read', 'all']
 DirtyForward = Literal['composer', 'never']
 CarryStage = Literal['auto', 'never']
 StoredRestart = Literal['auto', 'never']
+Branches = Literal['auto', 'loop', 'cond']
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,6 +173,16 @@ class ExecutionOptions:
       first state instead (`State.stored_first`). The episodes are the
       same, to float rounding in the derived fields of a first state.
       'never': the step program runs the reset.
+    branches: how the step program skips what runs at some steps only (the
+      restart of the worlds whose episodes ended; in the fused sub-step
+      loop, the end of the step and the restart): 'loop', a while loop
+      run once or never (`control_flow.once_or_never`: on a GPU, where a
+      conditional reads its predicate on the host and copies the state
+      into the output of the branch not taken); 'cond', a `lax.cond`
+      (`control_flow.run_if`: on a CPU, where XLA compiles it faster
+      than a loop and it runs no slower); 'auto' (default): 'cond' on a
+      CPU, 'loop' elsewhere (`Environment.branches` says which). The
+      results are the same (docs/performance.md has the figures).
 
   Raises:
     ValueError: for a value outside a field's choices, or options that
@@ -192,6 +203,7 @@ class ExecutionOptions:
   dirty_forward: DirtyForward = 'composer'
   carry_stage: CarryStage = 'auto'
   stored_restart: StoredRestart = 'auto'
+  branches: Branches = 'auto'
 
   def __post_init__(self):
     if isinstance(self.per_world_model_fields, str):
@@ -209,6 +221,7 @@ class ExecutionOptions:
     _check_choice('dirty_forward', self.dirty_forward, ('composer', 'never'))
     _check_choice('carry_stage', self.carry_stage, ('auto', 'never'))
     _check_choice('stored_restart', self.stored_restart, ('auto', 'never'))
+    _check_choice('branches', self.branches, ('auto', 'loop', 'cond'))
     impl_choice.check_impl(self.impl, 'ExecutionOptions(impl=...)')
     impl_choice.check_buffer_arguments(
         self.impl, self.naconmax, self.njmax, requested=self.impl

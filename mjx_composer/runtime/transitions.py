@@ -525,17 +525,21 @@ class Transitions:
     (`fused_restart.can_fuse`)."""
     return fused_restart.can_fuse(self)
 
-  def step_and_restart(self, state, action) -> state_lib.State:
+  def step_and_restart(
+      self, state, action, conditional=False
+  ) -> state_lib.State:
     """`step`, then `restart` where the episode ended: same-step auto-reset,
     with one copy of the forward pass in the program instead of two
-    (`fused_restart.step_and_restart`). Needs `can_fuse_restart`."""
-    return fused_restart.step_and_restart(self, state, action)
+    (`fused_restart.step_and_restart`, whose `conditional` suits a CPU).
+    Needs `can_fuse_restart`."""
+    return fused_restart.step_and_restart(self, state, action, conditional)
 
-  def reset_or_step(self, state, action) -> state_lib.State:
+  def reset_or_step(self, state, action, conditional=False) -> state_lib.State:
     """Next-step auto-reset: `reset` where `state` is LAST, else `step`,
     with one copy of the forward pass in the program instead of two
-    (`fused_restart.reset_or_step`). Needs `can_fuse_restart`."""
-    return fused_restart.reset_or_step(self, state, action)
+    (`fused_restart.reset_or_step`, whose `conditional` suits a CPU).
+    Needs `can_fuse_restart`."""
+    return fused_restart.reset_or_step(self, state, action, conditional)
 
   # The pieces of a step, shared by `step` and `fused_restart`.
 

@@ -265,6 +265,47 @@ def test_once_or_never_refuses_a_per_world_condition_under_vmap():
     jax.vmap(world)(jnp.array([False, True]), jnp.zeros((2, 3)))
 
 
+def test_run_if_runs_fn_where_pred_else_returns_operand():
+  x = jnp.arange(3.0)
+  double = lambda v: v * 2.0
+  np.testing.assert_array_equal(
+      control_flow.run_if(jnp.asarray(True), double, x), x * 2
+  )
+  np.testing.assert_array_equal(
+      control_flow.run_if(jnp.asarray(False), double, x), x
+  )
+
+
+def test_run_if_on_a_shared_condition_stays_a_conditional_under_vmap():
+  def world(flag, x):
+    return control_flow.run_if(
+        control_flow.batch_any(flag), lambda v: v + 1.0, x
+    )
+
+  flags = jnp.array([False, True])
+  x = jnp.zeros((2, 3))
+  np.testing.assert_array_equal(jax.vmap(world)(flags, x), np.ones((2, 3)))
+  np.testing.assert_array_equal(
+      jax.vmap(world)(jnp.zeros(2, bool), x), np.zeros((2, 3))
+  )
+  hlo = jax.jit(jax.vmap(world)).lower(flags, x).as_text()
+  assert 'stablehlo.case' in hlo and 'stablehlo.select' not in hlo
+  assert 'stablehlo.while' not in hlo
+
+
+def test_run_if_refuses_a_per_world_condition_under_vmap():
+  def world(flag, x):
+    return control_flow.run_if(flag, lambda v: v + 1.0, x)
+
+  with pytest.raises(ValueError, match='run_if needs a condition shared'):
+    jax.vmap(world)(jnp.array([False, True]), jnp.zeros((2, 3)))
+
+
+def test_branch_once_picks_a_conditional_or_a_loop():
+  assert control_flow.branch_once(True) is control_flow.run_if
+  assert control_flow.branch_once(False) is control_flow.once_or_never
+
+
 def test_run_unless_runs_fn_unless_skip():
   x = jnp.arange(3.0)
   double = lambda v: v * 2.0

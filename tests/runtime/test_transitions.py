@@ -156,6 +156,31 @@ def _assert_fused_equals_step_then_restart(env, reset_states):
   assert len({float(s) for s in sizes[:, -1, 0]}) > 1  # drawn per world
 
 
+def test_conditional_branches_equal_loops(env, reset_states):
+  # On a CPU the fused loop's end of step and restart are conditionals;
+  # asked for loops, as on a GPU, the step computes the same states.
+  loops = composer.Environment(
+      _RandomizedSwing(),
+      time_limit=0.05,
+      options=composer.ExecutionOptions(
+          auto_reset=env.auto_reset, branches='loop'
+      ),
+  )
+  assert (env.branches, loops.branches) == ('cond', 'loop')
+  by_cond, by_loop = jax.jit(jax.vmap(env.step)), jax.jit(jax.vmap(loops.step))
+  primitives = lambda step: str(jax.make_jaxpr(step)(reset_states, zeros))
+  zeros = jnp.zeros((3, 1))
+  assert primitives(by_loop).count('cond[') < primitives(by_cond).count('cond[')
+  a = b = reset_states
+  resets = 0
+  for t in range(8):
+    action = jnp.full((3, 1), np.sin(t))
+    a, b = by_cond(a, action), by_loop(b, action)
+    test_environment.assert_trees_equal(a, b)
+    resets += int(np.asarray(a.last()).sum())
+  assert resets  # the restart ran
+
+
 def test_fused_single_world_equals_step_then_restart(env, reset_states):
   reference = jax.jit(_step_then_restart(env))
   fused = jax.jit(env.step)
@@ -367,9 +392,9 @@ def test_the_separate_step_branches_only_inside_its_reset(
     task_name, auto_reset
 ):
   """On a GPU each conditional costs a host round trip and copies of the
-  state every step (docs/performance.md): the
-  batched step's only conditionals are inside the reset, which runs only
-  at steps where some world's episode ends."""
+  state every step (docs/performance.md): the batched step's only
+  conditionals are inside the reset, which runs only at steps where some
+  world's episode ends (`branches='loop'`, a GPU's default)."""
   # pylint: disable=g-import-not-at-top
   if task_name == 'reach':
     from mjx_composer.suite.tasks import reach
@@ -384,9 +409,10 @@ def test_the_separate_step_branches_only_inside_its_reset(
       task,
       time_limit=1.0,
       options=composer.ExecutionOptions(
-          auto_reset=auto_reset, share_reset_forward=False
+          auto_reset=auto_reset, share_reset_forward=False, branches='loop'
       ),
   )
+  assert env.branches == 'loop'
   states = jax.eval_shape(
       jax.vmap(env.reset), jax.random.split(jax.random.key(0), 2)
   )
