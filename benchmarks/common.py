@@ -49,6 +49,7 @@ def make_env(
     njmax=None,
     reset_forward=None,
     substep_sensors=None,
+    branches=None,
     **task_kwargs,
 ):
   """A bundled task's `Environment`, as the benchmarks build it.
@@ -62,8 +63,8 @@ def make_env(
     max_reset_attempts: passed to the `Environment` when given.
     share_reset_forward: passed to the `Environment` when given.
     auto_reset_batch: the `Environment`'s `ExecutionOptions` field.
-    reset_forward, substep_sensors: `ExecutionOptions` fields, passed
-      when given.
+    reset_forward, substep_sensors, branches: `ExecutionOptions` fields,
+      passed when given.
     impl, naconmax, njmax: the physics implementation ('jax', 'warp', or
       None for the `Environment`'s default) and MuJoCo Warp's buffer sizes,
       passed to the `Environment` when given. The benchmarks measure MJX's
@@ -94,6 +95,8 @@ def make_env(
     options['reset_forward'] = reset_forward
   if substep_sensors is not None:
     options['substep_sensors'] = substep_sensors
+  if branches is not None:
+    options['branches'] = branches
   return environment.Environment(
       task,
       time_limit=time_limit,

@@ -92,7 +92,9 @@ base task, when it is among `--tasks`.
 
 `--share-reset-forward on|off` builds the composed environments with that
 `ExecutionOptions(share_reset_forward=...)` (default: the device's default, on
-for a CPU, off for a GPU), e.g. to compare the two step programs on a GPU.
+for a CPU, off for a GPU), e.g. to compare the two step programs on a GPU;
+`--branches loop|cond` with that `ExecutionOptions(branches=...)` (default:
+'cond' on a CPU, 'loop' elsewhere), and `--reset-forward` likewise.
 """
 
 import argparse
@@ -559,32 +561,32 @@ def measured_programs(tasks, programs):
   return pairs
 
 
-def make_task_env(task, share_reset_forward=None, reset_forward=None):
+# The `ExecutionOptions` fields the command line sets (`--share-reset-forward`,
+# `--reset-forward`, `--branches`).
+OPTIONS = ('share_reset_forward', 'reset_forward', 'branches')
+
+
+def make_task_env(task, **options):
   """The `Environment` of a `--tasks` entry, as the benchmarks build it.
 
-  `share_reset_forward` and `reset_forward` go to the `Environment` (None:
-  its default).
+  `options`: `ExecutionOptions` fields of `OPTIONS`, for the `Environment`
+  (None: its default).
   """
   import common  # pylint: disable=g-import-not-at-top
   import playground_compare  # pylint: disable=g-import-not-at-top
 
+  options = {k: v for k, v in options.items() if v is not None}
   base, _, variant = task.partition(':')
   if not variant or variant == FIXED:
     return common.make_env(
         base,
-        share_reset_forward=share_reset_forward,
-        reset_forward=reset_forward,
+        **options,
         **({'randomize': False} if variant == FIXED else {}),
     )
-  extra = {} if reset_forward is None else {'reset_forward': reset_forward}
-  return playground_compare.env_variants(
-      [variant], share_reset_forward=share_reset_forward, **extra
-  )[variant]
+  return playground_compare.env_variants([variant], **options)[variant]
 
 
-def run_one(
-    task, program, worlds, steps, share_reset_forward=None, reset_forward=None
-):
+def run_one(task, program, worlds, steps, options=None):
   """Builds `task`'s environment and measures `program`; returns a dict."""
   _disable_persistent_cache()
   # pylint: disable=g-import-not-at-top
@@ -606,7 +608,7 @@ def run_one(
   # One-time backend and compiler start-up, kept out of the measurement.
   jax.jit(lambda x: x + 1).lower(1.0).compile()
   t0 = time.perf_counter()
-  env = make_task_env(task, share_reset_forward, reset_forward)
+  env = make_task_env(task, **(options or {}))
   build_s = time.perf_counter() - t0
   assert not compilation_cache.is_persistent_cache_enabled()
   if program in _PPO_PROGRAMS:
@@ -626,6 +628,7 @@ def run_one(
       jax=jax.__version__,
       threefry_gpu_kernel=threefry_kernel,
       share_reset_forward=env.share_reset_forward,
+      branches=env.branches,
       reset_forward_stage=env.reset_forward_stage,
       stored_restart=env.stored_restart,
   )
@@ -668,23 +671,18 @@ def run_worker(script, args, phases=False):
     return row
 
 
-def _run_isolated(
-    task,
-    program,
-    worlds,
-    steps,
-    share_reset_forward=None,
-    reset_forward=None,
-    phases=False,
-):
+def _run_isolated(task, program, worlds, steps, options=None, phases=False):
   """`run_one` in a fresh Python process (`run_worker`)."""
   args = ['--tasks', task, '--programs', program, '--steps', str(steps)]
   if worlds is not None:
     args += ['--worlds', str(worlds)]
-  if share_reset_forward is not None:
-    args += ['--share-reset-forward', 'on' if share_reset_forward else 'off']
-  if reset_forward is not None:
-    args += ['--reset-forward', reset_forward]
+  options = options or {}
+  share = options.get('share_reset_forward')
+  if share is not None:
+    args += ['--share-reset-forward', 'on' if share else 'off']
+  for name in ('reset_forward', 'branches'):
+    if options.get(name) is not None:
+      args += ['--' + name.replace('_', '-'), options[name]]
   return run_worker(__file__, args, phases)
 
 
@@ -849,6 +847,13 @@ def main(argv=None):
       "'observed')",
   )
   parser.add_argument(
+      '--branches',
+      choices=('loop', 'cond'),
+      default=None,
+      help="ExecutionOptions(branches=...) (default: the Environment's, "
+      "'cond' on a CPU, 'loop' elsewhere)",
+  )
+  parser.add_argument(
       '--scopes',
       type=int,
       default=0,
@@ -864,15 +869,18 @@ def main(argv=None):
   )
   parser.add_argument('--worker', metavar='ROW_JSON', help=argparse.SUPPRESS)
   args = parser.parse_args(argv)
-  share = common.share_reset_forward(args)
-  env_options = (share, args.reset_forward)
+  env_options = {
+      'share_reset_forward': common.share_reset_forward(args),
+      'reset_forward': args.reset_forward,
+      'branches': args.branches,
+  }
   programs = args.programs or (
       list(_PROGRAMS) + (list(_PPO_PROGRAMS) if args.ppo else [])
   )
 
   if args.worker:  # a worker process: one task, one program
     row = run_one(
-        args.tasks[0], programs[0], args.worlds, args.steps, *env_options
+        args.tasks[0], programs[0], args.worlds, args.steps, env_options
     )
     with open(args.worker, 'w') as f:
       json.dump(row, f)
@@ -889,14 +897,14 @@ def main(argv=None):
   for task, program in pairs:
     print(f'{task}: {program} ...', flush=True)
     if args.in_process:
-      row = run_one(task, program, args.worlds, args.steps, *env_options)
+      row = run_one(task, program, args.worlds, args.steps, env_options)
     else:
       row = _run_isolated(
           task,
           program,
           args.worlds,
           args.steps,
-          *env_options,
+          env_options,
           phases=args.xla_phases,
       )
     if row is None:

@@ -89,6 +89,13 @@ def test_share_reset_forward_reaches_the_environment(task):
 
 
 @pytest.mark.parametrize('task', ['reach', 'walk:ours_off'])
+def test_branches_reach_the_environment(task):
+  """`--branches` builds the measured env with that setting."""
+  assert compile_time.make_task_env(task).branches == 'cond'  # a CPU's
+  assert compile_time.make_task_env(task, branches='loop').branches == 'loop'
+
+
+@pytest.mark.parametrize('task', ['reach', 'walk:ours_off'])
 def test_reset_forward_reaches_the_environment(task):
   """`--reset-forward` builds the measured env with that setting."""
   assert (
