@@ -357,10 +357,9 @@ def run_if(pred, fn, operand):
   What `once_or_never` computes, for a `pred` shared by the batch (a loop
   counter, `batch_any`; a per-world one is refused where the conditional
   is batched). For a CPU: there a conditional reads its predicate without
-  a host round trip, and XLA's while-loop passes, which a loop run once or
-  never goes through with its whole body, cost more compile time than its
-  conditional passes (the walk task's step program compiles in about 0.8
-  of the time, and runs a little faster: docs/performance.md).
+  a host round trip, and XLA compiles it faster than a loop run once or
+  never (the walk task's step program is traced, lowered and compiled in
+  0.86 of the time: docs/performance.md).
   """
   return jax.lax.cond(_shared(pred, 'run_if'), fn, lambda x: x, operand)
 

@@ -182,7 +182,8 @@ class ExecutionOptions:
       (`control_flow.run_if`: on a CPU, where XLA compiles it faster
       than a loop and it runs no slower); 'auto' (default): 'cond' on a
       CPU, 'loop' elsewhere (`Environment.branches` says which). The
-      results are the same (docs/performance.md has the figures).
+      states are the same (bit for bit on the tests' swing task);
+      docs/performance.md has the figures.
 
   Raises:
     ValueError: for a value outside a field's choices, or options that
