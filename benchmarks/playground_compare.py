@@ -160,11 +160,15 @@ FEATURES = {
 SHARED = '_shared'
 ALL_SENSORS = '_all_sensors'
 NO_STORE = '_nostore'
+CONDITIONALS = '_cond'
+LOOPS = '_loop'
 # Suffixes of ours' programs, each an `Environment` argument.
 SUFFIXES = {
     SHARED: dict(share_reset_forward=True),
     ALL_SENSORS: dict(substep_sensors='all'),
     NO_STORE: dict(stored_restart='never'),
+    CONDITIONALS: dict(branches='cond'),
+    LOOPS: dict(branches='loop'),
 }
 # `_chunk<K>`: `auto_reset_batch=K`; `_chunkall`: None (the whole batch).
 _CHUNK = re.compile(r'_chunk([1-9][0-9]*|all)$')
@@ -200,7 +204,9 @@ def program_name(name):
   `mjx.step` does), e.g. `ours_off_all_sensors`; and in `_nostore`: with
   `stored_restart='never'` (the step program runs the reset where it would
   restore a copy of the first state), e.g. `ours_off_nostore`; and in
-  `_chunk<K>`: with
+  `_cond` or `_loop`: with `branches='cond'` or `'loop'` (what runs at some
+  steps only is a conditional, or a loop run once or never), e.g.
+  `ours_on_shared_cond`; and in `_chunk<K>`: with
   `auto_reset_batch=K` (not with `_shared`), e.g. `ours_on_chunk512`, or
   `_chunkall`: with `auto_reset_batch=None` (the whole batch's reset).
   """

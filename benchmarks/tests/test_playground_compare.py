@@ -50,6 +50,10 @@ def test_suffixes_are_environment_arguments():
       'ours_on',
       dict(auto_reset_batch=None),
   )
+  assert playground_compare.split_suffixes('ours_on_shared_cond') == (
+      'ours_on',
+      dict(share_reset_forward=True, branches='cond'),
+  )
 
 
 def test_a_shared_program_fuses_the_restart_whatever_the_default():
