@@ -1055,6 +1055,7 @@ _OPTION_VALUES = {
     'dirty_forward': 'never',
     'carry_stage': 'never',
     'stored_restart': 'never',
+    'branches': 'loop',
 }
 
 
@@ -1088,11 +1089,16 @@ def test_options_are_resolved_for_the_device():
     )
   # On this CPU the default is 'jax', where Warp's buffer sizes are ignored.
   # The fused restart resets the whole batch: 'auto' resolves to None.
+  # What runs once or never is a conditional on a CPU.
   assert env.options == composer.ExecutionOptions(
-      impl='jax', share_reset_forward=True, auto_reset_batch=None
+      impl='jax',
+      share_reset_forward=True,
+      auto_reset_batch=None,
+      branches='cond',
   )
   assert env.impl == env.options.impl
   assert env.share_reset_forward == env.options.share_reset_forward
+  assert env.branches == env.options.branches == 'cond'
   assert env.auto_reset == 'next_step' and env.auto_reset_batch is None
   # The separate restart keeps 'auto', resolved by each batch's size.
   separate = conftest.make_swing_env(
