@@ -561,16 +561,12 @@ def measured_programs(tasks, programs):
   return pairs
 
 
-# The `ExecutionOptions` fields the command line sets (`--share-reset-forward`,
-# `--reset-forward`, `--branches`).
-OPTIONS = ('share_reset_forward', 'reset_forward', 'branches')
-
-
 def make_task_env(task, **options):
   """The `Environment` of a `--tasks` entry, as the benchmarks build it.
 
-  `options`: `ExecutionOptions` fields of `OPTIONS`, for the `Environment`
-  (None: its default).
+  `options`: the `ExecutionOptions` fields the command line sets
+  (`share_reset_forward`, `reset_forward`, `branches`), for the
+  `Environment` (None: its default).
   """
   import common  # pylint: disable=g-import-not-at-top
   import playground_compare  # pylint: disable=g-import-not-at-top

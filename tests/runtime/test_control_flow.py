@@ -223,7 +223,21 @@ def test_batch_any_is_the_flag_for_one_world_and_any_under_vmap():
   np.testing.assert_array_equal(nested, [[True, True, True]])
 
 
-def test_once_or_never_runs_fn_once_where_pred_else_returns_operand():
+# `once_or_never` and `run_if` compute the same; each keeps its own branch
+# under `vmap`: a loop, or a conditional.
+_RUN_ONCE = pytest.mark.parametrize(
+    'run_once, kept, dropped',
+    [
+        (control_flow.once_or_never, 'stablehlo.while', 'stablehlo.case'),
+        (control_flow.run_if, 'stablehlo.case', 'stablehlo.while'),
+    ],
+    ids=['once_or_never', 'run_if'],
+)
+
+
+@_RUN_ONCE
+def test_runs_fn_once_where_pred_else_returns_operand(run_once, kept, dropped):
+  del kept, dropped
   calls = []
 
   def double(x):
@@ -231,20 +245,19 @@ def test_once_or_never_runs_fn_once_where_pred_else_returns_operand():
     return x * 2.0
 
   x = jnp.arange(3.0)
-  np.testing.assert_array_equal(
-      control_flow.once_or_never(jnp.asarray(True), double, x), x * 2
-  )
-  np.testing.assert_array_equal(
-      control_flow.once_or_never(jnp.asarray(False), double, x), x
-  )
-  assert len(calls) == 2  # traced once per call, run at most once
+  np.testing.assert_array_equal(run_once(jnp.asarray(True), double, x), x * 2)
+  np.testing.assert_array_equal(run_once(jnp.asarray(False), double, x), x)
+  # Traced once per call and run at most once; a conditional on a concrete
+  # False traces nothing.
+  assert len(calls) == (2 if run_once is control_flow.once_or_never else 1)
 
 
-def test_once_or_never_on_a_shared_condition_stays_a_loop_under_vmap():
+@_RUN_ONCE
+def test_a_shared_condition_keeps_its_branch_under_vmap(
+    run_once, kept, dropped
+):
   def world(flag, x):
-    return control_flow.once_or_never(
-        control_flow.batch_any(flag), lambda v: v + 1.0, x
-    )
+    return run_once(control_flow.batch_any(flag), lambda v: v + 1.0, x)
 
   flags = jnp.array([False, True])
   x = jnp.zeros((2, 3))
@@ -254,50 +267,19 @@ def test_once_or_never_on_a_shared_condition_stays_a_loop_under_vmap():
       jax.vmap(world)(jnp.zeros(2, bool), x), np.zeros((2, 3))
   )
   hlo = jax.jit(jax.vmap(world)).lower(flags, x).as_text()
-  assert 'stablehlo.while' in hlo and 'stablehlo.select' not in hlo
+  assert kept in hlo and 'stablehlo.select' not in hlo
+  assert dropped not in hlo
 
 
-def test_once_or_never_refuses_a_per_world_condition_under_vmap():
+@_RUN_ONCE
+def test_a_per_world_condition_is_refused_under_vmap(run_once, kept, dropped):
+  del kept, dropped
+
   def world(flag, x):
-    return control_flow.once_or_never(flag, lambda v: v + 1.0, x)
+    return run_once(flag, lambda v: v + 1.0, x)
 
-  with pytest.raises(ValueError, match='shared by the batch'):
-    jax.vmap(world)(jnp.array([False, True]), jnp.zeros((2, 3)))
-
-
-def test_run_if_runs_fn_where_pred_else_returns_operand():
-  x = jnp.arange(3.0)
-  double = lambda v: v * 2.0
-  np.testing.assert_array_equal(
-      control_flow.run_if(jnp.asarray(True), double, x), x * 2
-  )
-  np.testing.assert_array_equal(
-      control_flow.run_if(jnp.asarray(False), double, x), x
-  )
-
-
-def test_run_if_on_a_shared_condition_stays_a_conditional_under_vmap():
-  def world(flag, x):
-    return control_flow.run_if(
-        control_flow.batch_any(flag), lambda v: v + 1.0, x
-    )
-
-  flags = jnp.array([False, True])
-  x = jnp.zeros((2, 3))
-  np.testing.assert_array_equal(jax.vmap(world)(flags, x), np.ones((2, 3)))
-  np.testing.assert_array_equal(
-      jax.vmap(world)(jnp.zeros(2, bool), x), np.zeros((2, 3))
-  )
-  hlo = jax.jit(jax.vmap(world)).lower(flags, x).as_text()
-  assert 'stablehlo.case' in hlo and 'stablehlo.select' not in hlo
-  assert 'stablehlo.while' not in hlo
-
-
-def test_run_if_refuses_a_per_world_condition_under_vmap():
-  def world(flag, x):
-    return control_flow.run_if(flag, lambda v: v + 1.0, x)
-
-  with pytest.raises(ValueError, match='run_if needs a condition shared'):
+  name = run_once.__name__
+  with pytest.raises(ValueError, match=f'{name} needs a condition shared'):
     jax.vmap(world)(jnp.array([False, True]), jnp.zeros((2, 3)))
 
 
