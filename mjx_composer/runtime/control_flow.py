@@ -220,7 +220,10 @@ def _reset_in_chunks(done, reset, operands, stepped, chunk):
     rows = jax.tree.map(
         lambda x: x[index], (state,) if operands is None else operands
     )
-    fresh = jax.vmap(reset)(*rows)
+    # Materialized before the scatters below: without the barrier, XLA's
+    # GPU compilation of the walk task's step program left 11% more
+    # instructions (docs/performance.md), whose compile time follows them.
+    fresh = jax.lax.optimization_barrier(jax.vmap(reset)(*rows))
     # A dropped slot scatters to row `n`, out of bounds: dropped. The
     # chunk's indices are distinct (a slice of a permutation).
     target = jnp.where(keep, index, n)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from mjx_composer.runtime import control_flow
+from tests import jaxprs
 
 
 def test_trace_once_runs_the_python_once():
@@ -190,6 +191,37 @@ def test_auto_chunk_gathers_the_done_worlds_of_a_large_batch(n, gathers):
     if jnp.issubdtype(a.dtype, jax.dtypes.prng_key):
       a, b = jax.random.key_data(a), jax.random.key_data(b)
     np.testing.assert_array_equal(a, b)
+
+
+def test_chunks_scatter_the_reset_once_it_is_materialized():
+  """Each leaf's scatter takes the chunk's reset from an optimization
+  barrier: XLA's GPU fusion does not copy the reset's last computations
+  into the scatters (a smaller program, docs/performance.md)."""
+  n = 6
+  keys = jax.random.split(jax.random.key(0), n)
+  stepped = jax.vmap(_mixed_reset)(keys)
+
+  def step(done, key, stepped):
+    return control_flow.select_reset(done, _mixed_reset, (key,), stepped, 2)
+
+  jaxpr = jax.make_jaxpr(jax.vmap(step))(jnp.zeros(n, bool), keys, stepped)
+  (loop,) = [
+      eqn
+      for eqn in jaxprs.equations(jaxpr.jaxpr)
+      if eqn.primitive.name == 'while'
+      and jaxprs.count(eqn.params['body_jaxpr'].jaxpr, 'scatter')
+  ]
+  body = loop.params['body_jaxpr'].jaxpr
+  barriers = [
+      e for e in body.eqns if e.primitive.name == 'optimization_barrier'
+  ]
+  assert len(barriers) == 1
+  materialized = {id(v) for v in barriers[0].outvars}
+  scatters = [e for e in body.eqns if e.primitive.name == 'scatter']
+  # One per leaf of the state (none for an empty one), each of a barrier's
+  # output.
+  assert len(scatters) == sum(x.size > 0 for x in jax.tree.leaves(stepped))
+  assert all(id(e.invars[2]) in materialized for e in scatters)
 
 
 def test_select_reset_in_chunks_traces_the_reset_once():
