@@ -195,8 +195,8 @@ def test_auto_chunk_gathers_the_done_worlds_of_a_large_batch(n, gathers):
 
 def test_chunks_scatter_the_reset_once_it_is_materialized():
   """Each leaf's scatter takes the chunk's reset from an optimization
-  barrier: XLA's GPU fusion does not copy the reset's last computations
-  into the scatters (a smaller program, docs/performance.md)."""
+  barrier, which keeps walk's step program compiled for a GPU a tenth
+  smaller (docs/performance.md)."""
   n = 6
   keys = jax.random.split(jax.random.key(0), n)
   stepped = jax.vmap(_mixed_reset)(keys)
