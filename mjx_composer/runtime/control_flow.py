@@ -242,73 +242,132 @@ def _reset_in_chunks(done, reset, operands, stepped, chunk):
   return state
 
 
-def loop_with_reset(n, body, wants_reset, carry, operands, extra=1):
-  """`body(i, carry, operands)` for `i < n`, then `n <= i < n + extra` where
-  a reset is wanted.
+def loop_with_reset(
+    n,
+    body,
+    end,
+    prepare,
+    finish,
+    carry,
+    fixed,
+    operands,
+    extra=1,
+    conditional=False,
+):
+  """`n` iterations of `body`, then `end`; where a reset is wanted, then
+  `prepare`, `extra` iterations of `body` and `finish`.
 
-  The step loop of an auto-reset whose last iterations reset the episode,
-  so that the reset's forward pass is the sub-steps' forward pass (one copy
-  in the program). For one world this is a while loop of `n` iterations,
-  plus `extra` where `wants_reset(carry, operands)` holds after them. Under
-  `jax.vmap` a batched loop condition would turn every branch on `i` in the
-  body into a select, computing the reset at every sub-step; the batching
-  rule instead keeps `i` shared by the batch, runs the body batched inside
-  the loop (so `batch_any` in it sees the batch), and runs the extra
-  iterations when some world wants them. Results are the same either way.
-  The body is traced once and reused by both paths.
+  The sub-step loop of a fused auto-reset, whose last iterations reset the
+  episode, so that the reset's forward pass is the sub-steps' (one copy in
+  the program). Two nested loops: an outer one over two phases (the
+  sub-steps; then, where some world wants it, the reset's iterations), and
+  inside it the loop over `i`, which holds `body` once. `fixed` is what
+  `body` reads and never changes (the world's model fields that no step
+  hook writes): within the inner loop it is invariant, so XLA computes
+  what the body derives from it alone (the model's gathers) once a phase,
+  not at every iteration. The phases' ends (`end`, `prepare`, `finish`)
+  run between the inner loops, in loops run once or never: the inner loop
+  is the sub-steps and nothing else.
+
+  For one world the reset's phase runs on whether it wants the reset.
+  Under `jax.vmap` a batched loop condition would turn every branch on `i`
+  in the body into a select, computing the reset at every sub-step: the
+  batching rule instead keeps `i` and the phase shared by the batch, runs
+  the callbacks batched inside the loops, and runs the reset's phase when
+  some world wants it. Results are the same either way. Each callback is
+  traced once and reused by both paths.
 
   Args:
     n: the iterations every world runs.
-    body: `(i, carry, operands) -> carry`, for one world; at `i >= n` it
-      must return `carry` unchanged where `wants_reset` is False (the batch
-      runs those iterations for every world), and leave what
-      `wants_reset` reads unchanged before the last. Its parts that run at
-      some `i` only belong in `once_or_never`, with conditions on `i` or
-      `batch_any`.
-    wants_reset: `(carry, operands) -> bool`, for one world.
+    body: `(i, carry, fixed, operands) -> carry`, one iteration for one
+      world; at `i >= n` it runs for every world of the batch.
+    end: `(carry, fixed, operands) -> (carry, wants)` after the first `n`
+      iterations: the end of the step, and whether the world wants the
+      reset.
+    prepare: `(carry, fixed, operands) -> (carry, fixed)`, what the reset's
+      iterations start from (computed for every world of the batch where
+      some world wants the reset).
+    finish: `(carry, fixed, operands) -> carry` after the reset's
+      iterations, for every world of the batch: where a world wants no
+      reset, what it keeps of `end`'s result is the loop's result (the
+      rest of the carry is then the batch's, not the world's).
     carry: the initial carry.
-    operands: per-world inputs the body reads.
+    fixed: the initial invariants.
+    operands: per-world inputs the callbacks read.
     extra: the iterations of the reset.
+    conditional: the phases' ends run in `run_if`s, not `once_or_never`s
+      (`branch_once`: for a program compiled for a CPU).
 
   Returns:
     The final carry.
   """
   index = jnp.zeros((), jnp.int32)
-  traced = trace_once(body, index, carry, operands)
+  single = (
+      trace_once(body, index, carry, fixed, operands),
+      trace_once(end, carry, fixed, operands),
+      trace_once(prepare, carry, fixed, operands),
+      trace_once(finish, carry, fixed, operands),
+  )
+  run_once = branch_once(conditional)
 
-  iterate = traced  # one world
+  def run(carry, fixed, operands, callbacks, any_of):
+    iterate, ending, preparing, finishing = callbacks
 
-  def run(carry, operands, any_wants, iterate):
-    def again(loop):
-      i, carry = loop
-      return jnp.logical_or(
-          i < n,
-          jnp.logical_and(i < n + extra, any_wants(carry, operands)),
+    def end_of_steps(loop):
+      carry, fixed, _ = loop
+      carry, wants = ending(carry, fixed, operands)
+      wanted = any_of(wants)
+      carry, fixed = run_once(
+          wanted, lambda loop: preparing(*loop, operands), (carry, fixed)
       )
+      return carry, fixed, wanted
 
-    def step(loop):
-      i, carry = loop
-      return i + 1, iterate(i, carry, operands)
+    def phase(loop):
+      p, wanted, carry, fixed = loop
+      last = jnp.where(p == 0, n, n + extra)
 
-    return jax.lax.while_loop(again, step, (index, carry))[1]
+      def iteration(inner):
+        i, carry = inner
+        return i + 1, iterate(i, carry, fixed, operands)
 
-  def one_world(carry, operands):
-    return run(carry, operands, wants_reset, iterate)
+      _, carry = jax.lax.while_loop(
+          lambda inner: inner[0] < last, iteration, (p * n, carry)
+      )
+      carry, fixed, wanted = run_once(
+          p == 0, end_of_steps, (carry, fixed, wanted)
+      )
+      carry = run_once(
+          p == 1, lambda carry: finishing(carry, fixed, operands), carry
+      )
+      return p + 1, jnp.logical_and(p == 0, wanted), carry, fixed
+
+    return jax.lax.while_loop(
+        lambda loop: jnp.logical_or(loop[0] == 0, loop[1]),
+        phase,
+        (index, jnp.zeros((), bool), carry, fixed),
+    )[2]
+
+  def one_world(carry, fixed, operands):
+    return run(carry, fixed, operands, single, lambda wants: wants)
 
   looped = jax.custom_batching.custom_vmap(one_world)
 
   @looped.def_vmap
-  def _batched(axis_size, in_batched, carry, operands):
-    carry, operands = _batch_all(axis_size, (carry, operands), in_batched)
+  def _batched(axis_size, in_batched, carry, fixed, operands):
+    carry, fixed, operands = _batch_all(
+        axis_size, (carry, fixed, operands), in_batched
+    )
+    iterate, *rest = single
     out = run(
         carry,
+        fixed,
         operands,
-        lambda carry, operands: jnp.any(jax.vmap(wants_reset)(carry, operands)),
-        jax.vmap(iterate, in_axes=(None, 0, 0)),
+        (jax.vmap(iterate, in_axes=(None, 0, 0, 0)), *map(jax.vmap, rest)),
+        jnp.any,
     )
     return out, _out_batched(out)
 
-  return looped(carry, operands)
+  return looped(carry, fixed, operands)
 
 
 @jax.custom_batching.custom_vmap

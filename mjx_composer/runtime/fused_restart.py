@@ -23,25 +23,33 @@ need an integrator that `mjx.step` runs after `mjx.forward`
 (`substep_sensors.INTEGRATORS`), no muscles and no actuator gravity
 compensation (`can_fuse`).
 
-The loop, over `i`: iterations `0..n-1` are the sub-steps (before-substep
-hooks, forward pass, integrator, after-substep hooks and observation
-update); the last of them also ends the control step and, where some world
-wants a reset, prepares it (the `initialize_episode` hooks, randomization
-included); then, only where some world wants it, the reset's forward pass
-runs, with actuation masked. Where the sub-steps carry the end-of-step
-stage (`carried_stage`: each forward pass runs from the stage its data
-holds, and each sub-step computes the stage of its new state), the reset
-takes two iterations: `n` computes the prepared reset's stage, with the same
-copy of the stage the sub-steps use, and `n + 1` runs the rest of its
-forward pass (the stage runs at every iteration: after the reset's
-forward pass it is computed and dropped); else it is iteration `n`. The
-parts that run at one iteration only are loops run once or never
+The loop, over `i` (`control_flow.loop_with_reset`): iterations `0..n-1`
+are the sub-steps (before-substep hooks, forward pass, integrator,
+after-substep hooks and observation update); after them the control step
+ends and, where some world wants a reset, the reset is prepared (the
+`initialize_episode` hooks, randomization included); then, only where some
+world wants it, the reset's forward pass runs, with actuation masked.
+Where the sub-steps carry the end-of-step stage (`carried_stage`: each
+forward pass runs from the stage its data holds, and each sub-step
+computes the stage of its new state), the reset takes two iterations: `n`
+computes the prepared reset's stage, with the same copy of the stage the
+sub-steps use, and `n + 1` runs the rest of its forward pass (the stage
+runs at every iteration: after the reset's forward pass it is computed
+again, of the same state); else it is iteration `n`.
+
+The iterations run in two phases, the sub-steps and the reset's, each a
+loop whose body is the iteration alone; the step's end, the reset's
+preparation and its end run between them, in loops run once or never
 (`control_flow.once_or_never`; conditionals, `control_flow.run_if`, in a
-program for a CPU) on conditions shared by the batch (the counter,
-`control_flow.batch_any`); the physics, which runs at every
-iteration but `n` where a stage is carried, is a conditional on the counter
-(`control_flow.run_unless`). Nothing is computed for every world at every
-sub-step but the sub-step itself and selects on the counter.
+program for a CPU) on conditions shared by the batch (the phase,
+`control_flow.batch_any`). The world's model is not in the inner loop's
+carry: the model fields that no step hook writes are the same through a
+phase (the reset's preparation replaces them between the phases), so XLA
+computes what the forward pass derives from them alone (the model's
+gathers) once a phase, not at every sub-step. The physics, which runs at
+every iteration but `n` where a stage is carried, is a conditional on the
+counter (`control_flow.run_unless`). Nothing is computed for every world at
+every sub-step but the sub-step itself and selects on the counter.
 """
 
 from __future__ import annotations
@@ -53,6 +61,7 @@ import numpy as np
 
 from mjx_composer.runtime import carried_stage
 from mjx_composer.runtime import control_flow
+from mjx_composer.runtime import data_reads
 from mjx_composer.runtime import episode as episode_lib
 from mjx_composer.runtime import keys as keys_lib
 from mjx_composer.runtime import state as state_lib
@@ -132,23 +141,34 @@ def actuation_masked(model, masked):
 class _FusedLoop:
   """One control step's loop of sub-steps and a reset (module docstring).
 
-  The loop's carry is `(carry, obs_state, stepped, failures)`: the world's
-  `PhysicsCarry` (the sub-steps', then the prepared reset's), the
-  observation state, the `State` returned (the stepped one, then the
-  restarted one where the world resets) and the reset's failed
-  initialization attempts. Its operands are `(state, action, keys,
-  next_reset, action_nonfinite)`: the action the step runs, and whether
-  the given one was not finite (`episode.checked_action`); `next_reset` is
-  None for a same-step restart (of the stepped state, where it is LAST,
-  with its key), else `(reset_key, previous)`, a next-step reset of
-  `previous` (where it is LAST, with `reset_key`).
+  The loop (`control_flow.loop_with_reset`) carries `(carry, obs_state,
+  started, kept, stepped, failures, before)`: the world's `PhysicsCarry`
+  (the sub-steps', then the prepared reset's) without its invariant model
+  fields, which are the loop's `fixed` (`_split`), the observation state,
+  what the control step's end reads of the last sub-step (as `Transitions.step`'s
+  scan carries it), the `State` returned (the stepped one, then the
+  restarted one where the world resets), the reset's failed initialization
+  attempts, and what the reset's end reads of the prepared reset's data
+  (`_BEFORE`). Its operands are `(state, action, keys, next_reset,
+  action_nonfinite)`: the action the step runs, and whether the given one
+  was not finite (`episode.checked_action`); `next_reset` is None for a
+  same-step restart (of the stepped state, where it is LAST, with its
+  key), else `(reset_key, previous)`, a next-step reset of `previous`
+  (where it is LAST, with `reset_key`).
   """
 
   def __init__(self, transitions, state, conditional):
     self._t = transitions
-    self._once = control_flow.branch_once(conditional)
+    self._conditional = conditional
     self._n = transitions.n_sub_steps
     self._fields = tuple(state.model_fields)
+    # The model fields that some step hook writes: the others stay the same
+    # through the sub-steps, and through the restart's iterations.
+    self._written = frozenset(transitions.analysis.reset_shapes.step_writers)
+    # What the restart's end reads of the prepared restart's data: what
+    # `mjx.forward` with actuation disabled leaves of the actuator forces,
+    # and what the reset's stage of the forward pass leaves of its data.
+    self._before = transitions.reset_forward.read_before() | {'actuator_force'}
     self._integrate = substep_sensors.INTEGRATORS[
         int(transitions.initial.model.opt.integrator)
     ]
@@ -165,63 +185,73 @@ class _FusedLoop:
     keys = keys_lib.StepKeys.split(state.key)
     physics = t.before_step(state, action, keys)
     start = physics.replace(initialization_failed=jnp.zeros((), bool))
-    _, _, stepped, _ = control_flow.loop_with_reset(
+    carry, fixed = self._split(start.carry(self._fields))
+    started = None
+    if t.sensors_once_per_step:
+      started = substep_sensors.IntegrationState.of(physics.data)
+    kept = {}
+    if self._carried is not None:
+      kept = data_reads.leaves_named(physics.data, self._carried.sensor_inputs)
+    loop = control_flow.loop_with_reset(
         self._n,
         self.body,
-        lambda loop, operands: self._reset_from(loop[2], operands[3])[2],
+        self._end_step,
+        self._prepare_restart,
+        self._finish_restart,
         (
-            start.carry(self._fields),
+            carry,
             state.obs_state,
+            started,
+            kept,
             state,
             jnp.zeros((), jnp.int32),
+            data_reads.leaves_named(physics.data, self._before),
         ),
+        fixed,
         (state, action, keys, next_reset, action_nonfinite),
         extra=self._restart_at - self._n + 1,
+        conditional=self._conditional,
     )
-    return stepped
+    return loop[4]
 
-  def body(self, i, loop, operands):
+  def _split(self, carry):
+    """`(carry, fixed)`: `carry` without the model fields that no step hook
+    writes, and those fields, which stay the same through each phase of
+    the loop."""
+    fields = carry.model_fields
+    fixed = {k: v for k, v in fields.items() if k not in self._written}
+    written = {k: v for k, v in fields.items() if k in self._written}
+    return carry.replace(model_fields=written), fixed
+
+  @staticmethod
+  def _merge(carry, fixed):
+    """The whole `PhysicsCarry` of a `_split` one."""
+    return carry.replace(model_fields={**fixed, **carry.model_fields})
+
+  def body(self, i, loop, fixed, operands):
     """Iteration `i` of the loop (`body`, as the lowered program names it)."""
     t, n, fields = self._t, self._n, self._fields
-    carry, obs_state, stepped, failures = loop
-    state, action, keys, next_reset, action_nonfinite = operands
+    carry, obs_state, started, kept, *rest = loop
+    carry = self._merge(carry, fixed)
+    _, action, keys, _, _ = operands
     # From `i = n` the carry is the prepared restart: its sub-step hooks and
     # integration are computed and dropped (selects on the shared `i`).
-    ready = carry
     hooked = t.before_substep(t.restore(carry), action, keys, i, fields).carry(
         fields
     )
     physics = t.restore(control_flow.tree_select(i < n, hooked, carry))
-    started = None
     if t.sensors_once_per_step:
       started = substep_sensors.IntegrationState.of(physics.data)
     carry, obs_state = self._physics_step(i, physics, obs_state, keys)
-    # The restart's end first: it is the last reader of `ready` and of the
-    # restart's forward pass, whose buffers the stage below may then
-    # overwrite in place (else XLA copies them at every iteration).
-    stepped = self._once(
-        i == self._restart_at,
-        lambda stepped: self._finish_restart(
-            ready, t.restore(carry), failures, stepped, next_reset
-        ),
-        stepped,
-    )
-    kept = {}
     if self._carried is not None:
       # The stage of the sub-step's new state, or at `i = n` of the
       # prepared restart, whose forward pass the next iteration runs from
-      # it; after that forward pass it is computed and dropped (the loop
-      # ends there), cheaper than a branch at every iteration.
+      # it; after that forward pass it is computed again, of the same
+      # state (the loop ends there), cheaper than a branch at every
+      # iteration.
       data, kept = t.end_substep(t.restore(carry).model, carry.data)
       carry = carry.replace(data=data)
-    carry, obs_state, stepped, failures = self._once(
-        i == n - 1,
-        lambda loop: self._end_step(
-            state, keys, next_reset, action_nonfinite, started, kept, loop
-        ),
-        (carry, obs_state, stepped, failures),
-    )
-    return carry, obs_state, stepped, failures
+    return (self._split(carry)[0], obs_state, started, kept, *rest)
 
   def _physics_step(self, i, physics, obs_state, keys):
     """`(carry, obs_state)` after iteration `i`'s physics: the forward pass
@@ -276,32 +306,37 @@ class _FusedLoop:
         previous.last(),
     )
 
-  def _end_step(
-      self, state, keys, next_reset, action_nonfinite, started, kept, loop
-  ):
-    """Ends the control step; prepares the restart where one is wanted."""
+  def _end_step(self, loop, fixed, operands):
+    """The loop with the stepped `State`, and whether the world restarts."""
     t = self._t
-    carry, obs_state, stepped, failures = loop
-    moved = t.after_physics(t.restore(carry), started, kept)
+    carry, obs_state, started, kept, _, *rest = loop
+    state, _, keys, next_reset, action_nonfinite = operands
+    moved = t.after_physics(t.restore(self._merge(carry, fixed)), started, kept)
     stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)
-    carry, failures = self._once(
-        control_flow.batch_any(self._reset_from(stepped, next_reset)[2]),
-        lambda _: self._prepare_restart(stepped, next_reset),
-        (carry, failures),
-    )
-    return carry, obs_state, stepped, failures
+    loop = (carry, obs_state, started, kept, stepped, *rest)
+    return loop, self._reset_from(stepped, next_reset)[2]
 
-  def _prepare_restart(self, stepped, next_reset):
-    """The initialized carry of the restart, and its failed attempts."""
+  def _prepare_restart(self, loop, fixed, operands):
+    """The loop and its invariants for the restart's iterations: the
+    initialized carry of the restart, its failed attempts, and what its
+    end reads of it."""
+    del fixed  # the restart's model replaces the step's
     t = self._t
-    reset_key, previous, _ = self._reset_from(stepped, next_reset)
+    _, obs_state, started, kept, stepped, _, _ = loop
+    reset_key, previous, _ = self._reset_from(stepped, operands[3])
     keys = keys_lib.ResetKeys.split(reset_key)
-    return t.initialize(keys.init, t.start_carry(previous))
+    carry, failures = t.initialize(keys.init, t.start_carry(previous))
+    before = data_reads.leaves_named(carry.data, self._before)
+    carry, fixed = self._split(carry)
+    return (carry, obs_state, started, kept, stepped, failures, before), fixed
 
-  def _finish_restart(self, ready, forwarded, failures, stepped, next_reset):
-    """The restarted state where the world resets, else `stepped`."""
+  def _finish_restart(self, loop, fixed, operands):
+    """The loop with the restarted state where the world resets."""
     t = self._t
+    carry, obs_state, started, kept, stepped, failures, before = loop
+    next_reset = operands[3]
     reset_key, _, resets = self._reset_from(stepped, next_reset)
+    forwarded = t.restore(self._merge(carry, fixed))
     if t.sensors_once_per_step:  # the loop's forward pass skipped them
       forwarded = forwarded.replace(
           data=t.reset_forward.sensors_of(forwarded.model, forwarded.data)
@@ -309,16 +344,17 @@ class _FusedLoop:
     # What `mjx.forward` leaves with actuation disabled.
     data = forwarded.data.replace(
         act_dot=jnp.zeros_like(forwarded.data.act_dot),
-        actuator_force=ready.data.actuator_force,
+        actuator_force=before['actuator_force'],
     )
     # What the reset's stage of the forward pass leaves (`Transitions.reset`).
-    data = t.reset_forward.restrict(data, ready.data)
+    data = t.reset_forward.restrict(data, data_reads.with_leaves(data, before))
     restarted = t.first_state(
         forwarded.replace(data=data),
-        ready,
+        self._merge(carry, fixed),
         failures,
         keys_lib.ResetKeys.split(reset_key),
     )
     if next_reset is None:
       restarted = episode_lib.reporting(restarted, stepped)
-    return control_flow.tree_select(resets, restarted, stepped)
+    stepped = control_flow.tree_select(resets, restarted, stepped)
+    return (carry, obs_state, started, kept, stepped, failures, before)

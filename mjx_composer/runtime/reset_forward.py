@@ -375,6 +375,16 @@ class ResetForward:
     data = mjx.sensor_pos(model, data)
     return mjx.sensor_vel(model, data) if self.stage == 'velocity' else data
 
+  def read_before(self) -> frozenset:
+    """The leaves of `mjx.Data` (`data_reads.leaf_names`) whose values
+    `restrict` takes from `before`."""
+    if self.stage == 'full':
+      return frozenset()
+    names = set(self.derived) - set(self.writes)
+    if self.sensor_rows is not None:
+      names.add('sensordata')
+    return frozenset(names)
+
   def restrict(self, computed, before):
     """A full forward pass's `computed` data, as this stage leaves it.
 

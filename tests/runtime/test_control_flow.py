@@ -381,3 +381,119 @@ def test_once_or_never_batches_its_function_once_under_vmap():
   out = jax.vmap(world)(jnp.array([False, True]), jnp.full((2, 3), 2.0))
   np.testing.assert_array_equal(out, np.full((2, 3), 3.0))
   assert len(batched) == 1
+
+
+# `loop_with_reset` over a carry `(running, result)`: the body adds
+# `(i + 1) * sum(fixed)` to `running`; the step's end writes `10 * running`
+# to `result` and wants the reset where the operand is positive; the reset
+# restarts `running` at 1000 with `fixed` doubled, and its end writes
+# `running` to `result` where the world reset.
+_N, _EXTRA = 3, 2
+
+
+def _looped(operand, fixed):
+  def body(i, carry, fixed, operand):
+    del operand
+    running, result = carry
+    return running + (i + 1) * jnp.sum(fixed), result
+
+  def end(carry, fixed, operand):
+    del fixed
+    running, _ = carry
+    return (running, 10.0 * running), operand > 0
+
+  def prepare(carry, fixed, operand):
+    del operand
+    return (jnp.float32(1000.0), carry[1]), 2.0 * fixed
+
+  def finish(carry, fixed, operand):
+    del fixed
+    running, result = carry
+    return running, jnp.where(operand > 0, running, result)
+
+  return control_flow.loop_with_reset(
+      _N,
+      body,
+      end,
+      prepare,
+      finish,
+      (jnp.float32(0.0), jnp.float32(0.0)),
+      fixed,
+      operand,
+      extra=_EXTRA,
+  )
+
+
+def _looped_reference(operand, fixed):
+  """`result` of `_looped` for one world, in Python."""
+  total = float(np.sum(fixed))
+  running = sum((i + 1) * total for i in range(_N))
+  if operand <= 0:
+    return 10.0 * running
+  return 1000.0 + sum((i + 1) * 2.0 * total for i in range(_N, _N + _EXTRA))
+
+
+def _fixed(worlds):
+  # A shape no other value of the loop has.
+  return (
+      jnp.arange(worlds * 7 * 11, dtype=jnp.float32).reshape(worlds, 7, 11)
+      / 100.0
+  )
+
+
+@pytest.mark.parametrize('operands', [(1.0, -1.0, 2.0), (-1.0, -2.0, 0.0)])
+def test_loop_with_reset_runs_the_reset_phase_where_a_world_wants_it(
+    operands,
+):
+  operands = jnp.asarray(operands, jnp.float32)
+  fixed = _fixed(len(operands))
+  want = [_looped_reference(o, f) for o, f in zip(operands, fixed)]
+  for world in range(len(operands)):  # one world
+    _, result = jax.jit(_looped)(operands[world], fixed[world])
+    np.testing.assert_allclose(result, want[world], rtol=1e-6)
+  running, result = jax.jit(jax.vmap(_looped))(operands, fixed)
+  np.testing.assert_allclose(result, want, rtol=1e-6)
+  # The batch runs the reset's phase for every world where some world
+  # wants it, and for none where no world does.
+  if bool(jnp.any(operands > 0)):
+    assert np.all(np.asarray(running) >= 1000.0)
+  else:
+    np.testing.assert_allclose(running, np.asarray(want) / 10.0, rtol=1e-6)
+
+
+def test_loop_with_reset_keeps_fixed_out_of_the_inner_loop_carry():
+  # Within a phase, `fixed` is a constant of the loop over `i`, not part of
+  # what it carries (as it would be where the loop changed it, preparing
+  # the reset at its last sub-step): XLA can compute what the body derives
+  # from it once.
+  operands = jnp.asarray([1.0, -1.0], jnp.float32)
+  fixed = _fixed(2)
+  jaxpr = jax.make_jaxpr(jax.vmap(_looped))(operands, fixed).jaxpr
+
+  def sums_fixed(eqn):  # the body's `jnp.sum(fixed)`, batched
+    return eqn.primitive.name == 'reduce_sum' and any(
+        v.aval.shape == fixed.shape for v in eqn.invars
+    )
+
+  def loop_summing_fixed(eqn):
+    return eqn.primitive.name == 'while' and any(
+        map(sums_fixed, jaxprs.equations(eqn.params['body_jaxpr'].jaxpr))
+    )
+
+  # The innermost loop that computes the body.
+  loops = [
+      eqn
+      for eqn in jaxprs.equations(jaxpr)
+      if loop_summing_fixed(eqn)
+      and not any(
+          map(
+              loop_summing_fixed,
+              jaxprs.equations(eqn.params['body_jaxpr'].jaxpr),
+          )
+      )
+  ]
+  assert len(loops) == 1  # the body, once, in the loop over `i`
+  (loop,) = loops
+  consts = loop.params['cond_nconsts'] + loop.params['body_nconsts']
+  assert fixed.shape in [v.aval.shape for v in loop.invars[:consts]]
+  assert fixed.shape not in [v.aval.shape for v in loop.invars[consts:]]

@@ -156,6 +156,44 @@ def _assert_fused_equals_step_then_restart(env, reset_states):
   assert len({float(s) for s in sizes[:, -1, 0]}) > 1  # drawn per world
 
 
+class _SubstepDampedSwing(_RandomizedSwing):
+  """`_RandomizedSwing` whose `before_substep` hook writes a model field
+  (the pendulum's damping, from its velocity): the fused loop carries that
+  field through its sub-steps, and keeps the ball's size out."""
+
+  def before_substep(self, physics, action, key):
+    physics = super().before_substep(physics, action, key)
+    damping = 0.05 + 0.5 * jnp.abs(physics.bind(self.pendulum.joint).qvel)
+    return physics.bind(self.pendulum.joint).set(damping=damping)
+
+
+def test_a_model_field_a_sub_step_hook_writes_is_carried_through_the_loop(
+    env, monkeypatch
+):
+  damped = composer.Environment(
+      _SubstepDampedSwing(),
+      time_limit=0.05,
+      options=composer.ExecutionOptions(auto_reset=env.auto_reset),
+  )
+  loops = []
+  loop = control_flow.loop_with_reset
+  monkeypatch.setattr(
+      control_flow,
+      'loop_with_reset',
+      lambda *args, **kwargs: loops.append(args) or loop(*args, **kwargs),
+  )
+  states = jax.jit(jax.vmap(damped.reset))(
+      jax.random.split(jax.random.key(3), 3)
+  )
+  _assert_fused_equals_step_then_restart(damped, states)
+  # The loop's carry holds the field the hook writes; its invariants, those
+  # only the restart writes (the ball's size, and what the model compiler
+  # derives from it).
+  (carry, *_), fixed = loops[0][5], loops[0][6]
+  assert set(carry.model_fields) == {'dof_damping'}
+  assert 'geom_size' in fixed and 'dof_damping' not in fixed
+
+
 def test_conditional_branches_equal_loops(env, reset_states):
   # On a CPU the fused loop's end of step and restart are conditionals;
   # asked for loops, as on a GPU, the step computes the same states.
