@@ -145,11 +145,11 @@ class _FusedLoop:
   started, kept, stepped, failures, before)`: the world's `PhysicsCarry`
   (the sub-steps', then the prepared reset's) without its invariant model
   fields, which are the loop's `fixed` (`_split`), the observation state,
-  what the control step's end reads of the last sub-step (as `Transitions.step`'s
-  scan carries it), the `State` returned (the stepped one, then the
-  restarted one where the world resets), the reset's failed initialization
-  attempts, and what the reset's end reads of the prepared reset's data
-  (`_BEFORE`). Its operands are `(state, action, keys, next_reset,
+  what the control step's end reads of the last sub-step (as
+  `Transitions.step`'s scan carries it), the `State` returned (the stepped
+  one, then the restarted one where the world resets), the reset's failed
+  initialization attempts, and the leaves of the prepared reset's data
+  that the reset's end reads (`_finish_restart`). Its operands are `(state, action, keys, next_reset,
   action_nonfinite)`: the action the step runs, and whether the given one
   was not finite (`episode.checked_action`); `next_reset` is None for a
   same-step restart (of the stepped state, where it is LAST, with its
