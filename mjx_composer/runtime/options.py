@@ -81,8 +81,8 @@ class ExecutionOptions:
       copy of the forward pass (`Transitions.step_and_restart`,
       `Transitions.reset_or_step`, with the sub-steps' copy of the carried
       stage where `carry_stage` applies): it compiles faster; on a GPU it
-      runs about as fast as the separate restart where no episode ends,
-      slower where many do (it runs the whole batch's restart), and holds
+      runs a little slower than the separate restart where no episode ends,
+      a fifth slower where many do (it restarts the whole batch), and holds
       more memory (docs/performance.md). False runs the sub-steps as a `lax.scan` and
       the restart separately. Both compute the same operations; where XLA
       fuses them alike the states are bit-identical (the tests' models),
