@@ -54,6 +54,8 @@ every sub-step but the sub-step itself and selects on the counter.
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import jax.numpy as jnp
 import mujoco
 from mujoco import mjx
@@ -138,24 +140,58 @@ def actuation_masked(model, masked):
   )
 
 
-class _FusedLoop:
-  """One control step's loop of sub-steps and a reset (module docstring).
+class _Loop(NamedTuple):
+  """What the fused loop carries (`control_flow.loop_with_reset`).
 
-  The loop (`control_flow.loop_with_reset`) carries `(carry, obs_state,
-  started, kept, stepped, failures, before)`: the world's `PhysicsCarry`
-  (the sub-steps', then the prepared reset's) without its invariant model
-  fields, which are the loop's `fixed` (`_split`), the observation state,
-  what the control step's end reads of the last sub-step (as
-  `Transitions.step`'s scan carries it), the `State` returned (the stepped
-  one, then the restarted one where the world resets), the reset's failed
-  initialization attempts, and the leaves of the prepared reset's data
-  that the reset's end reads (`_finish_restart`). Its operands are `(state, action, keys, next_reset,
-  action_nonfinite)`: the action the step runs, and whether the given one
-  was not finite (`episode.checked_action`); `next_reset` is None for a
-  same-step restart (of the stepped state, where it is LAST, with its
-  key), else `(reset_key, previous)`, a next-step reset of `previous`
-  (where it is LAST, with `reset_key`).
+  Attributes:
+    carry: the world's `PhysicsCarry` (the sub-steps', then the prepared
+      restart's) without the model fields that no step hook writes, which
+      are the loop's invariants (`_FusedLoop._split`).
+    obs_state: the observation state.
+    started: the `IntegrationState` the last sub-step started from, where
+      the sensors are computed once per control step (else None).
+    kept: what the carried stage overwrote of the last sub-step's sensor
+      inputs (`carried_stage.Stage.run`).
+    stepped: the `State` returned: the stepped one, then the restarted one
+      where the world restarts.
+    failures: the restart's failed initialization attempts.
+    before: the leaves of the prepared restart's data that the restart's
+      end reads (`_FusedLoop._finish_restart`).
   """
+
+  carry: Any
+  obs_state: Any
+  started: Any
+  kept: dict
+  stepped: Any
+  failures: Any
+  before: dict
+
+
+class _Operands(NamedTuple):
+  """What the fused loop reads and never changes.
+
+  Attributes:
+    state: the state the control step starts from.
+    action: the action the step runs.
+    keys: the step's `keys.StepKeys`.
+    next_reset: None for a same-step restart (of the stepped state, where
+      it is LAST, with its key), else `(reset_key, previous)`, a next-step
+      reset of `previous` (where it is LAST, with `reset_key`).
+    action_nonfinite: whether the given action was not finite
+      (`episode.checked_action`).
+  """
+
+  state: Any
+  action: Any
+  keys: Any
+  next_reset: Any
+  action_nonfinite: Any
+
+
+class _FusedLoop:
+  """One control step's loop of sub-steps and a restart (module docstring):
+  a `_Loop` over `_Operands`, with the world's invariant model fields."""
 
   def __init__(self, transitions, state, conditional):
     self._t = transitions
@@ -198,21 +234,21 @@ class _FusedLoop:
         self._end_step,
         self._prepare_restart,
         self._finish_restart,
-        (
-            carry,
-            state.obs_state,
-            started,
-            kept,
-            state,
-            jnp.zeros((), jnp.int32),
-            data_reads.leaves_named(physics.data, self._before),
+        _Loop(
+            carry=carry,
+            obs_state=state.obs_state,
+            started=started,
+            kept=kept,
+            stepped=state,
+            failures=jnp.zeros((), jnp.int32),
+            before=data_reads.leaves_named(physics.data, self._before),
         ),
         fixed,
-        (state, action, keys, next_reset, action_nonfinite),
+        _Operands(state, action, keys, next_reset, action_nonfinite),
         extra=self._restart_at - self._n + 1,
         conditional=self._conditional,
     )
-    return loop[4]
+    return loop.stepped
 
   def _split(self, carry):
     """`(carry, fixed)`: `carry` without the model fields that no step hook
@@ -231,9 +267,9 @@ class _FusedLoop:
   def body(self, i, loop, fixed, operands):
     """Iteration `i` of the loop (`body`, as the lowered program names it)."""
     t, n, fields = self._t, self._n, self._fields
-    carry, obs_state, started, kept, *rest = loop
-    carry = self._merge(carry, fixed)
-    _, action, keys, _, _ = operands
+    carry = self._merge(loop.carry, fixed)
+    obs_state, started, kept = loop.obs_state, loop.started, loop.kept
+    action, keys = operands.action, operands.keys
     # From `i = n` the carry is the prepared restart: its sub-step hooks and
     # integration are computed and dropped (selects on the shared `i`).
     hooked = t.before_substep(t.restore(carry), action, keys, i, fields).carry(
@@ -251,7 +287,12 @@ class _FusedLoop:
       # iteration.
       data, kept = t.end_substep(t.restore(carry).model, carry.data)
       carry = carry.replace(data=data)
-    return (self._split(carry)[0], obs_state, started, kept, *rest)
+    return loop._replace(
+        carry=self._split(carry)[0],
+        obs_state=obs_state,
+        started=started,
+        kept=kept,
+    )
 
   def _physics_step(self, i, physics, obs_state, keys):
     """`(carry, obs_state)` after iteration `i`'s physics: the forward pass
@@ -309,12 +350,18 @@ class _FusedLoop:
   def _end_step(self, loop, fixed, operands):
     """The loop with the stepped `State`, and whether the world restarts."""
     t = self._t
-    carry, obs_state, started, kept, _, *rest = loop
-    state, _, keys, next_reset, action_nonfinite = operands
-    moved = t.after_physics(t.restore(self._merge(carry, fixed)), started, kept)
-    stepped = t.end_step(state, moved, obs_state, keys, action_nonfinite)
-    loop = (carry, obs_state, started, kept, stepped, *rest)
-    return loop, self._reset_from(stepped, next_reset)[2]
+    moved = t.after_physics(
+        t.restore(self._merge(loop.carry, fixed)), loop.started, loop.kept
+    )
+    stepped = t.end_step(
+        operands.state,
+        moved,
+        loop.obs_state,
+        operands.keys,
+        operands.action_nonfinite,
+    )
+    resets = self._reset_from(stepped, operands.next_reset)[2]
+    return loop._replace(stepped=stepped), resets
 
   def _prepare_restart(self, loop, fixed, operands):
     """The loop and its invariants for the restart's iterations: the
@@ -322,21 +369,23 @@ class _FusedLoop:
     end reads of it."""
     del fixed  # the restart's model replaces the step's
     t = self._t
-    _, obs_state, started, kept, stepped, _, _ = loop
-    reset_key, previous, _ = self._reset_from(stepped, operands[3])
+    reset_key, previous, _ = self._reset_from(loop.stepped, operands.next_reset)
     keys = keys_lib.ResetKeys.split(reset_key)
     carry, failures = t.initialize(keys.init, t.start_carry(previous))
     before = data_reads.leaves_named(carry.data, self._before)
     carry, fixed = self._split(carry)
-    return (carry, obs_state, started, kept, stepped, failures, before), fixed
+    return (
+        loop._replace(carry=carry, failures=failures, before=before),
+        fixed,
+    )
 
   def _finish_restart(self, loop, fixed, operands):
     """The loop with the restarted state where the world resets."""
     t = self._t
-    carry, obs_state, started, kept, stepped, failures, before = loop
-    next_reset = operands[3]
+    stepped, next_reset, before = loop.stepped, operands.next_reset, loop.before
     reset_key, _, resets = self._reset_from(stepped, next_reset)
-    forwarded = t.restore(self._merge(carry, fixed))
+    whole = self._merge(loop.carry, fixed)
+    forwarded = t.restore(whole)
     if t.sensors_once_per_step:  # the loop's forward pass skipped them
       forwarded = forwarded.replace(
           data=t.reset_forward.sensors_of(forwarded.model, forwarded.data)
@@ -350,11 +399,12 @@ class _FusedLoop:
     data = t.reset_forward.restrict(data, data_reads.with_leaves(data, before))
     restarted = t.first_state(
         forwarded.replace(data=data),
-        self._merge(carry, fixed),
-        failures,
+        whole,
+        loop.failures,
         keys_lib.ResetKeys.split(reset_key),
     )
     if next_reset is None:
       restarted = episode_lib.reporting(restarted, stepped)
-    stepped = control_flow.tree_select(resets, restarted, stepped)
-    return (carry, obs_state, started, kept, stepped, failures, before)
+    return loop._replace(
+        stepped=control_flow.tree_select(resets, restarted, stepped)
+    )

@@ -83,15 +83,15 @@ class ExecutionOptions:
       stage where `carry_stage` applies): it compiles faster; on a GPU it
       runs a little slower than the separate restart where no episode ends,
       a fifth slower where many do (it restarts the whole batch), and holds
-      more memory (docs/performance.md). False runs the sub-steps as a `lax.scan` and
-      the restart separately. Both compute the same operations; where XLA
-      fuses them alike the states are bit-identical (the tests' models),
-      else (the humanoid's contacts and solver on a CPU) they agree to
-      float rounding, and a reward, computed in other fusions of the
-      compiled program, may differ in its last bits. Models
+      more memory (docs/performance.md). False runs the sub-steps as a
+      `lax.scan` and the restart separately. Both compute the same
+      operations; where XLA fuses them alike the states are bit-identical
+      (the tests' models), else (the humanoid's contacts and solver on a
+      CPU) they agree to float rounding, and a reward, computed in other
+      fusions of the compiled program, may differ in its last bits. Models
       the fused loop cannot run exactly (RK4, muscles, actuator gravity
-      compensation) always take the separate restart. None (default): True on a CPU with impl='jax', where
-      runs are short and compiling dominates; False elsewhere (and with
+      compensation) always take the separate restart. None (default): True
+      on a CPU with impl='jax', where runs are short and compiling dominates; False elsewhere (and with
       an integer `auto_reset_batch`). impl='warp' refuses True (`backend`).
     auto_reset_batch: under `jax.vmap`, how many worlds' auto-resets are
       computed together, where the restart runs separately from the
