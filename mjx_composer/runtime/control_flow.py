@@ -253,9 +253,11 @@ def loop_with_reset(
     operands,
     extra=1,
     conditional=False,
+    close=None,
 ):
   """`n` iterations of `body`, then `end`; where a reset is wanted, then
-  `prepare`, `extra` iterations of `body` and `finish`.
+  `prepare`, `extra` iterations of `body` and `finish`; `close` after the
+  iterations of each.
 
   The sub-step loop of a fused auto-reset, whose last iterations reset the
   episode, so that the reset's forward pass is the sub-steps' (one copy in
@@ -267,7 +269,9 @@ def loop_with_reset(
   what the body derives from it alone (the model's gathers) once a phase,
   not at every iteration. The phases' ends (`end`, `prepare`, `finish`)
   run between the inner loops, in loops run once or never: the inner loop
-  is the sub-steps and nothing else.
+  is the sub-steps and nothing else. `close` is what both phases' ends
+  compute first, of the carry their iterations leave: it runs after the
+  inner loop of each phase, one copy in the program for both.
 
   For one world the reset's phase runs on whether it wants the reset.
   Under `jax.vmap` a batched loop condition would turn every branch on `i`
@@ -297,13 +301,18 @@ def loop_with_reset(
     extra: the iterations of the reset.
     conditional: the phases' ends run in `run_if`s, not `once_or_never`s
       (`branch_once`: for a program compiled for a CPU).
+    close: `(carry, fixed, operands) -> carry` after each phase's
+      iterations, before `end` (the first phase) or `finish` (the reset's),
+      for every world of the batch; None for none.
 
   Returns:
     The final carry.
   """
   index = jnp.zeros((), jnp.int32)
+  close = close or _carry_as_is
   single = (
       trace_once(body, index, carry, fixed, operands),
+      trace_once(close, carry, fixed, operands),
       trace_once(end, carry, fixed, operands),
       trace_once(prepare, carry, fixed, operands),
       trace_once(finish, carry, fixed, operands),
@@ -311,7 +320,7 @@ def loop_with_reset(
   run_once = branch_once(conditional)
 
   def run(carry, fixed, operands, callbacks, any_of):
-    iterate, ending, preparing, finishing = callbacks
+    iterate, closing, ending, preparing, finishing = callbacks
 
     def end_of_steps(loop):
       carry, fixed, _ = loop
@@ -333,6 +342,7 @@ def loop_with_reset(
       _, carry = jax.lax.while_loop(
           lambda inner: inner[0] < last, iteration, (p * n, carry)
       )
+      carry = closing(carry, fixed, operands)
       carry, fixed, wanted = run_once(
           p == 0, end_of_steps, (carry, fixed, wanted)
       )
@@ -368,6 +378,12 @@ def loop_with_reset(
     return out, _out_batched(out)
 
   return looped(carry, fixed, operands)
+
+
+def _carry_as_is(carry, fixed, operands):
+  """`loop_with_reset`'s `close` where none is given."""
+  del fixed, operands
+  return carry
 
 
 @jax.custom_batching.custom_vmap

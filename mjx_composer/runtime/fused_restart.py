@@ -39,7 +39,10 @@ again, of the same state); else it is iteration `n`.
 
 The iterations run in two phases, the sub-steps and the reset's, each a
 loop whose body is the iteration alone; the step's end, the reset's
-preparation and its end run between them, in loops run once or never
+preparation and its end run between them. Where a stage is carried, each
+phase's loop is followed by `Transitions.after_physics` (the sensors the
+loop skipped, the end-of-step stage), one copy for the stepped state and
+the reset's. The ends run in loops run once or never
 (`control_flow.once_or_never`; conditionals, `control_flow.run_if`, in a
 program for a CPU) on conditions shared by the batch (the phase,
 `control_flow.batch_any`). The world's model is not in the inner loop's
@@ -213,6 +216,9 @@ class _FusedLoop:
     # sub-steps, or where they carry a stage, the one after the iteration
     # that computes the prepared restart's stage.
     self._restart_at = self._n + (self._carried is not None)
+    # Where a stage is carried, `Transitions.after_physics` is exact for the
+    # restart too (`_after_physics`): both phases end with its one copy.
+    self._closes = self._carried is not None
 
   def run(self, state, action, next_reset):
     """The loop from `state` (whose key is the step's)."""
@@ -247,6 +253,7 @@ class _FusedLoop:
         _Operands(state, action, keys, next_reset, action_nonfinite),
         extra=self._restart_at - self._n + 1,
         conditional=self._conditional,
+        close=self._after_physics if self._closes else None,
     )
     return loop.stepped
 
@@ -347,12 +354,33 @@ class _FusedLoop:
         previous.last(),
     )
 
-  def _end_step(self, loop, fixed, operands):
-    """The loop with the stepped `State`, and whether the world restarts."""
+  def _after_physics(self, loop, fixed, operands):
+    """The loop after a phase's iterations, its data as
+    `Transitions.after_physics` leaves it: the stepped state's, then the
+    restart's.
+
+    Where the sub-steps carry a stage, that is the restart's data as its
+    forward pass leaves it, with the sensors the loop skipped: the restart's
+    last iteration integrates nothing and computes the stage of the state
+    its forward pass ran from, so the integration state it started from and
+    what the stage overwrote (`started`, `kept`) are of that state, and
+    what `after_physics` computes again at the new state (the velocity
+    stage, the position and velocity sensors) has the values the forward
+    pass computed. One copy in the program for both phases' ends.
+    """
+    del operands
     t = self._t
     moved = t.after_physics(
         t.restore(self._merge(loop.carry, fixed)), loop.started, loop.kept
     )
+    return loop._replace(carry=loop.carry.replace(data=moved.data))
+
+  def _end_step(self, loop, fixed, operands):
+    """The loop with the stepped `State`, and whether the world restarts."""
+    t = self._t
+    moved = t.restore(self._merge(loop.carry, fixed))
+    if not self._closes:
+      moved = t.after_physics(moved, loop.started, loop.kept)
     stepped = t.end_step(
         operands.state,
         moved,
@@ -386,7 +414,9 @@ class _FusedLoop:
     reset_key, _, resets = self._reset_from(stepped, next_reset)
     whole = self._merge(loop.carry, fixed)
     forwarded = t.restore(whole)
-    if t.sensors_once_per_step:  # the loop's forward pass skipped them
+    if t.sensors_once_per_step and not self._closes:
+      # The loop's forward pass skipped them (`_after_physics` computes
+      # them where a stage is carried).
       forwarded = forwarded.replace(
           data=t.reset_forward.sensors_of(forwarded.model, forwarded.data)
       )

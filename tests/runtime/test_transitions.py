@@ -21,6 +21,7 @@ import mjx_composer as composer
 from mjx_composer.runtime import control_flow
 from mjx_composer.runtime import fused_restart
 from mjx_composer.runtime import keys as keys_lib
+from mjx_composer.runtime import substep_sensors
 from mjx_composer.variation import distributions
 from mjx_composer.variation import mjcf_variator
 from tests import conftest
@@ -192,6 +193,41 @@ def test_a_model_field_a_sub_step_hook_writes_is_carried_through_the_loop(
   (carry, *_), fixed = loops[0][5], loops[0][6]
   assert set(carry.model_fields) == {'dof_damping'}
   assert 'geom_size' in fixed and 'dof_damping' not in fixed
+
+
+def test_both_phases_end_with_one_copy_of_the_skipped_sensors(env, monkeypatch):
+  # The sub-steps skip the sensors and carry the position stage; the reset
+  # runs the full forward pass: the step's end and the restart's both
+  # compute the sensors the loop skipped, with the one copy that runs after
+  # each phase's iterations.
+  env = composer.Environment(
+      _RandomizedSwing(),
+      time_limit=0.05,
+      options=composer.ExecutionOptions(
+          auto_reset=env.auto_reset, reset_forward='full'
+      ),
+  )
+  assert env.sensors_once_per_step and env.carried_stage == 'position'
+  assert env.reset_forward_stage == 'full'
+  states = jax.eval_shape(
+      jax.vmap(env.reset), jax.random.split(jax.random.key(0), 2)
+  )
+
+  def step():
+    return jax.make_jaxpr(jax.vmap(env.step))(states, jnp.zeros((2, 1)))
+
+  step()  # the environment's analyses trace the sensors too
+  copies = []
+  sensors_of = substep_sensors.sensors_of
+  monkeypatch.setattr(
+      substep_sensors,
+      'sensors_of',
+      lambda *args, **kwargs: copies.append(1) or sensors_of(*args, **kwargs),
+  )
+  step()
+  # The restart's sensors are the reset's: the accelerometer's fused case of
+  # `test_substep_sensors.test_sensors_once_per_step_make_the_same_episodes`.
+  assert len(copies) == 1
 
 
 def test_conditional_branches_equal_loops(env, reset_states):
