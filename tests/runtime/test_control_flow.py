@@ -387,11 +387,12 @@ def test_once_or_never_batches_its_function_once_under_vmap():
 # `(i + 1) * sum(fixed)` to `running`; the step's end writes `10 * running`
 # to `result` and wants the reset where the operand is positive; the reset
 # restarts `running` at 1000 with `fixed` doubled, and its end writes
-# `running` to `result` where the world reset.
+# `running` to `result` where the world reset. With `close`, each phase's
+# iterations end by adding `max(fixed) / 2` to `running`.
 _N, _EXTRA = 3, 2
 
 
-def _looped(operand, fixed):
+def _looped(operand, fixed, close=None):
   def body(i, carry, fixed, operand):
     del operand
     running, result = carry
@@ -421,16 +422,27 @@ def _looped(operand, fixed):
       fixed,
       operand,
       extra=_EXTRA,
+      close=close,
   )
 
 
-def _looped_reference(operand, fixed):
+def _close(carry, fixed, operand):
+  del operand
+  running, result = carry
+  return running + jnp.max(fixed) / 2, result
+
+
+def _looped_reference(operand, fixed, closes=False):
   """`result` of `_looped` for one world, in Python."""
-  total = float(np.sum(fixed))
-  running = sum((i + 1) * total for i in range(_N))
+  total, top = float(np.sum(fixed)), float(np.max(fixed)) if closes else 0.0
+  running = sum((i + 1) * total for i in range(_N)) + top / 2
   if operand <= 0:
     return 10.0 * running
-  return 1000.0 + sum((i + 1) * 2.0 * total for i in range(_N, _N + _EXTRA))
+  return (
+      1000.0
+      + sum((i + 1) * 2.0 * total for i in range(_N, _N + _EXTRA))
+      + 2.0 * top / 2
+  )
 
 
 def _fixed(worlds):
@@ -459,6 +471,27 @@ def test_loop_with_reset_runs_the_reset_phase_where_a_world_wants_it(
     assert np.all(np.asarray(running) >= 1000.0)
   else:
     np.testing.assert_allclose(running, np.asarray(want) / 10.0, rtol=1e-6)
+
+
+@pytest.mark.parametrize('operands', [(1.0, -1.0, 2.0), (-1.0, -2.0, 0.0)])
+def test_loop_with_reset_closes_each_phase_with_one_copy(operands):
+  # `close` ends each phase that runs, before the step's end and the reset's
+  # end, with that phase's `fixed`; the program holds it once.
+  operands = jnp.asarray(operands, jnp.float32)
+  fixed = _fixed(len(operands))
+  want = [_looped_reference(o, f, closes=True) for o, f in zip(operands, fixed)]
+  _, result = jax.jit(lambda o, f: _looped(o, f, _close))(operands[0], fixed[0])
+  np.testing.assert_allclose(result, want[0], rtol=1e-6)
+  traced = []
+
+  def close(*args):
+    traced.append(1)
+    return _close(*args)
+
+  batched = jax.jit(jax.vmap(lambda o, f: _looped(o, f, close)))
+  _, result = batched(operands, fixed)
+  np.testing.assert_allclose(result, want, rtol=1e-6)
+  assert len(traced) == 1
 
 
 def test_loop_with_reset_keeps_fixed_out_of_the_inner_loop_carry():
