@@ -54,7 +54,12 @@ still profit from the earlier ones' compiles (XLA's autotuning results, JAX's
 caches), so with `--isolated` each program at each number of worlds runs in
 a fresh process of this script instead: first calls are then each program's
 own, and so is the peak memory; the ratios divide figures from different
-processes.
+processes. A host's compile times drift between processes (by a quarter on
+the GPU machines), so `--processes K` measures each program in K processes,
+the programs taking turns (one process of each, then the next round), and
+records each figure's median, the first calls' samples and, per reference,
+the ratio of the first calls' medians (`<ours>/<other> first calls`: reset
+compile plus the rollout's first call).
 
     python benchmarks/playground_compare.py --worlds 1024 8192 32768
     python benchmarks/playground_compare.py --worlds 4 --steps 2   # smoke
@@ -359,31 +364,83 @@ def _isolated_row(args, worlds, name):
 
 
 def _main_isolated(args, names):
-  """`--isolated`: every (worlds, program) in its own process.
+  """`--isolated`: every (worlds, program) in its own process, or in
+  `args.processes` of them, the programs taking turns (`_merged`).
 
   This process never starts JAX's backend: on a GPU it would hold the
   memory the workers need.
   """
+  processes = getattr(args, 'processes', 1)
+  ours = [n for n in names if n not in _OTHERS]
   results, settings = [], {}
   for worlds in args.worlds:
     row = {'worlds': worlds}
     results.append(row)
-    for name in names:
-      measured, payload = _isolated_row(args, worlds, name)
-      if measured is None:
-        print(f'{worlds:>6} worlds: {name} failed (its output says why)')
-        continue
-      row[name] = measured
-      settings = {k: v for k, v in payload.items() if k != 'results'}
-      _ratios(row, [n for n in names if n not in _OTHERS])
-      common.write_json(
-          args.out, {**settings, 'isolated': True, 'results': results}
-      )
+    samples = {}
+    for _ in range(processes):
+      for name in names:
+        measured, payload = _isolated_row(args, worlds, name)
+        if measured is None:
+          print(f'{worlds:>6} worlds: {name} failed (its output says why)')
+          continue
+        samples.setdefault(name, []).append(measured)
+        row[name] = _merged(samples[name]) if processes > 1 else measured
+        settings = {k: v for k, v in payload.items() if k != 'results'}
+        _ratios(row, ours)
+        if processes > 1:
+          _first_call_ratios(row, ours)
+        common.write_json(
+            args.out,
+            {
+                **settings,
+                'isolated': True,
+                'processes': processes,
+                'results': results,
+            },
+        )
     print(
         '        '
         + ', '.join(f'{k} {v:.3f}' for k, v in row.items() if '/' in k)
     )
   print(f'Wrote {args.out}')
+
+
+# The first call's figures: a program's own (reset compile) and its
+# rollout's (compile and first run).
+_FIRST_CALLS = ('reset_compile_s', 'rollout_compile_s', 'first_call_s')
+
+
+def _merged(rows):
+  """One program's rows from several processes as one: each numeric
+  figure's median, `processes`, and the first calls' samples
+  (`first_calls_s`: reset compile plus the rollout's first call)."""
+  merged = {}
+  for key, value in rows[0].items():
+    values = [r.get(key) for r in rows]
+    numeric = all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
+    )
+    merged[key] = float(np.median(values)) if numeric else value
+  merged['processes'] = len(rows)
+  merged['samples'] = {
+      key: [r[key] for r in rows] for key in _FIRST_CALLS if key in rows[0]
+  }
+  merged['samples']['first_calls_s'] = [
+      r['reset_compile_s'] + r['first_call_s'] for r in rows
+  ]
+  merged['first_calls_s'] = float(np.median(merged['samples']['first_calls_s']))
+  return merged
+
+
+def _first_call_ratios(row, ours):
+  """Adds `<ours>/<other> first calls`: the ratios of the first calls'
+  medians (`_merged`)."""
+  for name in ours:
+    for other in _OTHERS:
+      if name in row and other in row:
+        row[f'{name}/{other} first calls'] = (
+            row[name]['first_calls_s'] / row[other]['first_calls_s']
+        )
 
 
 # Programs that are not ours: the references ours' ratios divide by.
@@ -416,9 +473,22 @@ def main():
       'process (fair first calls: no program profits from compiles before '
       'it; the ratios then divide numbers from different processes)',
   )
+  parser.add_argument(
+      '--processes',
+      type=int,
+      default=1,
+      metavar='K',
+      help='with --isolated: measure each program in K fresh processes, '
+      'the programs taking turns, and record the medians and the first '
+      "calls' samples",
+  )
   common.add_share_reset_forward_arg(parser)  # ours_on_chunk<K> needs off
   args = parser.parse_args()
   names = args.programs or ('ours_on', 'ours_off', 'playground', 'raw')
+  if args.processes < 1:
+    parser.error('--processes must be at least 1')
+  if args.processes > 1 and not args.isolated:
+    parser.error('--processes needs --isolated (one process each)')
   if args.isolated:
     return _main_isolated(args, names)
 

@@ -106,3 +106,54 @@ def test_isolated_measures_each_program_in_its_own_process(tmp_path):
   assert row['worlds'] == 1
   assert row['raw']['control_steps_per_s'] > 0
   assert row['raw']['first_call_s'] >= row['raw']['rollout_compile_s'] > 0
+
+
+def test_processes_take_turns_and_record_medians(tmp_path, monkeypatch):
+  # Two programs in three processes each: the programs alternate, each
+  # figure is the median of its processes, the first calls' samples are
+  # kept, and the first calls' ratio divides the medians.
+  order = []
+  first_calls = {
+      'playground': [10.0, 30.0, 20.0],
+      'ours_off': [40.0, 20.0, 30.0],
+  }
+
+  def fake_row(args, worlds, name):
+    del args
+    i = sum(1 for n in order if n == name)
+    order.append(name)
+    row = {
+        'control_steps_per_s': 100.0 * (i + 1),
+        'reset_compile_s': 5.0,
+        'rollout_compile_s': first_calls[name][i] - 1.0,
+        'first_call_s': first_calls[name][i],
+        'stored_restart': False,
+    }
+    return row, {'device': 'cpu', 'worlds': worlds, 'results': [{}]}
+
+  monkeypatch.setattr(playground_compare, '_isolated_row', fake_row)
+  out = tmp_path / 'processes.json'
+  args = argparse.Namespace(
+      worlds=[2],
+      steps=1,
+      repeats=1,
+      share_reset_forward=None,
+      out=str(out),
+      processes=3,
+  )
+  playground_compare._main_isolated(args, ['playground', 'ours_off'])
+  assert order == ['playground', 'ours_off'] * 3
+  with open(out) as f:
+    payload = json.load(f)
+  assert payload['processes'] == 3
+  (row,) = payload['results']
+  ours, reference = row['ours_off'], row['playground']
+  assert ours['processes'] == 3
+  assert ours['control_steps_per_s'] == pytest.approx(200.0)
+  assert ours['first_call_s'] == pytest.approx(30.0)
+  assert ours['samples']['first_call_s'] == [40.0, 20.0, 30.0]
+  assert ours['samples']['first_calls_s'] == [45.0, 25.0, 35.0]
+  assert ours['stored_restart'] is False
+  assert reference['first_calls_s'] == pytest.approx(25.0)
+  assert row['ours_off/playground first calls'] == pytest.approx(35.0 / 25.0)
+  assert row['ours_off/playground'] == pytest.approx(1.0)
