@@ -370,7 +370,7 @@ def _main_isolated(args, names):
   This process never starts JAX's backend: on a GPU it would hold the
   memory the workers need.
   """
-  processes = getattr(args, 'processes', 1)
+  processes = args.processes
   ours = [n for n in names if n not in _OTHERS]
   results, settings = [], {}
   for worlds in args.worlds:

@@ -88,16 +88,21 @@ def test_ratios_divide_ours_by_each_reference_present():
   assert not any(k.startswith('ours_on/') for k in row)
 
 
-def test_isolated_measures_each_program_in_its_own_process(tmp_path):
-  out = tmp_path / 'isolated.json'
-  args = argparse.Namespace(
-      worlds=[1],
+def _isolated_args(out, worlds, processes=1):
+  """`--isolated` arguments: `worlds`, one step, one repeat."""
+  return argparse.Namespace(
+      worlds=worlds,
       steps=1,
       repeats=1,
       share_reset_forward=None,
       out=str(out),
+      processes=processes,
   )
-  playground_compare._main_isolated(args, ['raw'])
+
+
+def test_isolated_measures_each_program_in_its_own_process(tmp_path):
+  out = tmp_path / 'isolated.json'
+  playground_compare._main_isolated(_isolated_args(out, [1]), ['raw'])
   with open(out) as f:
     payload = json.load(f)
   assert payload['isolated']
@@ -133,15 +138,9 @@ def test_processes_take_turns_and_record_medians(tmp_path, monkeypatch):
 
   monkeypatch.setattr(playground_compare, '_isolated_row', fake_row)
   out = tmp_path / 'processes.json'
-  args = argparse.Namespace(
-      worlds=[2],
-      steps=1,
-      repeats=1,
-      share_reset_forward=None,
-      out=str(out),
-      processes=3,
+  playground_compare._main_isolated(
+      _isolated_args(out, [2], processes=3), ['playground', 'ours_off']
   )
-  playground_compare._main_isolated(args, ['playground', 'ours_off'])
   assert order == ['playground', 'ours_off'] * 3
   with open(out) as f:
     payload = json.load(f)

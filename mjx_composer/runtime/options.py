@@ -91,8 +91,9 @@ class ExecutionOptions:
       fusions of the compiled program, may differ in its last bits. Models
       the fused loop cannot run exactly (RK4, muscles, actuator gravity
       compensation) always take the separate restart. None (default): True
-      on a CPU with impl='jax', where runs are short and compiling dominates; False elsewhere (and with
-      an integer `auto_reset_batch`). impl='warp' refuses True (`backend`).
+      on a CPU with impl='jax', where runs are short and compiling
+      dominates; False elsewhere (and with an integer `auto_reset_batch`).
+      impl='warp' refuses True (`backend`).
     auto_reset_batch: under `jax.vmap`, how many worlds' auto-resets are
       computed together, where the restart runs separately from the
       sub-steps (not `share_reset_forward`) on impl='jax'. An integer K: at
