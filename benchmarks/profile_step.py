@@ -28,10 +28,12 @@ table compares the scopes' totals per control step between each program and
 raw. A kernel is traced with the HLO instruction it ran, or, where it ran in
 a CUDA graph (XLA's command buffers), with the buffer: it is then found by its
 own name, the instruction's (`_instruction`); kernels that no instruction
-names (the graph's copies) count as '(none)'. Walk defaults to
-`walk.PLAYGROUND_EQUIVALENT` (noise, delay, history, randomization, pushes
-and fall terminations off, the 'policy' group only), the configuration
-`playground_compare.py` calls ours_off.
+names (the graph's copies) count as '(none)'. The kernels outside every
+named scope ('(none)': the graphs' copies, XLA's copies of loops' carries)
+are also told apart by their names without numbers (`memcpy#_post`).
+Walk defaults to `walk.PLAYGROUND_EQUIVALENT` (noise, delay, history,
+randomization, pushes and fall terminations off, the 'policy' group
+only), the configuration `playground_compare.py` calls ours_off.
 
     python benchmarks/profile_step.py --task walk --worlds 8192
 
@@ -176,8 +178,16 @@ def _instruction(event, op_names):
   return op
 
 
+def _kernel_kind(name):
+  """A kernel's name without its numbers: 'memcpy#_post' for a CUDA
+  graph's copy 'memcpy32_post', 'loop_add_fusion_#' for 'loop_add_fusion_2'."""
+  return re.sub(r'\d+', '#', name)
+
+
 def _kernel_times(trace_dir, op_names):
-  """Device microseconds per outer and inner scope; kernels per inner scope."""
+  """Device microseconds per outer and inner scope; kernels per inner scope;
+  and of the kernels outside every named scope ('(none)'), microseconds and
+  kernels per kind (`_kernel_kind`): e.g. the copies of loops' carries."""
   events = common.perfetto_events(trace_dir)
   process = common.metadata_names(events, 'process_name')
   # Kernels run on the accelerator's rows; on a CPU the host runs them.
@@ -185,6 +195,7 @@ def _kernel_times(trace_dir, op_names):
   rows = accelerator or set(process)
   outer, inner = collections.Counter(), collections.Counter()
   kernels = collections.Counter()
+  unnamed_us, unnamed = collections.Counter(), collections.Counter()
   for e in events:
     if e.get('ph') != 'X' or e.get('pid') not in rows:
       continue
@@ -195,7 +206,11 @@ def _kernel_times(trace_dir, op_names):
     outer[first] += float(e.get('dur', 0))
     inner[last] += float(e.get('dur', 0))
     kernels[last] += 1
-  return dict(outer), dict(inner), dict(kernels)
+    if first == '(none)':
+      kind = _kernel_kind(e.get('name', ''))
+      unnamed_us[kind] += float(e.get('dur', 0))
+      unnamed[kind] += 1
+  return dict(outer), dict(inner), dict(kernels), (unnamed_us, unnamed)
 
 
 def _profile(fn, args, trace_dir):
@@ -293,7 +308,7 @@ def main():
 
   results = {}
   for name, (fn, fn_args) in programs.items():
-    outer, inner, kernels, wall = _profile(
+    outer, inner, kernels, (unnamed_us, unnamed), wall = _profile(
         fn, fn_args, os.path.join(trace_root, name)
     )
     calls = 1 if name == 'reset' else args.steps
@@ -307,6 +322,13 @@ def main():
         'wall_us_per_control_step': wall * 1e6 / calls,
         'outer_us_per_control_step': per_step(outer),
         'inner_us_per_control_step': per_step(inner),
+        # The kinds of kernels outside every named scope, slowest first.
+        'unnamed_us_per_control_step': {
+            k: v / calls for k, v in unnamed_us.most_common()
+        },
+        'unnamed_kernels_per_control_step': {
+            k: unnamed[k] / calls for k, _ in unnamed_us.most_common()
+        },
     }
     print(
         f'{name}: {results[name]["kernels"]} kernels, '
@@ -330,6 +352,8 @@ def main():
       ('kernels_per_control_step', 25),
       ('outer_us_per_control_step', 12),
       ('inner_us_per_control_step', 40),
+      ('unnamed_us_per_control_step', 8),
+      ('unnamed_kernels_per_control_step', 8),
   ):
     level = key.replace('_per_control_step', '').replace('_', ' ')
     scopes = sorted(

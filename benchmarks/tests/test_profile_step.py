@@ -60,3 +60,42 @@ def test_kernels_in_cuda_graphs_are_found_by_their_names():
   )
   assert instruction({'name': 'memset', 'args': {}}) is None
   assert profile_step._scope(op_names['loop_add_fusion.2'])[0] == 'forward'
+
+
+def test_unnamed_kernels_are_told_apart_by_kind(monkeypatch):
+  # Kernels outside every named scope (a CUDA graph's copies, XLA's
+  # loop plumbing) are counted by their names without numbers; the
+  # others only by scope.
+  op_names = {
+      'loop_add_fusion.2': 'jit(rollout)/forward/add',
+      'copy.3': 'jit(rollout)/copy',
+  }
+  process = lambda pid, name: {
+      'ph': 'M',
+      'name': 'process_name',
+      'pid': pid,
+      'args': {'name': name},
+  }
+  kernel = lambda name, op, dur: {
+      'ph': 'X',
+      'pid': 1,
+      'name': name,
+      'dur': dur,
+      'args': {'hlo_op': op},
+  }
+  events = [process(1, '/device:GPU:0'), process(2, '/host:CPU')] + [
+      kernel('memcpy32_post', 'command_buffer_1', 2.0),
+      kernel('memcpy7_post', 'command_buffer_4', 3.0),
+      kernel('memcpy7', 'command_buffer_4', 5.0),
+      kernel('copy_3', 'copy.3', 7.0),
+      kernel('loop_add_fusion_2', 'command_buffer_4', 11.0),
+  ]
+  # On the host's rows: not a kernel of the device.
+  events.append({'ph': 'X', 'pid': 2, 'name': 'memcpy1', 'dur': 13.0})
+  monkeypatch.setattr(profile_step.common, 'perfetto_events', lambda _: events)
+  outer, _, _, (unnamed_us, unnamed) = profile_step._kernel_times(
+      'trace', op_names
+  )
+  assert outer == {'(none)': 17.0, 'forward': 11.0}
+  assert unnamed_us == {'memcpy#_post': 5.0, 'memcpy#': 5.0, 'copy_#': 7.0}
+  assert unnamed == {'memcpy#_post': 2, 'memcpy#': 1, 'copy_#': 1}
