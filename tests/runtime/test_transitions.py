@@ -47,13 +47,19 @@ class _RandomizedSwing(conftest.SwingTask):
     return super().initialize_episode(physics, key)
 
 
+def _swing(task=None, **options):
+  """A swing `Environment` (`_RandomizedSwing` unless `task`) of 0.05 s
+  episodes with these `ExecutionOptions`."""
+  return composer.Environment(
+      task or _RandomizedSwing(),
+      time_limit=0.05,
+      options=composer.ExecutionOptions(**options),
+  )
+
+
 @pytest.fixture(scope='module', params=['same_step', 'next_step'])
 def env(request):
-  return composer.Environment(
-      _RandomizedSwing(),
-      time_limit=0.05,
-      options=composer.ExecutionOptions(auto_reset=request.param),
-  )
+  return _swing(auto_reset=request.param)
 
 
 @pytest.fixture(scope='module')
@@ -103,13 +109,7 @@ def test_the_fused_path_is_taken(env, monkeypatch):
   assert calls
   # share_reset_forward=False asks for the separate reset.
   calls.clear()
-  separate = composer.Environment(
-      _RandomizedSwing(),
-      time_limit=0.05,
-      options=composer.ExecutionOptions(
-          auto_reset=env.auto_reset, share_reset_forward=False
-      ),
-  )
+  separate = _swing(auto_reset=env.auto_reset, share_reset_forward=False)
   jax.eval_shape(
       separate.step,
       jax.eval_shape(separate.reset, jax.random.key(0)),
@@ -126,11 +126,7 @@ def test_fused_step_equals_step_then_restart(env, reset_states):
 
 
 def test_fused_step_without_a_carried_stage_equals_step_then_restart():
-  env = composer.Environment(
-      _RandomizedSwing(),
-      time_limit=0.05,
-      options=composer.ExecutionOptions(carry_stage='never'),
-  )
+  env = _swing(carry_stage='never')
   assert env.carried_stage is None
   keys = jax.random.split(jax.random.key(3), 3)
   _assert_fused_equals_step_then_restart(
@@ -171,11 +167,7 @@ class _SubstepDampedSwing(_RandomizedSwing):
 def test_a_model_field_a_sub_step_hook_writes_is_carried_through_the_loop(
     env, monkeypatch
 ):
-  damped = composer.Environment(
-      _SubstepDampedSwing(),
-      time_limit=0.05,
-      options=composer.ExecutionOptions(auto_reset=env.auto_reset),
-  )
+  damped = _swing(_SubstepDampedSwing(), auto_reset=env.auto_reset)
   loops = []
   loop = control_flow.loop_with_reset
   monkeypatch.setattr(
@@ -200,13 +192,7 @@ def test_both_phases_end_with_one_copy_of_the_skipped_sensors(env, monkeypatch):
   # runs the full forward pass: the step's end and the restart's both
   # compute the sensors the loop skipped, with the one copy that runs after
   # each phase's iterations.
-  env = composer.Environment(
-      _RandomizedSwing(),
-      time_limit=0.05,
-      options=composer.ExecutionOptions(
-          auto_reset=env.auto_reset, reset_forward='full'
-      ),
-  )
+  env = _swing(auto_reset=env.auto_reset, reset_forward='full')
   assert env.sensors_once_per_step and env.carried_stage == 'position'
   assert env.reset_forward_stage == 'full'
   states = jax.eval_shape(
@@ -233,13 +219,7 @@ def test_both_phases_end_with_one_copy_of_the_skipped_sensors(env, monkeypatch):
 def test_conditional_branches_equal_loops(env, reset_states):
   # On a CPU the fused loop's end of step and restart are conditionals;
   # asked for loops, as on a GPU, the step computes the same states.
-  loops = composer.Environment(
-      _RandomizedSwing(),
-      time_limit=0.05,
-      options=composer.ExecutionOptions(
-          auto_reset=env.auto_reset, branches='loop'
-      ),
-  )
+  loops = _swing(auto_reset=env.auto_reset, branches='loop')
   assert (env.branches, loops.branches) == ('cond', 'loop')
   by_cond, by_loop = jax.jit(jax.vmap(env.step)), jax.jit(jax.vmap(loops.step))
   zeros = jnp.zeros((3, 1))
@@ -291,14 +271,10 @@ def test_the_step_program_loses_one_copy_of_the_forward_pass(
 ):
   # The separate step recomputes its end-of-step stage (as the fused loop
   # does), so that the difference is the restart's forward pass alone.
-  env = composer.Environment(
-      _RandomizedSwing(),
-      time_limit=0.05,
-      options=composer.ExecutionOptions(
-          auto_reset=env.auto_reset,
-          reset_forward=reset_forward,
-          carry_stage='never',
-      ),
+  env = _swing(
+      auto_reset=env.auto_reset,
+      reset_forward=reset_forward,
+      carry_stage='never',
   )
   states = jax.eval_shape(
       jax.vmap(env.reset), jax.random.split(jax.random.key(0), 2)
