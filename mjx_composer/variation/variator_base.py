@@ -428,11 +428,24 @@ class Variator:
 
 
 def invalid_draw(values, bounds) -> jax.Array:
-  """A bool scalar: some value breaks its binding's bound."""
-  invalid = jnp.zeros((), bool)
+  """A bool scalar: some value breaks its binding's bound.
+
+  The values that share a bound, a shape and a dtype (one variation bound
+  to every geom's density) are stacked and checked together, one reduction
+  per group. A chain of per-value checks is elementwise work that XLA
+  copies into every fusion that reads the flag: the fall-back select of
+  each leaf of the carry, and through it the forward pass's gathers of
+  the model fields, which doubled the instructions of the walk task's
+  randomized reset on a CPU.
+  """
+  groups = {}
   for value, bound in zip(values, bounds):
+    value = jnp.asarray(value)
+    groups.setdefault((bound, value.shape, value.dtype), []).append(value)
+  invalid = jnp.zeros((), bool)
+  for (bound, _, _), group in groups.items():
     invalid = jnp.logical_or(
-        invalid, jnp.logical_not(bound.valid(jnp.asarray(value)))
+        invalid, jnp.logical_not(bound.valid(jnp.stack(group)))
     )
   return invalid
 

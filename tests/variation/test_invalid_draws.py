@@ -22,6 +22,7 @@ from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
 from mjx_composer.variation import noises
 from mjx_composer.variation import physics_variator
+from mjx_composer.variation import variator_base
 
 _J = mujoco.mjtJoint
 _G = mujoco.mjtGeom
@@ -381,6 +382,39 @@ def test_bounds():
   # A compiled value that breaks its bound (an infinite plane) relaxes it.
   assert attributes.bound_for(size, [0, 0, 0.1]) is attributes.NONNEGATIVE
   assert attributes.bound_for(attributes.POSITIVE, -1.0) is attributes.FINITE
+
+
+def _draws(rng, breaks):
+  """Values and bounds as a variator checks them: scalars, sizes and gears
+  sharing bounds, with the one at index `breaks` out of its bound."""
+  bounds = [attributes.NONNEGATIVE] * 5 + [attributes.SIZE] * 3
+  bounds += [attributes.FINITE] * 2 + [attributes.POSITIVE]
+  values = [rng.uniform(0.5, 1.5) for _ in range(5)]
+  values += [rng.uniform(0.1, 0.2, 3) for _ in range(3)]
+  values += [rng.uniform(-1.0, 1.0, 6) for _ in range(2)] + [rng.uniform(1, 2)]
+  bad = {
+      attributes.NONNEGATIVE: -0.1,
+      attributes.SIZE: np.array([0.0, 0.1, 0.1]),
+      attributes.FINITE: np.array([0, 0, np.nan, 0, 0, 0]),
+      attributes.POSITIVE: 0.0,
+  }
+  if breaks is not None:
+    values[breaks] = bad[bounds[breaks]]
+  return [np.asarray(v, np.float32) for v in values], bounds
+
+
+@pytest.mark.parametrize('breaks', [None, 0, 3, 6, 7, 8, 9, 10])
+def test_invalid_draw_flags_exactly_the_value_that_breaks_its_bound(breaks):
+  # Values that share a bound are checked together; the flag is still each
+  # value's own check (NumPy's, one value at a time) or-ed together.
+  values, bounds = _draws(np.random.default_rng(7), breaks)
+  expected = not all(bool(b.valid(v)) for v, b in zip(values, bounds))
+  assert expected == (breaks is not None)
+  flag = jax.jit(variator_base.invalid_draw, static_argnums=1)
+  assert bool(flag(values, tuple(bounds))) == expected
+  batched = jax.vmap(lambda v: variator_base.invalid_draw(v, bounds))
+  stacked = [np.stack([v, v]) for v in values]
+  np.testing.assert_array_equal(batched(stacked), [expected, expected])
 
 
 # -- a world whose every attempt fails ------------------------------------------
