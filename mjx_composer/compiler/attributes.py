@@ -37,14 +37,37 @@ Effect = effects.Effect
 class Bound:
   """The values an attribute may take (what recompiling would accept).
 
+  Every entry is finite and within `[low, high]`, the lower end exclusive
+  where `strict` (for the first entry of each row only, where
+  `strict_first`). Data, not a callable, so that the values of several
+  bindings are checked together as one array (`limits`).
+
   Attributes:
     text: the bound, in words, for error messages ('>= 0').
-    check: `value -> bool array`, true where the finite value is within the
-      bound (numpy or JAX arrays). Every bound also requires finite values.
+    low: the lowest value (-inf: none).
+    high: the highest value (inf: none).
+    strict: whether `low` itself is out of bounds.
+    strict_first: whether `low` is out of bounds for the first entry of
+      each row (along the last axis; the entry itself for a scalar).
   """
 
   text: str
-  check: Optional[Callable[[Any], Any]] = None
+  low: float = -np.inf
+  high: float = np.inf
+  strict: bool = False
+  strict_first: bool = False
+
+  def limits(self, shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`(low, strict, high)` for each entry of a value of `shape`."""
+    low = np.full(shape, self.low, np.float32)
+    high = np.full(shape, self.high, np.float32)
+    strict = np.full(shape, self.strict)
+    if self.strict_first:
+      if strict.ndim:
+        strict[..., 0] = True
+      else:
+        strict = np.asarray(True)
+    return low, strict, high
 
   def valid(self, value):
     """A bool scalar: every entry of `value` is finite and within the bound.
@@ -52,27 +75,23 @@ class Bound:
     Works on numpy values (a numpy bool) and traced JAX values.
     """
     xp = np if isinstance(value, (np.ndarray, np.generic)) else jnp
-    ok = xp.all(xp.isfinite(value))
-    if self.check is not None:
-      ok = xp.logical_and(ok, xp.all(self.check(xp.asarray(value))))
-    return ok
+    return xp.all(within(value, *self.limits(np.shape(value)), xp=xp))
 
   def describe(self) -> str:
-    return 'finite' if self.check is None else f'finite and {self.text}'
+    return 'finite' if self.text == 'finite' else f'finite and {self.text}'
 
 
-def _size_check(value):
-  # Every entry >= 0 and the first one (present for every geom type) > 0;
-  # for a stack of sizes (several elements), per row.
-  first = value[..., 0] if value.ndim else value
-  return (value >= 0).all() & (first > 0).all()
+def within(value, low, strict, high, xp=jnp):
+  """Where each entry of `value` is finite and within its limits (`Bound.limits`)."""
+  above = xp.where(strict, value > low, value >= low)
+  return xp.isfinite(value) & above & (value <= high)
 
 
 FINITE = Bound('finite')
-NONNEGATIVE = Bound('>= 0', lambda v: v >= 0)
-POSITIVE = Bound('> 0', lambda v: v > 0)
-UNIT_INTERVAL = Bound('in [0, 1]', lambda v: (v >= 0) & (v <= 1))
-SIZE = Bound('>= 0 with a first entry > 0', _size_check)
+NONNEGATIVE = Bound('>= 0', low=0.0)
+POSITIVE = Bound('> 0', low=0.0, strict=True)
+UNIT_INTERVAL = Bound('in [0, 1]', low=0.0, high=1.0)
+SIZE = Bound('>= 0 with a first entry > 0', low=0.0, strict_first=True)
 
 
 def bound_for(bound: Bound, compiled) -> Bound:

@@ -75,6 +75,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjx_composer.compiler import attributes
 from mjx_composer.utils import stable_id as stable_id_lib
 from mjx_composer.variation import base
 from mjx_composer.variation import rounds
@@ -430,23 +431,27 @@ class Variator:
 def invalid_draw(values, bounds) -> jax.Array:
   """A bool scalar: some value breaks its binding's bound.
 
-  The values that share a bound, a shape and a dtype (one variation bound
-  to every geom's density) are stacked and checked together, one reduction
-  per group. A chain of per-value checks is elementwise work that XLA
+  One reduction over every value (of each dtype), against the bounds'
+  limits laid out entry by entry (`attributes.Bound.limits`). Checked one
+  value at a time, the check is a chain of elementwise work that XLA
   copies into every fusion that reads the flag: the fall-back select of
-  each leaf of the carry, and through it the forward pass's gathers of
-  the model fields, which doubled the instructions of the walk task's
-  randomized reset on a CPU.
+  each leaf of the carry, and through it the forward pass's gathers of the
+  model fields (the walk task's randomized reset on a CPU held 60,433 HLO
+  instructions, 36,582 with the values of one bound checked together).
   """
   groups = {}
   for value, bound in zip(values, bounds):
     value = jnp.asarray(value)
-    groups.setdefault((bound, value.shape, value.dtype), []).append(value)
+    groups.setdefault(value.dtype, []).append((value, bound))
   invalid = jnp.zeros((), bool)
-  for (bound, _, _), group in groups.items():
-    invalid = jnp.logical_or(
-        invalid, jnp.logical_not(bound.valid(jnp.stack(group)))
+  for group in groups.values():
+    flat = jnp.concatenate([jnp.ravel(value) for value, _ in group])
+    limits = [bound.limits(value.shape) for value, bound in group]
+    low, strict, high = (
+        np.concatenate([np.ravel(part[k]) for part in limits]) for k in range(3)
     )
+    ok = jnp.all(attributes.within(flat, low, strict, high))
+    invalid = jnp.logical_or(invalid, jnp.logical_not(ok))
   return invalid
 
 

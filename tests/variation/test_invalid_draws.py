@@ -405,8 +405,9 @@ def _draws(rng, breaks):
 
 @pytest.mark.parametrize('breaks', [None, 0, 3, 6, 7, 8, 9, 10])
 def test_invalid_draw_flags_exactly_the_value_that_breaks_its_bound(breaks):
-  # Values that share a bound are checked together; the flag is still each
-  # value's own check (NumPy's, one value at a time) or-ed together.
+  # Every value is checked in one array against its bound's limits; the
+  # flag is still each value's own check (NumPy's, one value at a time)
+  # or-ed together.
   values, bounds = _draws(np.random.default_rng(7), breaks)
   expected = not all(bool(b.valid(v)) for v, b in zip(values, bounds))
   assert expected == (breaks is not None)
