@@ -43,7 +43,10 @@ Differences from composer:
 * initial values are the attribute values of the compiled spec, read when
   reset is traced (composer reads them when binding);
 * the world's current values (what cumulative variations build on) are
-  carried in its persistent state, so they survive auto-resets;
+  carried in its persistent state, so they survive auto-resets, where a
+  draw reads them: a schedule other than every episode, a cumulative noise
+  or a callable that reads its `current_value` (`variator_base.
+  draws_read_current`); the varied model fields hold what was drawn;
 * other hooks' writes to the fields this variator derives (e.g. a
   PhysicsVariator on `body_mass` before it) are overwritten: apply the
   MJCFVariator first;
@@ -91,6 +94,13 @@ class _Plan:
         attributes.bound_for(attributes.bound_of(b.element, b.attr), initial)
         for b, initial in zip(bindings, self.initial_values)
     ]
+    # The world's current values are kept (in its persistent entry) where a
+    # later draw reads them: a schedule that keeps values between draws, or
+    # a variation that builds on them. Else every output leaf of them is one
+    # more place where XLA computes the draws again.
+    self.keeps_values = variator.schedule.mode != 'episode' or (
+        variator_base.draws_read_current(bindings, self.initial_values)
+    )
 
   def read_current(self, physics, entry):
     del physics
@@ -104,7 +114,7 @@ class _Plan:
     stale = [f for f in fields if bindings.marks_stale('model', f)]
     written = physics.replace(model=physics.model.replace(**fields))
     written = written.mark_written(*physics.unsynced_writes, *stale)
-    return written, {'values': tuple(values)}
+    return written, ({'values': tuple(values)} if self.keeps_values else {})
 
 
 # The variators that composer's `apply_variations(random_state)` named,

@@ -76,6 +76,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjx_composer.compiler import attributes
+from mjx_composer.platform import internals_jax
 from mjx_composer.utils import stable_id as stable_id_lib
 from mjx_composer.variation import base
 from mjx_composer.variation import rounds
@@ -426,6 +427,40 @@ class Variator:
   def _draw_in_step(self, physics, key):
     """The per-control-step call of an every-k-steps schedule."""
     return self.apply_variations(physics, key, in_step=True)
+
+
+def draws_read_current(bindings, initial_values) -> bool:
+  """Whether drawing `bindings`' variations reads the current values.
+
+  A cumulative noise builds on them, and a callable may read its
+  `current_value`; distributions and noises of the initial value do not.
+  From an abstract trace of the draws, by dead-code elimination: True where
+  some draw's value depends on a current value (or where this JAX has no
+  dead-code elimination to call). Where none does, an episode's draws need
+  no current values, and a world need not keep them between episodes.
+  """
+  if internals_jax.dce_jaxpr is None:
+    return True
+  variations = [binding.variation for binding in bindings]
+  initial = [np.asarray(v) for v in initial_values]
+  states = tuple(
+      structures.initial_state(v, i) for v, i in zip(variations, initial)
+  )
+
+  def draw(key, current):
+    keys = stable_id_lib.fold_in_each(key, [b.slot for b in bindings])
+    with rounds.evaluation_round(key):
+      drawn = structures.sample_each(variations, states, keys, initial, current)
+    return [value for value, _ in drawn]
+
+  key = jax.random.key(0)
+  closed, values = jax.make_jaxpr(draw, return_shape=True)(key, initial)
+  used = [True] * len(jax.tree.leaves(values))
+  _, used_inputs = internals_jax.dce_jaxpr(
+      closed.jaxpr, used, instantiate=False
+  )
+  # The first input is the key; the rest are the current values.
+  return any(used_inputs[1:])
 
 
 def invalid_draw(values, bounds) -> jax.Array:

@@ -21,6 +21,7 @@ from mjx_composer.compiler import attributes
 from mjx_composer.variation import deterministic
 from mjx_composer.variation import distributions
 from mjx_composer.variation import noises
+from mjx_composer.variation import variator_base
 from tests import conftest
 
 _J = mujoco.mjtJoint
@@ -191,9 +192,16 @@ def _check_derived_fields_follow_the_size_and_match_a_recompile(rollout):
   )
   mass = np.asarray(first.model_fields['body_mass'])[:, body]
   np.testing.assert_allclose(mass, 400 * 4 / 3 * np.pi * radius**3, rtol=1e-5)
-  # World 0 against the spec recompiled with its sampled attribute values.
+  # World 0 against the spec recompiled with its sampled attribute values
+  # (the fields they set). No draw of this variator reads the current
+  # values, so its persistent entry keeps none; the cumulative and the
+  # once-per-world variators' entries do.
   entry = first.persistent[task.per_episode.persistent_name]
-  rgba, size = (np.asarray(v)[0] for v in entry['values'])
+  assert 'values' not in entry
+  for kept in (task.every, task.once):
+    assert 'values' in first.persistent[kept.persistent_name]
+  rgba = _field(first, 'geom_rgba', geom)[0]
+  size = _field(first, 'geom_size', geom)[0]
   geom_handle = task.ball.geom
   saved = (np.array(geom_handle.rgba), np.array(geom_handle.size))
   try:
@@ -262,6 +270,28 @@ def test_schedules_state_and_derived_fields_across_auto_resets(rollout):
   _check_derived_fields_follow_the_size_and_match_a_recompile(rollout)
   _check_once_per_world_keeps_values_across_auto_resets(rollout)
   _check_every_k_steps_draws_and_reset_restarts_the_count(rollout)
+
+
+def _binding(variation_, slot=0):
+  return variator_base.Binding(None, 'attr', variation_, slot)
+
+
+@pytest.mark.parametrize(
+    'make, reads',
+    [
+        (lambda: distributions.Uniform(0.9, 1.1), False),
+        (lambda: noises.Multiplicative(distributions.Uniform(0.9, 1.1)), False),
+        (lambda: noises.Additive(0.1, cumulative=True), True),
+        (lambda: deterministic.Sequence([1.0, 2.0]), False),
+        (lambda: (lambda initial, current, key: initial * 2.0), False),
+        (lambda: (lambda initial, current, key: current + 1.0), True),
+    ],
+)
+def test_draws_read_current_finds_what_builds_on_the_current_value(make, reads):
+  # With a distribution drawn beside it, as a variator binds several.
+  bindings = [_binding(distributions.Uniform(0.0, 1.0)), _binding(make(), 1)]
+  initial = [np.float32(0.5), np.float32(1.0)]
+  assert variator_base.draws_read_current(bindings, initial) is reads
 
 
 # -- bind-time errors ----------------------------------------------------------
