@@ -82,7 +82,8 @@ class Bound:
 
 
 def within(value, low, strict, high, xp=jnp):
-  """Where each entry of `value` is finite and within its limits (`Bound.limits`)."""
+  """Where each entry of `value` is finite and within its limits (the
+  arrays of `Bound.limits`)."""
   above = xp.where(strict, value > low, value >= low)
   return xp.isfinite(value) & above & (value <= high)
 

@@ -96,8 +96,8 @@ class _Plan:
     ]
     # The world's current values are kept (in its persistent entry) where a
     # later draw reads them: a schedule that keeps values between draws, or
-    # a variation that builds on them. Else every output leaf of them is one
-    # more place where XLA computes the draws again.
+    # a variation that builds on them. Elsewhere they would be state that
+    # nothing reads, each leaf one more output of the reset and the step.
     self.keeps_values = variator.schedule.mode != 'episode' or (
         variator_base.draws_read_current(bindings, self.initial_values)
     )
