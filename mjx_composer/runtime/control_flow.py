@@ -344,9 +344,8 @@ def loop_with_reset(
       # The restart's preparation in a loop of its own, after the step's
       # end rather than nested in it: XLA copies the carry at the
       # boundaries of each loop run once or never, and the nested loop's
-      # copies were the largest share of the step's (walk's step on an
-      # H200: 1,471 copies a control step against 1,610,
-      # docs/performance.md).
+      # copies were the largest share of the step's (walk's fused step on a
+      # GPU, docs/performance.md).
       carry, fixed = run_once(
           jnp.logical_and(p == 0, wanted),
           lambda loop: preparing(*loop, operands),
