@@ -78,7 +78,7 @@ class Bound:
     return xp.all(within(value, *self.limits(np.shape(value)), xp=xp))
 
   def describe(self) -> str:
-    return 'finite' if self.text == 'finite' else f'finite and {self.text}'
+    return 'finite' if self == FINITE else f'finite and {self.text}'
 
 
 def within(value, low, strict, high, xp=jnp):

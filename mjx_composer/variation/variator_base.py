@@ -387,17 +387,7 @@ class Variator:
         count, draw = jnp.zeros((), jnp.int32), True
       new_entry['count'] = jnp.asarray(count, jnp.int32)
 
-    binding_keys = stable_id_lib.fold_in_each(
-        key, [binding.slot for binding in bindings]
-    )
-    with rounds.evaluation_round(key):
-      drawn = structures.sample_each(
-          [binding.variation for binding in bindings],
-          states,
-          binding_keys,
-          initial,
-          current,
-      )
+    drawn = _draw(bindings, states, key, initial, current)
     values = [
         _conform(value, initial[i], binding, name)
         for i, (binding, (value, _)) in enumerate(zip(bindings, drawn))
@@ -429,6 +419,21 @@ class Variator:
     return self.apply_variations(physics, key, in_step=True)
 
 
+def _draw(bindings, states, key, initial, current):
+  """`[(value, new_state), ...]` of each binding's variation: its key folded
+  from `key` with the binding's slot, all drawn in one evaluation round
+  (`structures.sample_each`)."""
+  keys = stable_id_lib.fold_in_each(key, [binding.slot for binding in bindings])
+  with rounds.evaluation_round(key):
+    return structures.sample_each(
+        [binding.variation for binding in bindings],
+        states,
+        keys,
+        initial,
+        current,
+    )
+
+
 def draws_read_current(bindings, initial_values) -> bool:
   """Whether drawing `bindings`' variations reads the current values.
 
@@ -441,16 +446,14 @@ def draws_read_current(bindings, initial_values) -> bool:
   """
   if internals_jax.dce_jaxpr is None:
     return True
-  variations = [binding.variation for binding in bindings]
   initial = [np.asarray(v) for v in initial_values]
   states = tuple(
-      structures.initial_state(v, i) for v, i in zip(variations, initial)
+      structures.initial_state(b.variation, i)
+      for b, i in zip(bindings, initial)
   )
 
   def draw(key, current):
-    keys = stable_id_lib.fold_in_each(key, [b.slot for b in bindings])
-    with rounds.evaluation_round(key):
-      drawn = structures.sample_each(variations, states, keys, initial, current)
+    drawn = _draw(bindings, states, key, initial, current)
     return [value for value, _ in drawn]
 
   key = jax.random.key(0)
